@@ -1,0 +1,68 @@
+"""Frame sources and sinks: MCAP replay and recorder, synthetic scenes, the OAK camera.
+
+Use :func:`open_source` to get a source from a command-line spec.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fusion_pf.errors import InputError
+
+from .base import ReplaySource, Sink, Source, SourceStats
+
+__all__ = ["open_source", "Source", "ReplaySource", "Sink", "SourceStats", "SOURCE_SPECS"]
+
+#: The source specs :func:`open_source` understands, for help texts.
+SOURCE_SPECS = (
+    "FILE.mcap (replay a recording), "
+    "synth[:seed=S,frames=N,size=WxH,background_frames=K] (synthetic scene), "
+    "oak[:size=WxH,fps=F] (live Luxonis OAK camera, needs the 'oak' extra)"
+)
+
+
+def _parse_options(text: str, spec: str) -> dict[str, str]:
+    options: dict[str, str] = {}
+    for item in filter(None, text.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"source option {item!r} in {spec!r} must look like key=value")
+        options[key.strip()] = value.strip()
+    return options
+
+
+def open_source(spec: str | Path, **overrides: object) -> Source:
+    """Return the (unopened) source named by ``spec``.
+
+    Parameters
+    ----------
+    spec : str or Path
+        ``path/to/file.mcap``, ``synth:seed=3,frames=200`` or ``oak[:...]``.
+    **overrides
+        Keyword options given to the driver, overriding those in ``spec``.
+
+    Returns
+    -------
+    Source
+        Use it as a context manager.
+
+    Raises
+    ------
+    InputError
+        When the spec names no known source; the message lists the valid ones.
+    """
+    text = str(spec)
+    kind, _, rest = text.partition(":")
+    if text.lower().endswith(".mcap"):
+        from .mcap_replay import McapReplay
+
+        return McapReplay(Path(text), **overrides)
+    if kind == "synth":
+        from .synth import SynthSource
+
+        return SynthSource.from_options({**_parse_options(rest, text), **overrides})
+    if kind == "oak":
+        from .oak import OakSource
+
+        return OakSource.from_options({**_parse_options(rest, text), **overrides})
+    raise InputError(f"unknown source {text!r}; expected one of: {SOURCE_SPECS}")

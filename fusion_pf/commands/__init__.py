@@ -1,0 +1,1 @@
+"""One module per ``fusion-pf`` subcommand (see :mod:`fusion_pf.cli`)."""

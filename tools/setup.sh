@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Installs everything fusion-pf and its tests need on a fresh Debian machine:
+# system libraries (libusb for open3d/depthai, Chromium for the browser test),
+# a virtualenv in .venv with the package and its extras, and the Node packages
+# of the interop tests. Safe to run again: it skips what is already there.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+need_apt=()
+dpkg -s libusb-1.0-0 >/dev/null 2>&1 || need_apt+=(libusb-1.0-0)
+if [ "${1:-}" = "--test" ]; then
+  command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
+  command -v node >/dev/null 2>&1 || need_apt+=(nodejs npm)
+fi
+if [ ${#need_apt[@]} -gt 0 ]; then
+  echo "setup: apt-get install ${need_apt[*]}"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}" >/dev/null
+fi
+
+PY=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+extras="oak"
+[ "${1:-}" = "--test" ] && extras="oak,dev"
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e ".[${extras}]"
+
+if [ "${1:-}" = "--test" ] && [ -f tests/interop/package.json ]; then
+  (cd tests/interop && npm ci --silent --no-audit --no-fund)
+fi
