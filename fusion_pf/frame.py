@@ -166,10 +166,20 @@ class Joint:
 
 @dataclass(frozen=True, slots=True)
 class PalmPoint:
-    """A palm-centre position in colour pixels (ground truth or a reference)."""
+    """A palm-centre position in colour pixels (ground truth or a reference).
+
+    Parameters
+    ----------
+    u, v : float
+        Palm centre in colour pixels.
+    occluded : bool
+        True while the palm is in front of / overlapping the body (a
+        self-occlusion episode of the synthetic scene).
+    """
 
     u: float
     v: float
+    occluded: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "u", _finite("palm u", self.u))
