@@ -1,0 +1,674 @@
+"""Live Luxonis OAK camera source (depthai v3): colour + aligned depth + skeleton.
+
+Three parts, kept apart so the host-side code can be tested without a camera
+(see docs/oak.md):
+
+1. device pipeline construction -- :func:`drivers.oak_pipeline.build_device_pipeline`
+   (needs a device);
+2. host-side conversion of a synced ``dai.MessageGroup`` (``colour``,
+   ``depth``, ``skeleton``) into a :class:`~fusion_pf.frame.Frame` --
+   :class:`GroupConverter`, :func:`colour_to_rgb`, :func:`depth_to_mm`,
+   :func:`pose_tensor`, :class:`ClockMap`, :func:`frames_from_queue`. Pure
+   functions of depthai messages; they run on depthai's host-only pipeline;
+3. :class:`OakSource`, which wires them together.
+
+Clock
+-----
+``ImgFrame.getTimestamp()`` is the capture time on the host's steady clock
+(``std::chrono::steady_clock``, CLOCK_MONOTONIC on Linux): depthai keeps the
+device clock synchronised to it. Python receives it as ``datetime.timedelta``
+(1 us resolution), converted exactly to integer nanoseconds. One wall-clock
+offset ``time.time_ns() - steady_now`` is measured when the pipeline starts
+(:meth:`ClockMap.capture`) and added to every timestamp, so ``timestamp_ns``
+is Unix-epoch nanoseconds and exactly as monotonic as the steady clock (a
+wall-clock step during a recording does not move it).
+
+Sequence numbers and drops
+--------------------------
+``Frame.seq`` is the colour frame's device sequence number. A gap (the camera
+numbers every frame; the Sync node or a full queue dropped some) is added to
+``stats.dropped``; nothing is dropped silently.
+"""
+
+from __future__ import annotations
+
+import datetime
+import time
+from dataclasses import dataclass
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+from fusion_pf.errors import DeviceError, FusionPFError, InputError, RecordingError
+from fusion_pf.frame import Frame, Intrinsics
+
+from .base import Source, SourceStats
+from .oak_pipeline import BUILTIN_POSE_MODELS, build_device_pipeline, resolve_pose_model
+from .oak_pose import HAND_EXTENSION, Letterbox, decode_movenet, joints_from_keypoints
+
+__all__ = [
+    "OakConfig",
+    "OakSource",
+    "ClockMap",
+    "GroupConverter",
+    "colour_to_rgb",
+    "depth_to_mm",
+    "pose_tensor",
+    "intrinsics_from_calibration",
+    "select_device",
+    "frames_from_queue",
+    "timedelta_to_ns",
+    "NO_DEVICE_MESSAGE",
+]
+
+#: The one-line error when no camera is connected.
+NO_DEVICE_MESSAGE = (
+    "no OAK device found (none connected over USB or the network, or all in use by another "
+    "program); connect one, or replay a recording instead: fusion-pf track recordings/sample.mcap"
+)
+
+#: Seconds to wait for the first frame (device boot, network upload).
+START_TIMEOUT_S = 20.0
+
+#: Longest single wait on the queue, so Ctrl-C is handled promptly.
+POLL_S = 0.1
+
+#: Output tensor name of the MoveNet blobs.
+MOVENET_OUTPUT = "Identity"
+
+_OPTIONS = ("size", "fps", "pose", "device", "timeout")
+
+
+def _dai() -> Any:
+    try:
+        import depthai
+    except ImportError:
+        raise DeviceError("the OAK camera needs depthai: pip install 'fusion-pf[oak]'") from None
+    return depthai
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def timedelta_to_ns(td: datetime.timedelta) -> int:
+    """Exact integer nanoseconds of a ``datetime.timedelta``.
+
+    Parameters
+    ----------
+    td : datetime.timedelta
+        E.g. a depthai ``getTimestamp()`` value (1 us resolution).
+
+    Returns
+    -------
+    int
+        Nanoseconds; no floating point is involved.
+    """
+    return ((td.days * 86_400 + td.seconds) * 1_000_000 + td.microseconds) * 1_000
+
+
+@dataclass(frozen=True)
+class ClockMap:
+    """Maps depthai's host-synced steady clock to Unix-epoch nanoseconds.
+
+    Attributes
+    ----------
+    offset_ns : int
+        ``wall - steady`` in nanoseconds, measured once.
+    """
+
+    offset_ns: int
+
+    @classmethod
+    def capture(cls, samples: int = 5) -> "ClockMap":
+        """Measure the offset now.
+
+        Parameters
+        ----------
+        samples : int
+            Number (>= 1) of bracketed readings ``steady, wall, steady``; the
+            tightest bracket wins and its steady midpoint is paired with the
+            wall reading.
+
+        Returns
+        -------
+        ClockMap
+        """
+        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+            raise InputError(f"clock samples must be an int >= 1, got {samples!r}")
+        dai = _dai()
+
+        def reading() -> tuple[int, int]:
+            before = timedelta_to_ns(dai.Clock.now())
+            wall = time.time_ns()
+            after = timedelta_to_ns(dai.Clock.now())
+            return after - before, wall - (before + after) // 2
+
+        best = min(reading() for _ in range(samples))
+        return cls(best[1])
+
+    def to_ns(self, steady: datetime.timedelta) -> int:
+        """Unix-epoch nanoseconds of a depthai ``getTimestamp()`` value.
+
+        Parameters
+        ----------
+        steady : datetime.timedelta
+            Host-synced steady-clock time.
+
+        Returns
+        -------
+        int
+            ``timedelta_to_ns(steady) + offset_ns``.
+        """
+        return timedelta_to_ns(steady) + self.offset_ns
+
+
+def colour_to_rgb(img: Any) -> np.ndarray:
+    """RGB array of a colour ``dai.ImgFrame``.
+
+    Parameters
+    ----------
+    img : depthai.ImgFrame
+        BGR888i, RGB888i, BGR888p, RGB888p or NV12 (converted by depthai's
+        ``getCvFrame``, which returns BGR, then swapped to RGB).
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3), uint8
+        A new C-contiguous RGB array.
+
+    Raises
+    ------
+    InputError
+        For any other frame type.
+    """
+    dai = _dai()
+    kinds = dai.ImgFrame.Type
+    accepted = (kinds.BGR888i, kinds.RGB888i, kinds.BGR888p, kinds.RGB888p, kinds.NV12)
+    kind = img.getType()
+    if kind not in accepted:
+        raise InputError(
+            f"colour frame type must be one of {', '.join(k.name for k in accepted)}, got {kind.name}"
+        )
+    bgr = img.getCvFrame()
+    return np.ascontiguousarray(bgr[:, :, ::-1])
+
+
+def depth_to_mm(img: Any) -> np.ndarray:
+    """Depth array of a depth ``dai.ImgFrame``.
+
+    Parameters
+    ----------
+    img : depthai.ImgFrame
+        RAW16 frame in millimetres (StereoDepth ``depth`` output).
+
+    Returns
+    -------
+    ndarray, shape (H, W), uint16
+        A copy; 0 = invalid.
+
+    Raises
+    ------
+    InputError
+        When the frame is not RAW16 or its data does not match its size.
+    """
+    dai = _dai()
+    kind = img.getType()
+    if kind != dai.ImgFrame.Type.RAW16:
+        raise InputError(f"depth frame type must be RAW16 (uint16 mm), got {kind.name}")
+    depth = np.asarray(img.getFrame())
+    expected = (img.getHeight(), img.getWidth())
+    if depth.dtype != np.uint16 or depth.shape != expected:
+        raise InputError(f"depth frame must be uint16 of shape {expected}, got {depth.dtype} {depth.shape}")
+    return depth
+
+
+def pose_tensor(nn: Any) -> np.ndarray:
+    """The MoveNet output tensor of a ``dai.NNData``.
+
+    Parameters
+    ----------
+    nn : depthai.NNData
+        Output of the pose network.
+
+    Returns
+    -------
+    ndarray
+        The tensor named :data:`MOVENET_OUTPUT` when present, otherwise the
+        only tensor holding 51 values (as float32).
+
+    Raises
+    ------
+    InputError
+        When neither exists; the message lists the layers.
+    """
+    names = list(nn.getAllLayerNames())
+    if MOVENET_OUTPUT in names:
+        return np.asarray(nn.getTensor(MOVENET_OUTPUT))
+    fitting = [n for n in names if np.asarray(nn.getTensor(n)).size == 51]
+    if len(fitting) != 1:
+        raise InputError(
+            f"pose network output must hold one tensor {MOVENET_OUTPUT!r} or one 51-value tensor, "
+            f"got layers {names}"
+        )
+    return np.asarray(nn.getTensor(fitting[0]))
+
+
+def intrinsics_from_calibration(calib: Any, width: int, height: int) -> Intrinsics:
+    """Colour-camera (CAM_A) intrinsics at the output size, from device calibration.
+
+    Parameters
+    ----------
+    calib : depthai.CalibrationHandler
+        ``device.readCalibration()``.
+    width, height : int
+        Colour output size.
+
+    Returns
+    -------
+    Intrinsics
+        ``getCameraIntrinsics(CAM_A, width, height)`` (its default
+        ``keepAspectRatio=True`` scales and centre-crops like the Camera
+        node's CROP resize mode). Distortion: Perspective ->
+        ``rational_polynomial`` (8 coefficients) when the tilt / thin-prism
+        terms are zero, else ``opencv`` (all 14); Fisheye -> ``kannala_brandt``.
+
+    Raises
+    ------
+    DeviceError
+        No CAM_A calibration, or another distortion model.
+    """
+    dai = _dai()
+    socket = dai.CameraBoardSocket.CAM_A
+    if not calib.hasCameraCalibration(socket):
+        raise DeviceError("the OAK device has no calibration for its colour camera CAM_A")
+    k = np.asarray(calib.getCameraIntrinsics(socket, width, height), dtype=np.float64)
+    model = calib.getDistortionModel(socket)
+    coeffs = [float(c) for c in calib.getDistortionCoefficients(socket)]
+    if model == dai.CameraModel.Perspective:
+        if any(coeffs[8:]):
+            name, coeffs = "opencv", coeffs
+        else:
+            name, coeffs = "rational_polynomial", coeffs[:8]
+    elif model == dai.CameraModel.Fisheye:
+        name, coeffs = "kannala_brandt", coeffs[:4]
+    else:
+        raise DeviceError(f"colour camera distortion model must be Perspective or Fisheye, got {model.name}")
+    return Intrinsics(width, height, k[0, 0], k[1, 1], k[0, 2], k[1, 2], name, tuple(coeffs))
+
+
+class GroupConverter:
+    """Turns synced message groups into frames, counting sequence gaps.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+        Of the colour output; frames must match its size.
+    clock : ClockMap
+        Steady clock -> epoch nanoseconds.
+    pose_input_size : (int, int) or None
+        Pose network input ``(width, height)``; None when no network runs.
+    stats : SourceStats
+        Gaps are added to ``stats.dropped``, remarks to ``stats.notes``.
+    """
+
+    def __init__(
+        self,
+        intrinsics: Intrinsics,
+        clock: ClockMap,
+        pose_input_size: tuple[int, int] | None,
+        stats: SourceStats,
+    ) -> None:
+        self.intrinsics = intrinsics
+        self.clock = clock
+        size = (intrinsics.width, intrinsics.height)
+        self.letterbox = None if pose_input_size is None else Letterbox(size, tuple(pose_input_size))
+        self.stats = stats
+        self.gaps = 0
+        self._last_seq: int | None = None
+
+    def convert(self, group: Any) -> Frame:
+        """The :class:`Frame` of one message group.
+
+        Parameters
+        ----------
+        group : depthai.MessageGroup
+            Sync output with ``colour`` and optionally ``depth`` and
+            ``skeleton``.
+
+        Returns
+        -------
+        Frame
+            Timestamp and sequence number are the colour frame's; a group
+            without ``depth`` / ``skeleton`` gives ``depth=None`` /
+            ``joints=None``.
+
+        Raises
+        ------
+        InputError
+            No colour frame, wrong frame types, bad pose output.
+        DeviceError
+            Colour or depth size differs from the intrinsics' size.
+        """
+        names = set(group.getMessageNames())
+        if "colour" not in names:
+            raise InputError(f"message group must hold a 'colour' frame, got {sorted(names)}")
+        colour = group["colour"]
+        rgb = colour_to_rgb(colour)
+        expected = (self.intrinsics.height, self.intrinsics.width)
+        if rgb.shape[:2] != expected:
+            raise DeviceError(f"colour frame is {rgb.shape[1]}x{rgb.shape[0]}, expected {expected[1]}x{expected[0]}")
+        depth = depth_to_mm(group["depth"]) if "depth" in names else None
+        if depth is not None and depth.shape != expected:
+            raise DeviceError(
+                f"depth frame is {depth.shape[1]}x{depth.shape[0]}, not aligned to the "
+                f"{expected[1]}x{expected[0]} colour frame"
+            )
+        joints = None
+        if self.letterbox is not None and "skeleton" in names:
+            keypoints = decode_movenet(pose_tensor(group["skeleton"]), self.letterbox)
+            joints = joints_from_keypoints(keypoints, depth)
+        seq = int(colour.getSequenceNum())
+        self._count_gap(seq)
+        return Frame(self.clock.to_ns(colour.getTimestamp()), seq, rgb, depth, self.intrinsics, joints)
+
+    def _count_gap(self, seq: int) -> None:
+        last = self._last_seq
+        if last is not None and seq > last + 1:
+            self.stats.dropped += seq - last - 1
+            self.gaps += 1
+        elif last is not None and seq <= last:
+            self.stats.notes.append(f"colour sequence number went back from {last} to {seq} (device restarted)")
+        self._last_seq = seq
+
+
+def frames_from_queue(queue: Any, converter: GroupConverter, timeout_s: float) -> Iterator[Frame]:
+    """Yield a frame per message group from ``queue`` until the device stops.
+
+    Parameters
+    ----------
+    queue : depthai.MessageQueue
+        Output queue of the Sync node.
+    converter : GroupConverter
+        Turns each group into a frame and counts gaps.
+    timeout_s : float
+        Longest wait for a group after the first; the first may take
+        :data:`START_TIMEOUT_S` (or ``timeout_s`` if longer).
+
+    Yields
+    ------
+    Frame
+
+    Raises
+    ------
+    DeviceError
+        When the queue closes (cable pulled, device reset, pipeline stopped),
+        depthai reports a link error, or no group arrives in time. The message
+        says what happened and how many frames came before.
+    """
+    dai = _dai()
+    received = 0
+    first_ns = last_ns = 0
+    wait_s = max(START_TIMEOUT_S, timeout_s)
+    while True:
+        try:
+            group = _get(queue, wait_s)
+        except (dai.MessageQueue.QueueException, RuntimeError) as exc:
+            what = f"the OAK stream closed (cable pulled, device reset or pipeline stopped: {_one_line(exc)})"
+            group = None
+        else:
+            what = f"no frame from the OAK device for {wait_s:g} s (device timeout)"
+        if group is None:
+            if received == 0:
+                raise DeviceError(f"{what} before the first frame")
+            raise DeviceError(
+                f"{what} after {received} frames ({(last_ns - first_ns) / 1e9:.1f} s); "
+                f"{converter.stats.dropped} frames dropped before that, in {converter.gaps} gaps"
+            )
+        frame = converter.convert(group)
+        if received == 0:
+            first_ns = frame.timestamp_ns
+        last_ns = frame.timestamp_ns
+        received += 1
+        wait_s = timeout_s
+        yield frame
+
+
+def _get(queue: Any, seconds: float) -> Any:
+    """Next message of ``queue``, or None after ``seconds``; waits in :data:`POLL_S` slices."""
+    deadline = time.monotonic() + seconds
+    while (remaining := deadline - time.monotonic()) > 0:
+        message = queue.get(datetime.timedelta(seconds=min(remaining, POLL_S)))
+        if message is not None:
+            return message
+    return None
+
+
+def select_device(infos: list[Any], wanted: str | None) -> Any:
+    """Pick the ``dai.DeviceInfo`` to open.
+
+    Parameters
+    ----------
+    infos : list of depthai.DeviceInfo
+        ``dai.Device.getAllAvailableDevices()``.
+    wanted : str or None
+        Device id (MxId), name or IP address; None = the first one.
+
+    Raises
+    ------
+    DeviceError
+        No device, or none matching ``wanted`` (the message lists the others).
+    """
+    if not infos:
+        raise DeviceError(NO_DEVICE_MESSAGE)
+    if wanted is None:
+        return infos[0]
+    for info in infos:
+        if wanted in (info.getDeviceId(), info.name):
+            return info
+    found = ", ".join(f"{i.getDeviceId()} ({i.name})" for i in infos)
+    raise DeviceError(f"OAK device {wanted!r} not found; available: {found}")
+
+
+def _parse_size(value: object) -> tuple[int, int]:
+    if isinstance(value, str):
+        w, sep, h = value.lower().partition("x")
+        if not sep or not w.strip().isdigit() or not h.strip().isdigit():
+            raise InputError(f"oak size must look like WIDTHxHEIGHT (e.g. 640x400), got {value!r}")
+        return int(w), int(h)
+    if isinstance(value, (tuple, list)) and len(value) == 2 and all(
+        isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in value
+    ):
+        return int(value[0]), int(value[1])
+    raise InputError(f"oak size must be 'WxH' or (width, height), got {value!r}")
+
+
+def _parse_float(name: str, value: object) -> float:
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(f"oak {name} must be a number, got {value!r}") from None
+
+
+@dataclass(frozen=True)
+class OakConfig:
+    """Options of the OAK source (``oak:key=value,...``).
+
+    Parameters
+    ----------
+    size : (int, int)
+        Colour and depth ``(width, height)``: width a multiple of 16 in
+        [160, 1920], height even in [120, 1200]. Default 640x400.
+    fps : float
+        Frame rate in [1, 60]. Default 30.
+    pose : str
+        ``lightning`` (default), ``thunder``, ``none``, ``PATH.blob``,
+        ``PATH.tar.xz`` or ``zoo:SLUG`` (see :mod:`drivers.oak_pipeline`).
+    device : str or None
+        Device id, name or IP address; None = the first available.
+    timeout_s : float
+        Seconds without a frame after which the device counts as lost, in
+        (0, 60]. Default 3.
+    """
+
+    size: tuple[int, int] = (640, 400)
+    fps: float = 30.0
+    pose: str = "lightning"
+    device: str | None = None
+    timeout_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        w, h = _parse_size(self.size)
+        if not (160 <= w <= 1920 and w % 16 == 0):
+            raise InputError(f"oak size width must be a multiple of 16 in [160, 1920], got {w}")
+        if not (120 <= h <= 1200 and h % 2 == 0):
+            raise InputError(f"oak size height must be even and in [120, 1200], got {h}")
+        object.__setattr__(self, "size", (w, h))
+        fps = _parse_float("fps", self.fps)
+        if not 1.0 <= fps <= 60.0:
+            raise InputError(f"oak fps must be in [1, 60], got {fps:g}")
+        object.__setattr__(self, "fps", fps)
+        timeout = _parse_float("timeout", self.timeout_s)
+        if not 0.0 < timeout <= 60.0:
+            raise InputError(f"oak timeout must be in (0, 60] seconds, got {timeout:g}")
+        object.__setattr__(self, "timeout_s", timeout)
+        pose = str(self.pose)
+        known = pose in BUILTIN_POSE_MODELS or pose == "none" or pose.startswith("zoo:")
+        if not known and not pose.endswith((".blob", ".tar.xz")):
+            raise InputError(
+                f"oak pose must be lightning, thunder, none, PATH.blob, PATH.tar.xz or zoo:SLUG, got {pose!r}"
+            )
+        object.__setattr__(self, "pose", pose)
+        if self.device is not None and not str(self.device):
+            raise InputError("oak device must be a non-empty id, name or address")
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, object]) -> "OakConfig":
+        """Build from ``oak:`` spec options (strings) or typed keyword overrides.
+
+        Keys: ``size`` (``WxH`` or a tuple), ``fps``, ``pose``, ``device``,
+        ``timeout`` (seconds).
+        """
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            raise InputError(f"unknown oak option(s) {', '.join(unknown)}; expected: {', '.join(_OPTIONS)}")
+        kwargs: dict[str, Any] = {k: v for k, v in options.items() if k in ("size", "fps", "pose")}
+        if options.get("device") is not None:
+            kwargs["device"] = str(options["device"])
+        if "timeout" in options:
+            kwargs["timeout_s"] = options["timeout"]
+        return cls(**kwargs)
+
+
+class OakSource(Source):
+    """A live OAK camera: synced RGB, depth aligned to it, and MoveNet joints.
+
+    Iterate once inside ``with``. Iteration ends only with an exception:
+    :class:`DeviceError` when the device is lost or times out (every frame
+    received before has been yielded), or whatever the consumer raises; stop
+    early by leaving the loop.
+    """
+
+    live = True
+
+    def __init__(self, config: OakConfig | None = None) -> None:
+        super().__init__()
+        self.config = config if config is not None else OakConfig()
+        self._device: Any = None
+        self._pipeline: Any = None
+        self._queue: Any = None
+        self._converter: GroupConverter | None = None
+        self._iterated = False
+        self._metadata: dict[str, str] = {}
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, object]) -> "OakSource":
+        """The source for ``oak:...`` options (see :meth:`OakConfig.from_options`)."""
+        return cls(OakConfig.from_options(options))
+
+    def describe(self) -> str:
+        """``"OAK camera WxH @ F fps, pose P"``."""
+        w, h = self.config.size
+        return f"OAK camera {w}x{h} @ {self.config.fps:g} fps, pose {self.config.pose}"
+
+    def open(self) -> None:
+        """Find and connect the device, build and start the pipeline, measure the clock offset.
+
+        Raises
+        ------
+        DeviceError
+            No (matching) device within about a second, connection or
+            pipeline failure, pose model not for this platform.
+        InputError
+            Unreadable pose model file.
+        """
+        dai = _dai()
+        info = select_device(dai.Device.getAllAvailableDevices(), self.config.device)
+        name = info.getDeviceId() or info.name
+        try:
+            self._device = dai.Device(info)
+        except RuntimeError as exc:
+            raise DeviceError(f"cannot connect to OAK device {name}: {_one_line(exc)}") from None
+        try:
+            model = resolve_pose_model(self.config.pose, self._device.getPlatformAsString())
+            intrinsics = intrinsics_from_calibration(self._device.readCalibration(), *self.config.size)
+            self._pipeline, self._queue = build_device_pipeline(
+                self._device, self.config.size, self.config.fps, model
+            )
+            self._pipeline.start()
+        except RuntimeError as exc:
+            self.close()
+            raise DeviceError(f"OAK device {name} failed to start the pipeline: {_one_line(exc)}") from None
+        except FusionPFError:
+            self.close()
+            raise
+        clock = ClockMap.capture()
+        w, h = self.config.size
+        self._metadata = {
+            "oak_device_id": info.getDeviceId(),
+            "oak_device_name": info.name,
+            "oak_platform": self._device.getPlatformAsString(),
+            "oak_size": f"{w}x{h}",
+            "oak_fps": f"{self.config.fps:g}",
+            "oak_pose": self.config.pose,
+            "oak_pose_model": "none" if model is None else str(model.path),
+            "oak_clock": "depthai host-synced steady clock + wall-clock offset taken at start",
+            "oak_wall_offset_ns": str(clock.offset_ns),
+            "oak_hand_extension": f"{HAND_EXTENSION:g}",
+            "depthai_version": dai.__version__,
+        }
+        pose_size = None if model is None else model.input_size
+        self._converter = GroupConverter(intrinsics, clock, pose_size, self.stats)
+
+    def _frames(self) -> Iterator[Frame]:
+        if self._iterated:
+            raise RecordingError(
+                "the OAK camera is a live source and can be iterated once; record it and replay the file"
+            )
+        self._iterated = True
+        yield from frames_from_queue(self._queue, self._converter, self.config.timeout_s)
+
+    def metadata(self) -> dict[str, str]:
+        """Provenance for the recording's metadata record (after :meth:`open`).
+
+        Keys: ``oak_device_id``, ``oak_device_name``, ``oak_platform``,
+        ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``, ``oak_clock``,
+        ``oak_wall_offset_ns``, ``oak_hand_extension``, ``depthai_version``.
+        """
+        if self._converter is None:
+            raise DeviceError("the OAK source is not open")
+        return dict(self._metadata)
+
+    def close(self) -> None:
+        """Stop the pipeline and release the device; safe to call twice."""
+        self._converter = None
+        if self._pipeline is not None:
+            pipeline, self._pipeline = self._pipeline, None
+            try:
+                pipeline.stop()
+            except RuntimeError as exc:
+                self.stats.notes.append(f"stopping the OAK pipeline failed: {_one_line(exc)}")
+        if self._device is not None:
+            device, self._device = self._device, None
+            device.close()
+        self._queue = None

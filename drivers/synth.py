@@ -1,0 +1,451 @@
+"""Synthetic RGB-D scene source: a person waving a palm in front of a wall.
+
+:class:`SynthSource` renders the kind of scene paper 003 tracks (§3.5, §4): an
+empty-room background, a person in dark clothing whose bare right palm moves
+smoothly and repeatedly passes in front of the torso (self-occlusion), a
+stereo-like depth map, a Kinect-like skeleton stream that fails during
+self-occlusion, and the true palm centre as ground truth.
+
+Camera
+------
+OAK-D-like pinhole, ``fx = fy = 0.78 * width`` (65.3 degrees horizontal field of
+view), principal point at the image centre, rectified (distortion ``"none"``).
+Depth is aligned to colour.
+
+Scene
+-----
+* Static background: a slanted bluish-grey wall (2.81-3.19 m, RGB ~(148, 158,
+  174) with smooth texture), a white shelving unit on the left (frame 2.35 m,
+  back 2.65 m, pale boxes 2.45 m), a painting, and an open doorway on the right
+  whose room (5.5 m) lies beyond the depth range (depth 0).
+* Person: torso ~1.45-1.6 m, swaying +-2.5 cm sideways and +-2 cm in depth;
+  navy long-sleeved shirt, charcoal trousers, dark hair; skin only on the face,
+  neck and hands. The right palm (an ellipse 10 x 13 cm, ~42 x 54 px at 1.2 m,
+  at 640 px width) is 0.22-0.32 m in front of the torso (1.15-1.35 m) and sweeps
+  horizontally (period 80-105 frames, frequency modulated) from far out to the
+  person's right (image left) to ~70 px across the torso, and vertically between
+  shoulder and hip height. The arm follows by two-link inverse kinematics.
+* Colour: the noise-free image is blurred (3 x 3 Gaussian, mixed pixels at
+  outlines), scaled by a global flicker gain uniform in [0.98, 1.02], and gets
+  Gaussian sensor noise of sigma 2.5 grey levels per channel.
+
+Colour difference ranges
+------------------------
+Measured with paper 003's pipeline (``|frame - background|`` per channel, then
+``cv2.cvtColor(RGB2GRAY)``) against the mean of 30 background frames, over 60
+person frames of seeds 0-2 (5th-95th percentile, masks eroded by 2 px to skip
+blurred outlines):
+
+* background pixels: {bg}
+* skin (palm, face, left hand): {skin}
+* palm only: {palm}
+* clothing and hair: {cloth}
+
+so thresholds ``lower ~ 12``, ``upper ~ 65`` keep the skin and drop background
+and clothing.
+
+Depth
+-----
+Stereo-like, in uint16 millimetres, 0 = invalid:
+
+* noise ``sigma_z = c * z**2`` with ``c = 5e-6 / mm`` (:data:`DEPTH_NOISE_C`):
+  7 mm at 1.2 m, 11 mm at 1.5 m, 20 mm (1 %) at 2 m, 45 mm at 3 m, i.e. a
+  disparity noise of ``c * fx * B = 0.19`` px with baseline ``B = 75 mm`` at
+  640 px width; rounded to mm;
+* stereo shadows: pixels seen by this (left-referenced) camera but hidden from
+  the second camera of the pair ``B`` to the right are invalid, giving a band
+  on the left (occluded) side of every near-to-far edge, ``fx * B * (1/z_near -
+  1/z_far)`` px wide: ~6 px left of the palm over the torso, ~12 px left of the
+  person over the wall at 640 px width;
+* invalid speckles: 1.5 % of the pixels (:data:`SPECKLE_FRACTION`);
+* 0 beyond :data:`MAX_RANGE_MM` (the doorway).
+
+Skeleton (Kinect failure model)
+-------------------------------
+``Frame.joints`` holds the 10 joints of :data:`fusion_pf.frame.KNOWN_JOINTS`,
+projected from the true 3-D pose, with depth in mm. Pixel figures below are at
+640 px width and scale with ``fx``.
+
+* Every joint while clear: Gaussian noise sigma 2 px per axis, depth noise
+  15 mm, confidence 0.85-0.95.
+* ``right_hand`` during self-occlusion, weighted by ``w = clip(f / 0.4, 0, 1)``
+  where ``f`` is the fraction of the palm's area over the torso/head region:
+  a bias of ``w * B`` px toward the torso joint, ``B`` varying smoothly in
+  24-56 px (period 40-70 frames); jitter sigma ``2 + 10 w`` px; confidence
+  ``0.9 - 0.6 w`` (+-0.05): 0.25-0.35 at full occlusion; depth pulled
+  ``0.8 w`` of the way to the torso depth, noise ``15 (1 + 2 w)`` mm.
+* ``right_wrist``: half the hand's bias and extra jitter, confidence
+  ``0.9 - 0.3 w``.
+
+Ground truth and occlusion
+--------------------------
+``Frame.ground_truth`` is the projected palm centre (the palm is the front-most
+object, so it is the centroid of the ``palm`` mask to rasterisation accuracy).
+``occluded`` is true when at least 25 % of the palm lies over the torso/head
+region (``f >= 0.25``, so ``w >= 0.625``); about 30 % of the person frames.
+
+Determinism
+-----------
+The scene (background textures, motion parameters) comes from
+``SeedSequence(seed, spawn_key=(0,))``; frame ``i``'s image noise from
+``spawn_key=(1, i)`` and its skeleton noise from ``spawn_key=(2, i)``. So frame
+``i`` depends only on ``(seed, i, size, background_frames)`` and random access
+equals iteration. The motion is a function of the person-frame index
+``i - background_frames``, so adding background frames delays the same motion.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterator, Mapping
+
+import cv2
+import numpy as np
+
+from fusion_pf import __version__
+from fusion_pf.errors import InputError
+from fusion_pf.frame import Frame, Intrinsics, Joint, PalmPoint
+
+from . import synth_scene as sc
+from .base import ReplaySource
+
+#: Depth noise coefficient: ``sigma_z = DEPTH_NOISE_C * z**2`` (z in mm).
+DEPTH_NOISE_C = 5e-6
+#: Stereo baseline (mm) of the shadow model.
+BASELINE_MM = 75.0
+#: Depth beyond this (mm) is invalid (0).
+MAX_RANGE_MM = 4500.0
+#: Fraction of pixels with invalid (0) depth speckles.
+SPECKLE_FRACTION = 0.015
+#: Colour sensor noise, grey levels per channel.
+COLOR_NOISE_SIGMA = 2.5
+#: Global illumination flicker: gain uniform in ``[1 - F, 1 + F]``.
+FLICKER = 0.02
+#: Fraction of the palm's area over the body from which the frame counts as occluded.
+OCCLUDED_OVERLAP = 0.25
+
+_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns")
+_MAX_FRAMES = 10_000_000
+_MAX_SIZE = 4096
+_MIN_SIZE = 64
+
+
+def _int_option(name: str, value: object, lo: int, hi: int) -> int:
+    if isinstance(value, bool):
+        raise InputError(f"synth option {name} must be an integer in [{lo}, {hi}], got {value!r}")
+    if isinstance(value, (int, np.integer)):
+        number = int(value)
+    else:
+        try:
+            number = int(str(value).strip())
+        except ValueError:
+            raise InputError(
+                f"synth option {name} must be an integer in [{lo}, {hi}], got {value!r}"
+            ) from None
+    if not lo <= number <= hi:
+        raise InputError(f"synth option {name} must be an integer in [{lo}, {hi}], got {number}")
+    return number
+
+
+def _fps_option(value: object) -> float:
+    try:
+        fps = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(f"synth option fps must be a number in (0, 1000], got {value!r}") from None
+    if not (math.isfinite(fps) and 0.0 < fps <= 1000.0):
+        raise InputError(f"synth option fps must be a number in (0, 1000], got {value!r}")
+    return fps
+
+
+def _size_option(value: object) -> tuple[int, int]:
+    expected = f"WxH with both in [{_MIN_SIZE}, {_MAX_SIZE}], e.g. 640x400"
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+    elif isinstance(value, (tuple, list)):
+        parts = list(value)
+    else:
+        raise InputError(f"synth option size must be {expected}, got {value!r}")
+    if len(parts) != 2:
+        raise InputError(f"synth option size must be {expected}, got {value!r}")
+    try:
+        w, h = (int(str(p).strip()) for p in parts)
+    except ValueError:
+        raise InputError(f"synth option size must be {expected}, got {value!r}") from None
+    if not (_MIN_SIZE <= w <= _MAX_SIZE and _MIN_SIZE <= h <= _MAX_SIZE):
+        raise InputError(f"synth option size must be {expected}, got {value!r}")
+    return w, h
+
+
+class SynthSource(ReplaySource):
+    """Seeded synthetic RGB-D scene with skeleton and ground truth (see module docstring).
+
+    Parameters
+    ----------
+    frames : int
+        Number of frames, background frames included (>= 1).
+    seed : int
+        Scene and noise seed (>= 0).
+    size : tuple of int
+        ``(width, height)`` in pixels, each in [64, 4096].
+    fps : float
+        Frame rate in (0, 1000]; frame ``i`` is at ``start_ns + round(i * 1e9 / fps)``.
+    background_frames : int
+        The first ``background_frames`` frames show the empty scene
+        (``Frame.background = True``, ``joints = {}``, no ground truth); in
+        ``[0, frames]``.
+    start_ns : int
+        Timestamp of frame 0 in integer nanoseconds (>= 0).
+
+    Raises
+    ------
+    InputError
+        When a parameter is outside its range.
+    """
+
+    def __init__(
+        self,
+        *,
+        frames: int = 200,
+        seed: int = 0,
+        size: tuple[int, int] = (640, 400),
+        fps: float = 30.0,
+        background_frames: int = 0,
+        start_ns: int = 1_700_000_000_000_000_000,
+    ) -> None:
+        super().__init__()
+        self._n = _int_option("frames", frames, 1, _MAX_FRAMES)
+        self.seed = _int_option("seed", seed, 0, 2**63 - 1)
+        self.size = _size_option(size)
+        self.fps = _fps_option(fps)
+        self.background_frames = _int_option("background_frames", background_frames, 0, self._n)
+        self.start_ns = _int_option("start_ns", start_ns, 0, 2**63 - 1)
+        self.intrinsics: Intrinsics = sc.default_intrinsics(*self.size)
+        scene_rng = self._rng(0)
+        self._motion = sc.motion_parameters(scene_rng)
+        self._background = sc.render_background(self.intrinsics, scene_rng)
+        self._bg_depth_valid = self._stereo_valid(self._background.depth_m)
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, object]) -> "SynthSource":
+        """Build a source from ``open_source`` options (strings or typed values).
+
+        Parameters
+        ----------
+        options : mapping of str to str or object
+            Any of ``seed``, ``frames``, ``size`` (``"640x400"`` or ``(w, h)``),
+            ``fps``, ``background_frames``, ``start_ns``.
+
+        Raises
+        ------
+        InputError
+            For an unknown key or a value outside its range.
+        """
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            raise InputError(f"unknown synth option {unknown[0]!r}; expected one of {', '.join(_OPTIONS)}")
+        kwargs: dict[str, object] = dict(options)
+        if "frames" in kwargs:
+            kwargs["frames"] = _int_option("frames", kwargs["frames"], 1, _MAX_FRAMES)
+        if "background_frames" in kwargs:
+            kwargs["background_frames"] = _int_option(
+                "background_frames", kwargs["background_frames"], 0, _MAX_FRAMES
+            )
+        return cls(**kwargs)  # type: ignore[arg-type]
+
+    # -- ReplaySource -------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Nothing to acquire: the scene is rendered on demand."""
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def __len__(self) -> int:
+        return self._n
+
+    def describe(self) -> str:
+        w, h = self.size
+        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}"
+
+    def timestamp_ns(self, index: int) -> int:
+        """Capture time of frame ``index`` in integer nanoseconds."""
+        return self.start_ns + round(index * 1_000_000_000 / self.fps)
+
+    def frames(
+        self,
+        start: int = 0,
+        stop: int | None = None,
+        *,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[Frame]:
+        """Yield frames with index in ``[start, stop)`` and time in ``[start_ns, end_ns)``.
+
+        ``stop`` beyond the end is clipped to ``len(self)``.
+        """
+        start = _int_option("start", start, 0, _MAX_FRAMES)
+        stop = self._n if stop is None else min(_int_option("stop", stop, 0, _MAX_FRAMES), self._n)
+        for i in range(start, stop):
+            t = self.timestamp_ns(i)
+            if start_ns is not None and t < start_ns:
+                continue
+            if end_ns is not None and t >= end_ns:
+                return
+            yield self.render(i)[0]
+
+    def metadata(self) -> dict[str, str]:
+        """Key/values for the recording's ``fusion_pf.recording`` metadata record."""
+        w, h = self.size
+        return {
+            "generator": "fusion_pf.synth",
+            "generator_version": __version__,
+            "seed": str(self.seed),
+            "frames": str(self._n),
+            "background_frames": str(self.background_frames),
+            "size": f"{w}x{h}",
+            "fps": repr(self.fps),
+            "depth_noise_c_per_mm": repr(DEPTH_NOISE_C),
+            "occluded_overlap": repr(OCCLUDED_OVERLAP),
+        }
+
+    # -- geometry without pixels ----------------------------------------------------------------
+
+    def _rng(self, *key: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=key))
+
+    def _check_index(self, index: int) -> int:
+        return _int_option("frame index", index, 0, self._n - 1)
+
+    def pose(self, index: int) -> sc.Pose | None:
+        """True 3-D pose (metres) at frame ``index``; None for a background frame."""
+        index = self._check_index(index)
+        if index < self.background_frames:
+            return None
+        return sc.pose_at(self._motion, float(index - self.background_frames))
+
+    def palm_overlap(self, index: int) -> float:
+        """Fraction of the palm's area over the torso/head region at ``index`` (0 when empty)."""
+        pose = self.pose(index)
+        return 0.0 if pose is None else sc.palm_overlap(self.intrinsics, pose)
+
+    def ground_truth(self, index: int) -> PalmPoint | None:
+        """The true palm centre of frame ``index`` without rendering it."""
+        pose = self.pose(index)
+        if pose is None:
+            return None
+        u, v = sc.project(self.intrinsics, pose.right_hand)
+        occluded = sc.palm_overlap(self.intrinsics, pose) >= OCCLUDED_OVERLAP
+        return PalmPoint(u, v, occluded=occluded)
+
+    def joints(self, index: int) -> dict[str, Joint]:
+        """The skeleton stream of frame ``index`` (``{}`` for a background frame)."""
+        pose = self.pose(index)
+        if pose is None:
+            return {}
+        intr = self.intrinsics
+        k = intr.fx / (0.78 * 640.0)
+        w = min(sc.palm_overlap(intr, pose) / 0.4, 1.0)
+        rng = self._rng(2, index)
+        noise = rng.standard_normal((10, 3))
+        conf_noise = rng.uniform(-0.05, 0.05, size=10)
+        m = self._motion
+        t = float(index - self.background_frames)
+        bias_px = 40.0 + 16.0 * math.sin(2.0 * math.pi * t / m.bias_period + m.bias_phase)
+        tu, tv = sc.project(intr, pose.torso)
+        hu, hv = sc.project(intr, pose.right_hand)
+        toward = np.array([tu - hu, tv - hv])
+        norm = float(np.hypot(*toward))
+        toward = toward / norm if norm > 1e-6 else np.array([0.0, 1.0])
+        out: dict[str, Joint] = {}
+        names = (
+            "right_hand", "right_wrist", "left_hand", "left_wrist", "right_elbow",
+            "left_elbow", "right_shoulder", "left_shoulder", "head", "torso",
+        )
+        for j, name in enumerate(names):
+            p = getattr(pose, name)
+            u, v = sc.project(intr, p)
+            z_mm = p[2] * 1000.0
+            ww = w if name == "right_hand" else 0.5 * w if name == "right_wrist" else 0.0
+            sigma_px = (2.0 + 10.0 * ww) * k
+            u += (ww * bias_px * toward[0]) * k + sigma_px * noise[j, 0]
+            v += (ww * bias_px * toward[1]) * k + sigma_px * noise[j, 1]
+            pull = 0.8 * ww if name == "right_hand" else 0.0
+            z_mm += pull * (pose.torso[2] * 1000.0 - z_mm) + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
+            drop = 0.6 if name == "right_hand" else 0.3 if name == "right_wrist" else 0.0
+            conf = 0.9 - drop * ww + conf_noise[j]
+            out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
+        return out
+
+    # -- pixels -------------------------------------------------------------------------------
+
+    def _stereo_valid(self, depth_m: np.ndarray) -> np.ndarray:
+        """False where the second camera (``BASELINE_MM`` to the right) cannot see the point."""
+        disparity = (self.intrinsics.fx * BASELINE_MM * 1e-3) / depth_m
+        x_right = np.arange(depth_m.shape[1], dtype=np.float32)[None, :] - disparity
+        ahead = np.minimum.accumulate(x_right[:, ::-1], axis=1)[:, ::-1]
+        valid = np.ones(depth_m.shape, bool)
+        valid[:, :-1] = ahead[:, 1:] >= x_right[:, :-1]
+        return valid
+
+    def _depth_image(self, depth_m: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        z = depth_m * np.float32(1000.0)
+        noisy = z + np.float32(DEPTH_NOISE_C) * z * z * rng.standard_normal(z.shape, dtype=np.float32)
+        noisy = np.rint(noisy)
+        noisy[~valid | (z > MAX_RANGE_MM) | (noisy < 0)] = 0
+        out = noisy.astype(np.uint16)
+        n = int(rng.binomial(out.size, SPECKLE_FRACTION))
+        out.reshape(-1)[rng.integers(0, out.size, size=n)] = 0
+        return out
+
+    def _color_image(self, color: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        gain = np.float32(1.0 + rng.uniform(-FLICKER, FLICKER))
+        blurred = cv2.GaussianBlur(color, (3, 3), 0.0)
+        noise = rng.standard_normal(color.shape, dtype=np.float32)
+        out = blurred * gain + np.float32(COLOR_NOISE_SIGMA) * noise
+        return np.clip(out + 0.5, 0.0, 255.0).astype(np.uint8)
+
+    def render(self, index: int) -> tuple[Frame, dict[str, np.ndarray]]:
+        """Render frame ``index``.
+
+        Parameters
+        ----------
+        index : int
+            Frame index in ``[0, len(self))``.
+
+        Returns
+        -------
+        frame : Frame
+            Colour, depth, intrinsics, joints, ground truth, background flag.
+        masks : dict of str to ndarray
+            Boolean (H, W) masks of the noise-free scene: ``"skin"`` (face,
+            neck, both hands), ``"palm"`` (the tracked right palm), ``"person"``.
+        """
+        index = self._check_index(index)
+        pose = self.pose(index)
+        rng = self._rng(1, index)
+        bg = self._background
+        if pose is None:
+            color_f, depth_m = bg.color, bg.depth_m
+            labels = np.zeros(depth_m.shape, np.uint8)
+            valid = self._bg_depth_valid
+        else:
+            color_f, depth_m, labels = sc.composite(bg, sc.person_parts(self.intrinsics, pose))
+            valid = self._stereo_valid(depth_m)
+        color = self._color_image(color_f, rng)
+        depth = self._depth_image(depth_m, valid, rng)
+        frame = Frame(
+            timestamp_ns=self.timestamp_ns(index),
+            seq=index,
+            color=color,
+            depth=depth,
+            intrinsics=self.intrinsics,
+            joints=self.joints(index),
+            ground_truth=self.ground_truth(index),
+            background=pose is None,
+        )
+        masks = {
+            "skin": labels >= sc.LABEL_SKIN,
+            "palm": labels == sc.LABEL_PALM,
+            "person": labels != sc.LABEL_BACKGROUND,
+        }
+        return frame, masks

@@ -1,0 +1,505 @@
+"""Geometry and rasterisation of the synthetic scene behind :class:`drivers.synth.SynthSource`.
+
+The scene lives in camera coordinates (metres; X right, Y down, Z forward) and is
+projected with a pinhole camera. Everything that does not move (the wall, the
+shelving unit, the doorway, the painting, vignetting) is rendered once into
+:class:`Background`; every frame then rasterises the person part by part inside
+small regions of interest and composites the parts with a z-buffer.
+
+This module holds no randomness of its own: the random scene parameters
+(:class:`Motion`) and the static textures are drawn by the caller from the
+seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from fusion_pf.frame import Intrinsics
+
+#: Pixel labels of the rendered label map.
+LABEL_BACKGROUND, LABEL_CLOTH, LABEL_SKIN, LABEL_PALM = 0, 1, 2, 3
+
+#: Base colours (RGB, 0-255, before shading, vignetting and flicker).
+WALL_RGB = (148.0, 158.0, 174.0)
+SHELF_RGB = (214.0, 214.0, 208.0)
+SHELF_BACK_RGB = (184.0, 185.0, 182.0)
+DOOR_FRAME_RGB = (222.0, 222.0, 216.0)
+DOORWAY_RGB = (92.0, 96.0, 104.0)
+SHIRT_RGB = (30.0, 38.0, 70.0)
+TROUSERS_RGB = (46.0, 46.0, 52.0)
+HAIR_RGB = (46.0, 34.0, 28.0)
+SKIN_RGB = (218.0, 168.0, 142.0)
+#: Pale box colours on the shelves (kept away from skin tones on purpose).
+BOX_PALETTE = (
+    (226.0, 226.0, 222.0),
+    (172.0, 182.0, 194.0),
+    (196.0, 210.0, 200.0),
+    (206.0, 206.0, 218.0),
+)
+
+#: Body dimensions in metres.
+SHOULDER_HALF_WIDTH = 0.18
+CHEST_HALF_WIDTH = 0.19
+SHOULDER_Y = -0.17
+HIP_Y = 0.35
+UPPER_ARM, FOREARM, HAND = 0.30, 0.27, 0.08
+UPPER_ARM_RADIUS, FOREARM_RADIUS = 0.052, 0.042
+PALM_HALF_WIDTH, PALM_HALF_LENGTH, PALM_THICKNESS = 0.05, 0.065, 0.02
+
+
+@dataclass(frozen=True)
+class Background:
+    """The static empty scene, rendered once.
+
+    Attributes
+    ----------
+    color : ndarray, shape (H, W, 3), float32
+        Noise-free RGB in grey levels, vignetting applied.
+    depth_m : ndarray, shape (H, W), float32
+        True depth in metres.
+    vignette : ndarray, shape (H, W, 1), float32
+        Multiplicative fall-off of the lens, applied to every rendered pixel.
+    """
+
+    color: np.ndarray
+    depth_m: np.ndarray
+    vignette: np.ndarray
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Random parameters of the person's motion, drawn once per seed.
+
+    All periods are in frames; ``x0``, ``z0`` in metres; the palm amplitudes in
+    normalised image units (pixels / fx).
+    """
+
+    x0: float
+    z0: float
+    sway_period: float
+    sway_phase: float
+    depth_sway_period: float
+    depth_sway_phase: float
+    palm_period: float
+    palm_phase: float
+    palm_mod_period: float
+    palm_mod_phase: float
+    palm_mod_depth: float
+    palm_amp_x: float
+    palm_offset: float
+    palm_y_mid: float
+    palm_amp_y: float
+    palm_y_period: float
+    palm_y_phase: float
+    left_arm_period: float
+    left_arm_phase: float
+    bias_period: float
+    bias_phase: float
+
+
+@dataclass(frozen=True)
+class Pose:
+    """3-D joint positions (metres, camera frame) of one person frame."""
+
+    torso: np.ndarray
+    head: np.ndarray
+    right_shoulder: np.ndarray
+    left_shoulder: np.ndarray
+    right_elbow: np.ndarray
+    left_elbow: np.ndarray
+    right_wrist: np.ndarray
+    left_wrist: np.ndarray
+    right_hand: np.ndarray
+    left_hand: np.ndarray
+
+
+def default_intrinsics(width: int, height: int) -> Intrinsics:
+    """The synthetic camera: an OAK-D-like pinhole, ``fx = fy = 0.78 * width``.
+
+    ``0.78 * width`` gives a 65.3 degree horizontal field of view (the OAK-D colour
+    camera at 16:10 is about 69 degrees); the principal point is the image centre
+    and the image is rectified (distortion ``"none"``).
+    """
+    f = 0.78 * width
+    return Intrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, "none", ())
+
+
+def _smooth_field(rng: np.random.Generator, shape: tuple[int, int], cells: tuple[int, int]) -> np.ndarray:
+    """Zero-mean, unit-range smooth noise of ``shape`` from a ``cells`` grid (bicubic)."""
+    coarse = rng.uniform(-1.0, 1.0, size=cells).astype(np.float32)
+    return cv2.resize(coarse, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
+
+
+def _box(xn: np.ndarray, yn: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    return (xn >= x0) & (xn < x1) & (yn >= y0) & (yn < y1)
+
+
+def render_background(intr: Intrinsics, rng: np.random.Generator) -> Background:
+    """Render the static scene: a slanted bluish-grey wall, a white shelving unit
+    on the left (with pale boxes), an open doorway on the right (beyond the
+    depth range) and a painting.
+
+    Objects are placed in normalised image coordinates ``x = (u - cx) / fx``,
+    ``y = (v - cy) / fy`` so the scene looks the same at every image size.
+    """
+    h, w = intr.height, intr.width
+    xn = ((np.arange(w, dtype=np.float32) - intr.cx) / intr.fx)[None, :]
+    yn = ((np.arange(h, dtype=np.float32) - intr.cy) / intr.fy)[:, None]
+    xn, yn = np.broadcast_to(xn, (h, w)), np.broadcast_to(yn, (h, w))
+    color = np.empty((h, w, 3), np.float32)
+    color[:] = WALL_RGB
+    texture = 7.0 * _smooth_field(rng, (h, w), (9, 14)) + 2.0 * _smooth_field(rng, (h, w), (60, 96))
+    color += texture[..., None]
+    depth = (3.0 + 0.3 * xn).astype(np.float32)
+
+    # Painting on the wall, upper right of the person's head.
+    painting = _box(xn, yn, 0.22, 0.36, -0.36, -0.20)
+    canvas = np.stack([_smooth_field(rng, (h, w), (3, 4)) for _ in range(3)], axis=-1)
+    color[painting] = 150.0 + 60.0 * canvas[painting]
+    frame = _box(xn, yn, 0.21, 0.37, -0.37, -0.19) & ~painting
+    color[frame] = DOOR_FRAME_RGB
+    depth[painting | frame] -= 0.02
+
+    # Open doorway: the room behind is beyond the sensor's range.
+    door_frame = _box(xn, yn, 0.415, 0.615, -0.36, 1.0)
+    doorway = _box(xn, yn, 0.43, 0.60, -0.345, 1.0)
+    color[door_frame] = DOOR_FRAME_RGB
+    color[doorway] = np.asarray(DOORWAY_RGB, np.float32) * (0.85 + 0.15 * (yn[doorway] + 0.35))[:, None]
+    depth[doorway] = 5.5
+
+    # White shelving unit on the left: frame at 2.35 m, back panel at 2.65 m.
+    unit = _box(xn, yn, -1.0, -0.34, -0.02, 1.0)
+    color[unit] = SHELF_RGB
+    depth[unit] = 2.35
+    boards = (-0.02, 0.13, 0.28, 0.43)
+    for top, bottom in zip(boards[:-1], boards[1:]):
+        bay = _box(xn, yn, -1.0, -0.355, top + 0.014, bottom)
+        color[bay] = SHELF_BACK_RGB
+        depth[bay] = 2.65
+        left = -0.355
+        while left > xn[0, 0]:
+            width = float(rng.uniform(0.04, 0.09))
+            height = float(rng.uniform(0.05, 0.12))
+            item = _box(xn, yn, left - width, left - 0.005, bottom - height, bottom)
+            color[item] = BOX_PALETTE[int(rng.integers(len(BOX_PALETTE)))]
+            depth[item] = 2.45
+            left -= width + float(rng.uniform(0.01, 0.05))
+    vignette = (1.0 - 0.12 * (xn**2 + yn**2) / 0.58).astype(np.float32)[..., None]
+    return Background(color * vignette, depth, vignette)
+
+
+def motion_parameters(rng: np.random.Generator) -> Motion:
+    """Draw the person's motion parameters (smooth, periodic, seed-dependent)."""
+    u = rng.uniform
+    palm_period = float(u(80.0, 105.0))
+    return Motion(
+        x0=float(u(0.09, 0.15)),
+        z0=float(u(1.45, 1.6)),
+        sway_period=float(u(150.0, 220.0)),
+        sway_phase=float(u(0, 2 * math.pi)),
+        depth_sway_period=float(u(170.0, 260.0)),
+        depth_sway_phase=float(u(0, 2 * math.pi)),
+        palm_period=palm_period,
+        palm_phase=float(u(0, 2 * math.pi)),
+        palm_mod_period=palm_period * float(u(2.3, 3.1)),
+        palm_mod_phase=float(u(0, 2 * math.pi)),
+        palm_mod_depth=float(u(0.3, 0.6)),
+        palm_amp_x=float(u(0.22, 0.26)),
+        palm_offset=0.45,
+        palm_y_mid=float(u(0.03, 0.07)),
+        palm_amp_y=float(u(0.09, 0.12)),
+        palm_y_period=palm_period * float(u(0.6, 0.8)),
+        palm_y_phase=float(u(0, 2 * math.pi)),
+        left_arm_period=float(u(90.0, 140.0)),
+        left_arm_phase=float(u(0, 2 * math.pi)),
+        bias_period=float(u(40.0, 70.0)),
+        bias_phase=float(u(0, 2 * math.pi)),
+    )
+
+
+def _elbow(shoulder: np.ndarray, wrist: np.ndarray, pole: np.ndarray) -> np.ndarray:
+    """Two-link inverse kinematics: the elbow bends toward ``pole``."""
+    d_vec = wrist - shoulder
+    d = float(np.linalg.norm(d_vec))
+    axis = d_vec / d
+    a = min(max((UPPER_ARM**2 - FOREARM**2 + d * d) / (2.0 * d), 0.0), UPPER_ARM)
+    bend = math.sqrt(max(UPPER_ARM**2 - a * a, 0.0))
+    side = pole - np.dot(pole, axis) * axis
+    side /= np.linalg.norm(side)
+    return shoulder + a * axis + bend * side
+
+
+def pose_at(m: Motion, t: float) -> Pose:
+    """The person's pose at person-frame ``t`` (frames since the first non-empty frame).
+
+    The right palm follows ``x = x_edge + amp_x (sin theta - offset)`` in
+    normalised image units, ``x_edge`` being the image position of the torso's
+    outline at chest height (the person's right side, image left), with a
+    frequency-modulated phase ``theta``; its vertical position is a second
+    sinusoid between shoulder and hip height and its depth is 0.22-0.32 m in
+    front of the torso (closest when furthest across the body). The arm follows
+    by two-link inverse kinematics; the left arm hangs and swings slightly.
+    """
+    two_pi = 2.0 * math.pi
+    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
+    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
+    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
+    head = np.array([tx, -0.37, tz - 0.02])
+    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y, tz])
+    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y, tz])
+
+    theta = two_pi * t / m.palm_period + m.palm_phase + m.palm_mod_depth * math.sin(
+        two_pi * t / m.palm_mod_period + m.palm_mod_phase
+    )
+    s = math.sin(theta)
+    pz = tz - 0.22 - 0.10 * (s + 1.0) / 2.0
+    x_edge = (tx - CHEST_HALF_WIDTH) / tz
+    px = x_edge + m.palm_amp_x * (s - m.palm_offset) + 0.02 * math.sin(2.0 * theta)
+    py = m.palm_y_mid + m.palm_amp_y * math.sin(two_pi * t / m.palm_y_period + m.palm_y_phase)
+    palm = np.array([px * pz, py * pz, pz])
+    to_palm = palm - r_sh
+    r_wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
+    r_el = _elbow(r_sh, r_wr, np.array([-0.5, 1.0, 0.3]))
+
+    swing = 0.12 * math.sin(two_pi * t / m.left_arm_period + m.left_arm_phase)
+    c, sn = math.cos(swing), math.sin(swing)
+    upper = np.array([0.17 * c - 0.985 * sn, 0.17 * sn + 0.985 * c, 0.03]) * UPPER_ARM
+    l_el = l_sh + upper
+    lower_dir = np.array([-0.05 * c - 0.99 * sn, -0.05 * sn + 0.99 * c, -0.12])
+    lower_dir /= np.linalg.norm(lower_dir)
+    l_wr = l_el + FOREARM * lower_dir
+    l_hand = l_wr + HAND * lower_dir
+    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, palm, l_hand)
+
+
+def project(intr: Intrinsics, p: np.ndarray) -> tuple[float, float]:
+    """Pixel ``(u, v)`` of the 3-D point ``p`` (metres)."""
+    return intr.fx * p[0] / p[2] + intr.cx, intr.fy * p[1] / p[2] + intr.cy
+
+
+@dataclass
+class Part:
+    """One rasterised body part inside its region of interest.
+
+    ``rows``/``cols`` slice the image; ``mask``, ``depth`` (metres) and ``shade``
+    (a brightness factor) have the shape of that slice.
+    """
+
+    rows: slice
+    cols: slice
+    mask: np.ndarray
+    depth: np.ndarray
+    shade: np.ndarray
+    rgb: tuple[float, float, float]
+    label: int
+    on_top: bool = False
+
+
+def _grid(intr: Intrinsics, u0: float, u1: float, v0: float, v1: float, clip: bool = True):
+    """Pixel-centre grids (broadcastable (1, w) and (h, 1)) over a bounding box."""
+    c0, c1 = int(math.floor(u0)), int(math.ceil(u1)) + 1
+    r0, r1 = int(math.floor(v0)), int(math.ceil(v1)) + 1
+    if clip:
+        c0, c1 = max(c0, 0), min(c1, intr.width)
+        r0, r1 = max(r0, 0), min(r1, intr.height)
+    if c1 <= c0 or r1 <= r0:
+        return None
+    uu = np.arange(c0, c1, dtype=np.float32)[None, :]
+    vv = np.arange(r0, r1, dtype=np.float32)[:, None]
+    return slice(r0, r1), slice(c0, c1), uu, vv
+
+
+def ellipse_mask(
+    intr: Intrinsics, centre: np.ndarray, half_w: float, half_h: float, angle: float, clip: bool = True
+):
+    """Rasterise an image-plane ellipse of a disc at 3-D ``centre``.
+
+    ``half_w``/``half_h`` are semi-axes in metres (scaled by ``f / z``), ``angle``
+    the direction of the ``half_h`` axis in the image (radians). Returns
+    ``(rows, cols, mask, q, du, dv)`` with ``q`` the normalised squared radius, or
+    None when the ellipse is outside the image.
+    """
+    cu, cv = project(intr, centre)
+    a = half_w * intr.fx / centre[2]
+    b = half_h * intr.fy / centre[2]
+    r = max(a, b)
+    g = _grid(intr, cu - r, cu + r, cv - r, cv + r, clip)
+    if g is None:
+        return None
+    rows, cols, uu, vv = g
+    du, dv = uu - np.float32(cu), vv - np.float32(cv)
+    ca, sa = math.cos(angle), math.sin(angle)
+    along = du * ca + dv * sa
+    across = -du * sa + dv * ca
+    q = (across / a) ** 2 + (along / b) ** 2
+    return rows, cols, q <= 1.0, q, du, dv
+
+
+def _ellipse_part(intr, centre, half_w, half_h, angle, thickness, rgb, label, on_top=False):
+    e = ellipse_mask(intr, centre, half_w, half_h, angle)
+    if e is None:
+        return None
+    rows, cols, mask, q, du, dv = e
+    height = np.sqrt(np.clip(1.0 - q, 0.0, 1.0))
+    r = max(half_w, half_h) * intr.fx / centre[2]
+    shade = 0.80 + 0.20 * height - 0.07 * (du + dv) / r
+    depth = np.float32(centre[2]) - np.float32(thickness) * height
+    return Part(rows, cols, mask, depth, shade, rgb, label, on_top)
+
+
+def _capsule_part(intr, a3, b3, radius, rgb, label):
+    ua, va = project(intr, a3)
+    ub, vb = project(intr, b3)
+    ra, rb = radius * intr.fx / a3[2], radius * intr.fx / b3[2]
+    r = max(ra, rb)
+    g = _grid(intr, min(ua, ub) - r, max(ua, ub) + r, min(va, vb) - r, max(va, vb) + r)
+    if g is None:
+        return None
+    rows, cols, uu, vv = g
+    eu, ev = ub - ua, vb - va
+    length2 = max(eu * eu + ev * ev, 1e-9)
+    t = np.clip(((uu - ua) * eu + (vv - va) * ev) / length2, 0.0, 1.0)
+    dist = np.hypot(uu - (ua + t * eu), vv - (va + t * ev))
+    rad = ra + t * (rb - ra)
+    mask = dist <= rad
+    height = np.sqrt(np.clip(1.0 - (dist / rad) ** 2, 0.0, 1.0))
+    depth = (a3[2] + t * (b3[2] - a3[2]) - radius * height).astype(np.float32)
+    shade = 0.70 + 0.35 * height
+    return Part(rows, cols, mask, depth, shade, rgb, label)
+
+
+def _polygon_part(intr, points3, centre_x, half_width, bulge, rgb, label):
+    """A flat-ish polygon (torso, legs) bulging by ``bulge`` metres at ``centre_x``."""
+    uv = np.array([project(intr, p) for p in points3])
+    u0, v0 = uv.min(axis=0)
+    u1, v1 = uv.max(axis=0)
+    g = _grid(intr, u0, u1, v0, v1)
+    if g is None:
+        return None
+    rows, cols, uu, _ = g
+    z = float(points3[0][2])
+    mask = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.uint8)
+    shift = 4
+    local = np.round((uv - [cols.start, rows.start]) * (1 << shift)).astype(np.int32)
+    cv2.fillPoly(mask, [local], 1, lineType=cv2.LINE_8, shift=shift)
+    cu = intr.fx * centre_x / z + intr.cx
+    half = half_width * intr.fx / z
+    height = np.sqrt(np.clip(1.0 - ((uu - cu) / half) ** 2, 0.0, 1.0))
+    depth = np.broadcast_to((z - bulge * height).astype(np.float32), mask.shape)
+    shade = np.broadcast_to(0.74 + 0.30 * height, mask.shape)
+    return Part(rows, cols, mask.astype(bool), depth, shade, rgb, label)
+
+
+def torso_outline(pose: Pose) -> list[np.ndarray]:
+    """3-D outline of the torso (a shirt from shoulders to hips)."""
+    x, z = pose.torso[0], pose.torso[2]
+    ys = SHOULDER_Y
+    pts = [
+        (-0.20, ys + 0.03), (-0.07, ys - 0.01), (0.07, ys - 0.01), (0.20, ys + 0.03),
+        (CHEST_HALF_WIDTH, ys + 0.16), (0.16, 0.22), (0.17, HIP_Y), (-0.17, HIP_Y),
+        (-0.16, 0.22), (-CHEST_HALF_WIDTH, ys + 0.16),
+    ]
+    return [np.array([x + dx, y, z]) for dx, y in pts]
+
+
+def _hand_angle(intr: Intrinsics, wrist: np.ndarray, hand: np.ndarray) -> float:
+    wu, wv = project(intr, wrist)
+    hu, hv = project(intr, hand)
+    return math.atan2(hv - wv, hu - wu)
+
+
+def palm_mask(intr: Intrinsics, pose: Pose, clip: bool = True):
+    """The right palm ellipse: ``(rows, cols, mask, q, du, dv)`` as :func:`ellipse_mask`."""
+    angle = _hand_angle(intr, pose.right_wrist, pose.right_hand)
+    return ellipse_mask(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH, angle, clip)
+
+
+def body_region(intr: Intrinsics, pose: Pose, rows: slice, cols: slice) -> np.ndarray:
+    """Boolean mask, over ``rows`` x ``cols`` (may exceed the image), of the
+    torso, neck and head silhouettes, whatever is in front of them."""
+    shape = (rows.stop - rows.start, cols.stop - cols.start)
+    region = np.zeros(shape, np.uint8)
+    shift = 4
+    uv = np.array([project(intr, p) for p in torso_outline(pose)])
+    local = np.round((uv - [cols.start, rows.start]) * (1 << shift)).astype(np.int32)
+    cv2.fillPoly(region, [local], 1, lineType=cv2.LINE_8, shift=shift)
+    out = region.astype(bool)
+    uu = np.arange(cols.start, cols.stop, dtype=np.float32)[None, :]
+    vv = np.arange(rows.start, rows.stop, dtype=np.float32)[:, None]
+    hu, hv = project(intr, pose.head)
+    z = pose.head[2]
+    a, b = 0.088 * intr.fx / z, 0.115 * intr.fy / z
+    out |= ((uu - hu) / a) ** 2 + ((vv - hv) / b) ** 2 <= 1.0
+    x, z = pose.torso[0], pose.torso[2]
+    n0u, n0v = project(intr, np.array([x - 0.055, -0.29, z - 0.04]))
+    n1u, n1v = project(intr, np.array([x + 0.055, SHOULDER_Y, z - 0.04]))
+    out |= (uu >= n0u) & (uu <= n1u) & (vv >= n0v) & (vv <= n1v)
+    return out
+
+
+def palm_overlap(intr: Intrinsics, pose: Pose) -> float:
+    """Fraction of the right palm's area that lies over the torso/head region."""
+    rows, cols, mask, *_ = palm_mask(intr, pose, clip=False)
+    area = int(mask.sum())
+    if area == 0:
+        return 0.0
+    return float((mask & body_region(intr, pose, rows, cols)).sum()) / area
+
+
+def person_parts(intr: Intrinsics, pose: Pose) -> list[Part]:
+    """Every body part of ``pose``, rasterised (parts outside the image omitted)."""
+    x, z = pose.torso[0], pose.torso[2]
+    parts = []
+    for side in (-1.0, 1.0):
+        leg = [np.array([x + side * dx, y, z + 0.02]) for dx, y in
+               ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))]
+        parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
+    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
+    neck = [np.array([x + dx, y, z - 0.04]) for dx, y in
+            ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))]
+    parts.append(_polygon_part(intr, neck, x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
+    parts.append(_ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2,
+                               0.08, HAIR_RGB, LABEL_CLOTH))
+    parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2,
+                               0.07, SKIN_RGB, LABEL_SKIN))
+    parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_ellipse_part(intr, pose.left_hand, 0.045, 0.06,
+                               _hand_angle(intr, pose.left_wrist, pose.left_hand),
+                               PALM_THICKNESS, SKIN_RGB, LABEL_SKIN))
+    parts.append(_capsule_part(intr, pose.right_shoulder, pose.right_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_capsule_part(intr, pose.right_elbow, pose.right_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_ellipse_part(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH,
+                               _hand_angle(intr, pose.right_wrist, pose.right_hand),
+                               PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True))
+    return [p for p in parts if p is not None]
+
+
+def composite(
+    bg: Background, parts: list[Part]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Z-buffer the parts over the background.
+
+    Returns
+    -------
+    color : ndarray, (H, W, 3) float32
+    depth_m : ndarray, (H, W) float32
+    labels : ndarray, (H, W) uint8 (``LABEL_*``)
+    """
+    color = bg.color.copy()
+    depth = bg.depth_m.copy()
+    labels = np.zeros(depth.shape, np.uint8)
+    for p in parts:
+        zroi = depth[p.rows, p.cols]
+        sel = p.mask if p.on_top else p.mask & (p.depth < zroi)
+        zroi[sel] = p.depth[sel]
+        rgb = np.asarray(p.rgb, np.float32)
+        croi = color[p.rows, p.cols]
+        croi[sel] = rgb * (p.shade[sel] * bg.vignette[p.rows, p.cols][sel, 0])[:, None]
+        labels[p.rows, p.cols][sel] = p.label
+    return color, depth, labels

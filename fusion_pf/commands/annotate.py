@@ -1,0 +1,73 @@
+"""``fusion-pf annotate``: the multi-operator palm-centre annotation web app."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "annotate"
+HELP = "serve a local web page where operators click the palm centre of every frame"
+DESCRIPTION = (
+    "Serve a local web app (waitress) to annotate REC.mcap: each operator enters a name, "
+    "clicks the palm centre (or marks it not visible) on every frame, and sees the other "
+    "operators' clicks only after doing the frame. Clicks are committed to the SQLite "
+    "database (WAL, synchronous=FULL) before they are acknowledged; one row per operator "
+    "and frame, a re-click replaces it. Binds 127.0.0.1 unless --host says otherwise. "
+    "Keys in the page: left/right = previous/next frame, n = next frame you have not done, "
+    "x = not visible, d = depth overlay, +/- = zoom."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf annotate``."""
+    p.add_argument("recording", type=Path, metavar="REC.mcap", help="recording to annotate")
+    p.add_argument("--db", type=Path, required=True, help="SQLite file of the clicks (created if missing)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface to bind; anything but a loopback address exposes the tool to the network")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (0 = pick a free one)")
+    p.add_argument("--threads", type=int, default=8, help="worker threads serving requests")
+    p.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg",
+                   help="encoding of the colour frames sent to the browser")
+    p.add_argument("--cache", type=int, default=256, help="encoded images kept in memory (LRU)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open the recording and the database, then serve until Ctrl-C."""
+    import ipaddress
+
+    from drivers.mcap_replay import McapReplay
+    from fusion_pf.annotate.db import AnnotationDB
+    from fusion_pf.annotate.frames import FrameImages, ReplayProvider
+    from fusion_pf.annotate.server import create_app, serve
+    from fusion_pf.errors import InputError
+
+    if not 0 <= args.port <= 65535:
+        raise InputError(f"--port must be in [0, 65535], got {args.port}")
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    if not args.recording.is_file():
+        raise FileNotFoundError(2, "no such file", str(args.recording))
+    try:
+        loopback = ipaddress.ip_address(args.host).is_loopback
+    except ValueError:
+        loopback = args.host == "localhost"
+    if not loopback:
+        print(f"fusion-pf annotate: warning: binding {args.host}, the annotator is reachable from "
+              "the network without any authentication", file=sys.stderr)
+    with McapReplay(args.recording) as replay:
+        images = FrameImages(ReplayProvider(replay), color_format=args.image_format, cache_size=args.cache)
+        first = images.meta(0)
+        db = AnnotationDB(args.db, recording=args.recording.name, n_frames=images.n_frames,
+                          width=first.width, height=first.height)
+        try:
+            app = create_app(images, db, recording=args.recording.name)
+
+            def ready(url: str) -> None:
+                print(f"fusion-pf annotate: {images.n_frames} frames of {args.recording.name}, "
+                      f"clicks in {args.db}; open {url}", flush=True)
+
+            serve(app, args.host, args.port, threads=args.threads, on_ready=ready)
+        finally:
+            db.close()
+    return 0

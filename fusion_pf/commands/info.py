@@ -1,0 +1,92 @@
+"""``fusion-pf info``: describe a recording."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "info"
+HELP = "describe a recording: topics, counts, duration, fps, calibration, truncation"
+DESCRIPTION = (
+    "Print the topics, schemas and message counts of FILE.mcap, its duration, frame rate, "
+    "resolution and intrinsics, background frames, frames missing depth or skeleton, and "
+    "whether it is truncated. Counts come from the summary when the file is indexed; a "
+    "truncated file is scanned. --verify also decodes every frame (checking chunk CRCs) and "
+    "exits 2 when frames are lost."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf info``."""
+    p.add_argument("file", type=Path, metavar="FILE.mcap", help="recording to describe")
+    p.add_argument("--json", action="store_true", help="print one JSON document instead of text")
+    p.add_argument("--verify", action="store_true", help="decode every frame and check chunk CRCs")
+
+
+def _text(info: dict, verified: dict | None) -> str:
+    from drivers.mcap_format import format_ns
+
+    k = info["intrinsics"]
+    fps = f"{info['fps']:.2f} fps" if info["fps"] is not None else "fps n/a"
+    dist = f"{k['distortion_model']} {k['distortion']}" if k["distortion"] else k["distortion_model"]
+    state = "TRUNCATED (writer did not finish)" if info["truncated"] else "complete"
+    lines = [
+        f"file          {info['path']} ({info['size_bytes']} bytes, {state}, "
+        f"{'indexed' if info['indexed'] else 'scanned'})",
+        f"writer        {info['library'] or 'unknown'}",
+        f"frames        {info['frames']} over {format_ns(info['duration_ns'])} ({fps}), "
+        f"start {info['start_ns']} ns",
+        f"resolution    {info['width']}x{info['height']}  colour {info['color_format']}  "
+        f"depth {info['depth_format'] or 'none'}",
+        f"intrinsics    fx={k['fx']:.3f} fy={k['fy']:.3f} cx={k['cx']:.3f} cy={k['cy']:.3f} "
+        f"distortion {dist} ({info['calibration_messages']} calibration message(s))",
+        f"background    {info['background_frames']} frames",
+        f"missing       depth in {info['missing_depth']} frames, skeleton in {info['missing_skeleton']} frames; "
+        f"ground truth in {info['ground_truth_frames']} frames",
+    ]
+    if info["metadata"]:
+        lines.append("metadata      " + " ".join(f"{key}={value}" for key, value in info["metadata"].items()))
+    width = max(len(t["topic"]) for t in info["topics"])
+    lines.append("topics")
+    for t in info["topics"]:
+        lines.append(
+            f"  {t['topic']:<{width}}  {t['message_count']:>8}  {t['schema_name']} "
+            f"({t['message_encoding']}, schema {t['schema_encoding']})"
+        )
+    if verified is not None:
+        lines.append(
+            f"verified      {verified['frames']} frames decoded, {verified['dropped']} lost in corrupt chunks"
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the description; exit 2 when the file cannot be used or --verify finds lost frames."""
+    import sys
+
+    from drivers.mcap_replay import McapReplay
+    from fusion_pf.errors import RecordingError
+
+    with McapReplay(args.file) as replay:
+        info = replay.info()
+        verified = None
+        if args.verify:
+            decoded = sum(1 for _ in replay)
+            verified = {"frames": decoded, "dropped": replay.stats.dropped}
+            info = replay.info()
+    out = info.to_dict()
+    if verified is not None:
+        out["verified"] = verified
+    if args.json:
+        import json
+
+        print(json.dumps(out, indent=2))
+    else:
+        print(_text(out, verified))
+    for note in info.notes:
+        print(f"fusion-pf: warning: {note}", file=sys.stderr)
+    if verified is not None and verified["dropped"]:
+        raise RecordingError(
+            f"{args.file} failed verification: {verified['dropped']} of {info.frames} frames are in corrupt chunks"
+        )
+    return 0

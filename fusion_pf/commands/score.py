@@ -1,0 +1,90 @@
+"""``fusion-pf score``: accuracy of a tracker output against a reference (paper 003 §4.4-4.6)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+NAME = "score"
+HELP = "RMSE, coverage, p95 and BestMax of a tracker output; particle-count sweeps and figures"
+DESCRIPTION = (
+    "Score a tracker output (the CSV of 'fusion-pf track --csv' or its MCAP) against a reference: "
+    "operator annotations (--reference annotations.sqlite, mean of the operators per frame) or the "
+    "ground truth of a synthetic recording (--ground-truth REC.mcap). Per source (colour, depth, "
+    "skeleton, fused estimate): RMSE, mean, p95 and max error in pixels, coverage, and BestMax "
+    "(paper 003 §4.4: per frame the source closest to the reference scores a point; tied sources "
+    "each score; missing sources and frames without a reference cannot). With --sweep the filter is "
+    "re-run on the recording's cues for every particle count and --runs seeds (multi-execution, "
+    "§4.5) in parallel. With --plots DIR the figures (errors per frame, latency per frame, BestMax "
+    "vs N, multi-execution BestMax) and score.md / score.json are written to DIR. Prints the "
+    "Markdown report (or JSON with --json) on stdout."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf score``."""
+    p.add_argument("tracked", metavar="TRACKED", help="tracker output: TRACKED.csv or TRACKED.mcap")
+    ref = p.add_mutually_exclusive_group(required=True)
+    ref.add_argument("--reference", metavar="DB", help="annotations SQLite database (fusion-pf annotate)")
+    ref.add_argument("--ground-truth", metavar="REC.mcap", help="recording with /ground_truth/palm (synthetic)")
+    p.add_argument("--plots", metavar="DIR", help="write the PNG figures, score.md and score.json to DIR")
+    p.add_argument("--json", action="store_true", help="print the report as JSON instead of Markdown")
+    p.add_argument("--tie-tol", type=float, default=1e-6, metavar="PX",
+                   help="BestMax: errors within this many pixels of the best tie (each tied source scores)")
+    s = p.add_argument_group("particle-count sweep (paper 003 §4.4-4.5)")
+    s.add_argument("--sweep", metavar="N1,N2,...",
+                   help="re-run the filter for these particle counts, e.g. 5,10,25,50,75,100,125,150,200,250")
+    s.add_argument("--runs", type=int, default=20, help="runs (seeds) per particle count")
+    s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
+    s.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: the machine's cores)")
+    s.add_argument("--recording", metavar="SOURCE",
+                   help="recording to re-track for the sweep (default: TRACKED if it is an MCAP, "
+                        "else the --ground-truth recording). The sweep uses the tracker settings stored "
+                        "in TRACKED.mcap (defaults for a CSV) with the cue window on the skeleton joint, "
+                        "so the cues are computed once and every run fuses the same cues")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Score, optionally sweep, write and print the report; returns the exit status."""
+    from fusion_pf.errors import InputError
+    from fusion_pf.score.evaluate import as_json, evaluate, markdown, read_reference, write_report
+    from fusion_pf.score.inputs import file_kind
+    from fusion_pf.score.sweep import parse_counts, sweep_config, sweep_recording, tracker_settings
+
+    counts = parse_counts(args.sweep) if args.sweep is not None else None
+    if args.runs < 1:
+        raise InputError(f"--runs must be >= 1, got {args.runs}")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
+    reference = read_reference(args.reference, args.ground_truth)
+    ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol)
+    sweep = None
+    if counts is not None:
+        recording = args.recording
+        if recording is None:
+            if file_kind(args.tracked) == "mcap":
+                recording = args.tracked
+            elif args.ground_truth is not None:
+                recording = args.ground_truth
+            else:
+                raise InputError("--sweep with a tracker CSV and --reference needs --recording SOURCE to re-track")
+        settings = tracker_settings(args.tracked) if file_kind(args.tracked) == "mcap" else None
+        sweep = sweep_recording(
+            recording, reference, sweep_config(settings), counts, args.runs,
+            seed=args.seed, workers=args.workers, progress=not args.no_progress, tie_tol=args.tie_tol,
+        )
+    figures: list[str] = []
+    if args.plots is not None:
+        files = write_report(ev, args.plots, sweep)
+        figures = [str(p) for name, p in files.items() if name.endswith(".png")]
+        print(f"fusion-pf score: wrote {', '.join(str(p) for p in files.values())}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(as_json(ev, sweep, figures), indent=1))
+    else:
+        print(markdown(ev, sweep, figures), end="")
+    return 0

@@ -1,0 +1,125 @@
+"""Background model of the colour and depth pipelines (paper 003 Figs. 3-4, "reference background").
+
+The paper subtracts a blank-scene image recorded before the subject enters.
+:class:`BackgroundModel` holds that reference: a colour image ``(H, W, 3)``
+uint8 and a depth image ``(H, W)`` uint16 (0 = unknown). Two ways to build it:
+
+* :meth:`BackgroundModel.from_frames` - the per-pixel median of empty-scene
+  frames (``fusion-pf cues --background EMPTY.mcap``, or the recording's own
+  leading frames flagged ``Frame.background``);
+* :meth:`BackgroundModel.running` - a running median over the first ``K``
+  frames of the stream (``update(frame)`` until ``ready``), used when no
+  empty-scene frame exists; anything that stays still during those K frames
+  becomes background.
+
+The depth median ignores invalid pixels (0): a pixel's background depth is the
+median of its valid samples, 0 when it never had one.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+from ..errors import InputError
+from ..frame import Frame
+from .regions import check_int
+
+
+def median_color(stack: np.ndarray) -> np.ndarray:
+    """Per-pixel median of a ``(K, H, W, 3)`` uint8 stack -> ``(H, W, 3)`` uint8."""
+    return np.median(stack, axis=0).round().astype(np.uint8)
+
+
+def median_valid_depth(stack: np.ndarray) -> np.ndarray:
+    """Per-pixel median of the non-zero samples of a ``(K, H, W)`` uint16 stack.
+
+    Zeros are sorted to the end (as ``2**16``), so the valid samples of a pixel
+    are the first ``n`` of its sorted column and its median is the mean of
+    elements ``(n - 1) // 2`` and ``n // 2``; ``n = 0`` gives 0.
+    """
+    s = np.sort(np.where(stack == 0, np.uint32(1 << 16), stack.astype(np.uint32)), axis=0)
+    n = np.count_nonzero(stack, axis=0)  # valid samples per pixel
+    lo = np.take_along_axis(s, np.maximum(n - 1, 0)[None] // 2, axis=0)[0]
+    hi = np.take_along_axis(s, np.minimum(n // 2, stack.shape[0] - 1)[None], axis=0)[0]
+    med = (lo + hi + 1) // 2  # median of the valid samples, rounded
+    return np.where(n > 0, med, 0).astype(np.uint16)
+
+
+class BackgroundModel:
+    """Reference background images for the colour and depth cues.
+
+    Parameters
+    ----------
+    color : ndarray, shape (H, W, 3), uint8
+        Background colour image (RGB).
+    depth : ndarray, shape (H, W), uint16, or None
+        Background depth in millimetres (0 = unknown), None without depth.
+    """
+
+    def __init__(self, color: np.ndarray | None, depth: np.ndarray | None = None) -> None:
+        if color is not None:
+            if not isinstance(color, np.ndarray) or color.ndim != 3 or color.shape[2] != 3 or color.dtype != np.uint8:
+                raise InputError(
+                    f"background colour must be an (H, W, 3) uint8 array, got {getattr(color, 'shape', color)!r}"
+                )
+        if depth is not None:
+            if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.dtype != np.uint16:
+                raise InputError(
+                    f"background depth must be an (H, W) uint16 array, got {getattr(depth, 'shape', depth)!r}"
+                )
+            if color is not None and depth.shape != color.shape[:2]:
+                raise InputError(f"background depth shape {depth.shape} does not match colour {color.shape[:2]}")
+        self.color = color
+        self.depth = depth
+        self._target = 0
+        self._colors: list[np.ndarray] = []
+        self._depths: list[np.ndarray] = []
+
+    @classmethod
+    def from_frames(cls, frames: Iterable[Frame]) -> "BackgroundModel":
+        """The per-pixel median of empty-scene ``frames`` (at least one)."""
+        colors, depths = [], []
+        for f in frames:
+            colors.append(f.color)
+            if f.depth is not None:
+                depths.append(f.depth)
+        if not colors:
+            raise InputError("background needs at least one frame, got none")
+        shapes = {c.shape for c in colors}
+        if len(shapes) != 1:
+            raise InputError(f"background frames must share one size, got {sorted(shapes)}")
+        color = median_color(np.stack(colors))
+        depth = median_valid_depth(np.stack(depths)) if depths else None
+        return cls(color, depth)
+
+    @classmethod
+    def running(cls, frames: int = 10) -> "BackgroundModel":
+        """An empty model that becomes the median of the first ``frames`` frames fed to :meth:`update`."""
+        model = cls(None, None)
+        model._target = check_int("background frames", frames, 1, 10_000)
+        return model
+
+    @property
+    def ready(self) -> bool:
+        """True once a colour background exists."""
+        return self.color is not None
+
+    def update(self, frame: Frame) -> None:
+        """Feed one frame to a running model (no-op once it holds ``K`` frames).
+
+        The median is recomputed after every frame, so the model is usable from
+        the first frame and final after ``K``.
+        """
+        if self._target == 0 or len(self._colors) >= self._target:
+            return
+        self._colors.append(frame.color)
+        if frame.depth is not None:
+            self._depths.append(frame.depth)
+        self.color = median_color(np.stack(self._colors))
+        self.depth = median_valid_depth(np.stack(self._depths)) if self._depths else None
+        if len(self._colors) >= self._target:
+            self._colors.clear()
+            self._depths.clear()
+            self._target = -1

@@ -1,0 +1,112 @@
+"""Point estimates from a weighted particle set (paper 003 §3.3, estimation phase).
+
+The paper names three ways to pick the estimate -- the particle with the largest
+weight (MAP), the weighted average of all particles, and the robust mean of a
+top fraction of particles -- and uses the robust mean of the 10 % largest-weighted
+particles. Here the robust mean is the weight-weighted mean *within* that top set
+(the weights renormalised over it): equal to the plain mean when the weights
+are equal, and smooth when they are not.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from fusion_pf.errors import InputError
+
+__all__ = ["ESTIMATORS", "map_estimate", "robust_mean", "weighted_covariance", "weighted_mean"]
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """``sum(a * b)`` without BLAS: threaded BLAS dot stalls ~10 ms at N = 1e6 on busy cores."""
+    return float(np.einsum("i,i->", a, b))
+
+
+def robust_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 0.1) -> np.ndarray:
+    """Robust mean of the largest-weighted ``top_fraction`` of the particles.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (N, 2)
+        Particle positions.
+    weights : ndarray, shape (N,)
+        Normalised weights.
+    top_fraction : float
+        Fraction in (0, 1] of particles kept; at least one is.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        ``sum_(i in top) w_i p_i / sum_(i in top) w_i``.
+    """
+    if not (0.0 < top_fraction <= 1.0):
+        raise InputError(f"top_fraction must be in (0, 1], got {top_fraction}")
+    n = weights.shape[0]
+    k = max(1, math.ceil(top_fraction * n))
+    if k >= n:
+        return weighted_mean(positions, weights)
+    top = np.argpartition(weights, n - k)[n - k :]
+    w = weights.take(top)
+    # x_hat = sum_top w_i p_i / sum_top w_i
+    return np.array([_dot(w, positions[:, 0].take(top)), _dot(w, positions[:, 1].take(top))]) / w.sum()
+
+
+def weighted_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:
+    """Weighted mean of all particles, ``sum_i w_i p_i`` (``top_fraction`` is ignored).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
+    # x_hat = sum_i w_i p_i / sum_i w_i
+    return np.array([_dot(weights, positions[:, 0]), _dot(weights, positions[:, 1])]) / weights.sum()
+
+
+def map_estimate(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:
+    """Position of the particle with the largest weight (``top_fraction`` is ignored).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
+    # x_hat = p_argmax(w)
+    return np.array(positions[int(np.argmax(weights))], dtype=np.float64)
+
+
+def weighted_covariance(positions: np.ndarray, weights: np.ndarray, mean: np.ndarray | None = None) -> np.ndarray:
+    """Weighted covariance of the positions (the posterior's spread), px^2.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (N, 2)
+    weights : ndarray, shape (N,)
+        Normalised weights.
+    mean : ndarray, shape (2,), optional
+        The weighted mean if already known.
+
+    Returns
+    -------
+    ndarray, shape (2, 2)
+        ``sum_i w_i (p_i - m)(p_i - m)^T``.
+    """
+    if mean is None:
+        mean = weighted_mean(positions, weights)
+    du = positions[:, 0] - mean[0]
+    dv = positions[:, 1] - mean[1]
+    wdu = weights * du
+    # C = sum_i w_i (p_i - m)(p_i - m)^T
+    cuu = _dot(wdu, du)
+    cuv = _dot(wdu, dv)
+    cvv = _dot(weights * dv, dv)
+    return np.array([[cuu, cuv], [cuv, cvv]])
+
+
+#: Estimators by name (``estimator=`` values).
+ESTIMATORS: dict[str, Callable[[np.ndarray, np.ndarray, float], np.ndarray]] = {
+    "robust_mean": robust_mean,
+    "map": map_estimate,
+    "weighted_mean": weighted_mean,
+}

@@ -1,0 +1,335 @@
+"""The data-fusion particle filter of paper 003 (§3.2-3.6).
+
+One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
+
+1. initialisation (first step only): particles around the first available
+   measurements (their precision-weighted mean) or around ``prior``, weights 1/N;
+2. dynamic model: constant-velocity prediction (eq. 4), one frame step per call
+   (see :mod:`fusion_pf.filter.motion`);
+3. observation model: squared distance per source (eq. 5), per-source
+   likelihood (eq. 6, or the robust mixture), each normalised (step 3), joint
+   likelihood as their product (eq. 7) -- all as sums of logs -- and the weight
+   update (eq. 3) with normalisation (eq. 2);
+4. estimation: robust mean of the 10 % largest-weighted particles (or MAP /
+   weighted mean);
+5. resampling: ESS = 1 / sum(w^2); resample (residual by default) when
+   ESS < 2/3 N.
+
+A source absent from a frame contributes nothing; a frame without measurements
+only predicts. If the linear-space likelihood of any present source would
+underflow to zero for every particle (the target jumped far outside the
+cloud), the particles are re-initialised around the measurements instead of
+producing NaN weights.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from fusion_pf.cues.base import Measurement
+from fusion_pf.errors import InputError
+from fusion_pf.rng import as_rng
+
+from .base import Estimate, Tracker
+from .estimate import ESTIMATORS, weighted_covariance, weighted_mean
+from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, UNDERFLOW_LOG, JointLikelihood
+from .motion import check_process_noise, noise_std, predict
+from .resample import RESAMPLERS
+
+__all__ = ["ParticleFilter", "check_prior", "fused_position"]
+
+
+def check_prior(prior) -> np.ndarray | None:
+    """Validate ``prior``: None, ``(u, v)`` or ``(u, v, du, dv)``; returns a (4,) array or None."""
+    if prior is None:
+        return None
+    p = np.asarray(prior, dtype=np.float64).ravel()
+    if p.shape not in ((2,), (4,)) or not np.isfinite(p).all():
+        raise InputError(f"prior must be finite (u, v) or (u, v, du, dv), got {prior!r}")
+    return np.concatenate([p, np.zeros(4 - p.shape[0])])
+
+
+def fused_position(measurements: Sequence[Measurement], sigma: Mapping[str, float]) -> np.ndarray:
+    """Precision-weighted mean of measurements, ``sum z_s / sigma_s^2 / sum 1 / sigma_s^2``.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
+    prec = np.array([1.0 / sigma[m.source] ** 2 for m in measurements])
+    z = np.array([[m.u, m.v] for m in measurements])
+    # z_bar = sum_s z_s / sigma_s^2 / sum_s 1 / sigma_s^2
+    return prec @ z / prec.sum()
+
+
+def check_timestamp(timestamp_ns, last_ns: int | None) -> int:
+    """Validate a step's timestamp: an int, later than the previous step's."""
+    if isinstance(timestamp_ns, bool) or not isinstance(timestamp_ns, (int, np.integer)):
+        raise InputError(f"timestamp_ns must be an int (nanoseconds), got {timestamp_ns!r}")
+    t = int(timestamp_ns)
+    if last_ns is not None and t <= last_ns:
+        raise InputError(f"timestamp_ns must increase, got {t} after {last_ns}")
+    return t
+
+
+def step_length(t: int, last_ns: int | None, frame_period_ns: float | None) -> float:
+    """``dt`` in frame steps: 1 per call, or elapsed time / frame period."""
+    if frame_period_ns is None or last_ns is None:
+        return 1.0
+    return (t - last_ns) / frame_period_ns
+
+
+class ParticleFilter(Tracker):
+    """Paper 003's data-fusion particle filter over colour, depth and skeleton cues.
+
+    Parameters
+    ----------
+    n_particles : int
+        Number of particles N (>= 1).
+    process_noise : (float, float)
+        ``(pos_px, vel_px)``: std of the eq. 4 noise on position (px) and
+        velocity (px / frame) per frame step.
+    noise_px : mapping of str to float
+        Per-source measurement noise sigma in px (eq. 6 uses ``rho = sigma^2``).
+        Default :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`:
+        colour 6, depth 10, skeleton 15.
+    likelihood : {"gaussian", "robust"}
+        The paper's Gaussian (eq. 6) or the Gaussian + uniform outlier mixture.
+    outlier_prob : float
+        Robust only: outlier probability eps per source, in (0, 1).
+    use_quality : bool
+        Robust only: widen a source's sigma by ``1 / sqrt(max(quality, min_quality))``.
+    min_quality : float
+        Robust only: quality floor of the widening.
+    outlier_area_px2 : float
+        Robust only: area of the uniform outlier density (default 1280 x 800).
+    resampler : {"residual", "multinomial", "stratified", "systematic"}
+        Resampling scheme (paper: residual).
+    ess_threshold : float
+        Resample when ``ESS < ess_threshold * N`` (paper: 2/3), in [0, 1].
+    estimator : {"robust_mean", "map", "weighted_mean"}
+        Point estimate (paper: robust mean of the top 10 %).
+    top_fraction : float
+        Fraction of particles the robust mean averages, in (0, 1].
+    init_spread_px : float
+        Std of the initial particle positions around the first measurement / prior.
+    init_velocity_px : float
+        Std of the initial particle velocities (px / frame) around 0 / the prior's.
+    prior : (u, v) or (u, v, du, dv), optional
+        State at the first step (which therefore does not predict); without it
+        the filter waits for the first measurement.
+    frame_period_ns : float, optional
+        If given, a step spans ``(t_k - t_(k-1)) / frame_period_ns`` frame steps
+        (dropped frames are bridged); default: every step is one frame step, as
+        in the paper.
+    keep_particles : bool
+        Copy the particle positions into each :class:`Estimate` (``particles``);
+        False saves a copy per step (benchmarks, sweeps).
+    rng : numpy.random.Generator, int or None
+        Random source (see :func:`fusion_pf.rng.as_rng`).
+
+    Attributes
+    ----------
+    particles : ndarray, shape (N, 4)
+        Current particles ``(u, v, du, dv)`` after the last step (a view; it is
+        overwritten by the next step).
+    log_weights : ndarray, shape (N,)
+        Their normalised log-weights.
+    initialised : bool
+        Whether the filter holds a particle set.
+    """
+
+    def __init__(
+        self,
+        *,
+        n_particles: int = 100,
+        process_noise: tuple[float, float] = (3.0, 1.0),
+        noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
+        likelihood: str = "gaussian",
+        outlier_prob: float = 0.1,
+        use_quality: bool = True,
+        min_quality: float = 0.05,
+        outlier_area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
+        resampler: str = "residual",
+        ess_threshold: float = 2.0 / 3.0,
+        estimator: str = "robust_mean",
+        top_fraction: float = 0.1,
+        init_spread_px: float = 20.0,
+        init_velocity_px: float = 2.0,
+        prior=None,
+        frame_period_ns: float | None = None,
+        keep_particles: bool = True,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 1:
+            raise InputError(f"n_particles must be an int >= 1, got {n_particles!r}")
+        if resampler not in RESAMPLERS:
+            raise InputError(f"resampler must be one of {', '.join(RESAMPLERS)}, got {resampler!r}")
+        if estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+        if not (0.0 <= float(ess_threshold) <= 1.0):
+            raise InputError(f"ess_threshold must be in [0, 1] (fraction of N), got {ess_threshold}")
+        if not (0.0 < float(top_fraction) <= 1.0):
+            raise InputError(f"top_fraction must be in (0, 1], got {top_fraction}")
+        for name, value in (("init_spread_px", init_spread_px), ("init_velocity_px", init_velocity_px)):
+            if not (math.isfinite(float(value)) and float(value) >= 0.0):
+                raise InputError(f"{name} must be a finite number >= 0, got {value}")
+        if frame_period_ns is not None and not (math.isfinite(frame_period_ns) and frame_period_ns > 0):
+            raise InputError(f"frame_period_ns must be a number > 0 or None, got {frame_period_ns}")
+        self.n_particles = int(n_particles)
+        self.process_noise = check_process_noise(process_noise)
+        self._like = JointLikelihood(
+            noise_px,
+            likelihood=likelihood,
+            outlier_prob=outlier_prob,
+            use_quality=use_quality,
+            min_quality=min_quality,
+            outlier_area_px2=outlier_area_px2,
+        )
+        self.noise_px = self._like.noise_px
+        self.likelihood = likelihood
+        self.resampler = resampler
+        self._resample = RESAMPLERS[resampler]
+        self.ess_threshold = float(ess_threshold)
+        self.estimator = estimator
+        self._estimate = ESTIMATORS[estimator]
+        self.top_fraction = float(top_fraction)
+        self.init_spread_px = float(init_spread_px)
+        self.init_velocity_px = float(init_velocity_px)
+        self.prior = check_prior(prior)
+        self.frame_period_ns = None if frame_period_ns is None else float(frame_period_ns)
+        self.keep_particles = bool(keep_particles)
+        self.rng = as_rng(rng)
+        n = self.n_particles
+        # particles stored transposed (4, N): each component is one contiguous row
+        self._x = np.empty((4, n))
+        self._spare = np.empty((4, n))
+        self._noise = np.empty((4, n))
+        self._logw = np.empty(n)
+        self._w = np.empty(n)
+        self._joint = np.empty(n)
+        self._std_unit = noise_std(self.process_noise, 1.0)
+        self.reinitialisations = 0
+        self.reset()
+
+    @property
+    def particles(self) -> np.ndarray:
+        """Current particles, shape (N, 4) ``(u, v, du, dv)`` (a view)."""
+        return self._x.T
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        """Normalised log-weights of :attr:`particles`, shape (N,) (a view)."""
+        return self._logw
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Normalised weights of :attr:`particles`, shape (N,) (a view)."""
+        return self._w
+
+    def reset(self) -> None:
+        """Forget the particles; re-initialise from ``prior`` (if any) or the next measurement."""
+        self._last_ns: int | None = None
+        self.initialised = False
+        if self.prior is not None:
+            self._initialise(self.prior)
+
+    def _initialise(self, centre: np.ndarray) -> None:
+        """Particles ~ N(centre, spread^2) with weights 1/N (initialisation phase)."""
+        std = np.array([self.init_spread_px] * 2 + [self.init_velocity_px] * 2)
+        self.rng.standard_normal(out=self._x)
+        # x_i = centre + spread (x) N(0, I)
+        self._x *= std[:, None]
+        self._x += np.asarray(centre, dtype=np.float64)[:, None]
+        # w_i = 1 / N
+        self._logw.fill(-math.log(self.n_particles))
+        self._w.fill(1.0 / self.n_particles)
+        self.initialised = True
+
+    def _centre_of(self, measurements: Sequence[Measurement]) -> np.ndarray:
+        """Initialisation state from measurements: fused position, zero velocity."""
+        sigma = {m.source: self._like.noise_px[m.source] for m in measurements}
+        return np.concatenate([fused_position(measurements, sigma), [0.0, 0.0]])
+
+    def _update(self, measurements: Sequence[Measurement]) -> None:
+        """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising on underflow."""
+        positions = self._x[:2].T
+        joint, worst = self._like(positions, measurements, self._joint)
+        if worst < UNDERFLOW_LOG:
+            self.reinitialisations += 1
+            self._initialise(self._centre_of(measurements))
+            joint, worst = self._like(positions, measurements, self._joint)
+        logw = self._logw
+        # w_k ∝ w_(k-1) * p(z_k | x_k)   (eq. 3, logs)
+        logw += joint
+        peak = logw.max()
+        w = np.subtract(logw, peak, out=self._w)
+        np.exp(w, out=w)
+        total = w.sum()
+        # w~_i = w_i / sum_j w_j   (eq. 2)
+        w *= 1.0 / total
+        logw -= peak + math.log(total)
+
+    def step(self, timestamp_ns: int, measurements: Sequence[Measurement]) -> Estimate | None:
+        """Run one frame: (initialise |) predict, update, estimate, resample.
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Frame time; must increase from step to step.
+        measurements : sequence of Measurement
+            This frame's cues (any subset of the sources in ``noise_px``; a
+            missing source contributes nothing).
+
+        Returns
+        -------
+        Estimate or None
+            None until the filter is initialised (no prior, no measurement yet).
+        """
+        t = check_timestamp(timestamp_ns, self._last_ns)
+        ms = self._like.check(measurements)
+        if not self.initialised:
+            if not ms:
+                return None
+            self._initialise(self._centre_of(ms))
+        elif self._last_ns is not None:
+            dt = step_length(t, self._last_ns, self.frame_period_ns)
+            std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
+            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
+            predict(self._x, std, self.rng, dt=dt, scratch=self._noise)
+        self._last_ns = t
+        if ms:
+            self._update(ms)
+        return self._finish(t)
+
+    def _finish(self, t: int) -> Estimate:
+        """Estimation phase, ESS and the optional resampling phase."""
+        w = self._w
+        n = self.n_particles
+        positions = self._x[:2].T
+        u, v = self._estimate(positions, w, self.top_fraction)
+        cov = weighted_covariance(positions, w, weighted_mean(positions, w))
+        # ESS = 1 / sum_i w_i^2
+        ess = 1.0 / float(np.einsum("i,i->", w, w))
+        resampled = ess < self.ess_threshold * n
+        if resampled:
+            idx = self._resample(w, self.rng)
+            np.take(self._x, idx, axis=1, mode="clip", out=self._spare)
+            self._x, self._spare = self._spare, self._x
+            # w_i = 1 / N after resampling
+            self._logw.fill(-math.log(n))
+            w.fill(1.0 / n)
+        particles = np.ascontiguousarray(self._x[:2].T) if self.keep_particles else None
+        return Estimate(
+            timestamp_ns=t,
+            u=float(u),
+            v=float(v),
+            ess=ess,
+            resampled=bool(resampled),
+            n_particles=n,
+            cov=cov,
+            particles=particles,
+        )

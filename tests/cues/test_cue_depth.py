@@ -1,0 +1,131 @@
+import math
+
+import numpy as np
+import pytest
+
+from fusion_pf.cues import DepthCue, make_roi
+from fusion_pf.errors import InputError
+
+STAGES = ["I_d1", "I_d2", "I_d3", "I_d4A", "I_d4B", "I_d5", "I_d6", "I_d7", "I_d8", "I_d9", "I_d10"]
+# the paper's fixed band, 1.7 m+ in front of the wall: the hand only (no nearest-surface slab)
+HAND_BAND = {"range_mm": (0, 2550), "lower": 170, "upper": 255, "nearest_mm": None}
+
+
+def _err(m, truth):
+    return math.hypot(m.u - truth[0], m.v - truth[1])
+
+
+def test_finds_the_hand_centroid(scene):
+    s = scene()
+    res = DepthCue(**HAND_BAND)(s["depth"], s["bg_depth"])
+    assert res.measurement is not None and res.measurement.source == "depth"
+    assert _err(res.measurement, s["truth"]) < 1.0
+    assert res.latency_ns > 0
+
+
+def test_nearest_surface_slab_separates_the_hand_from_the_torso(scene):
+    s = scene(hand=(100.0, 100.0))  # the hand in front of the torso
+    roi = make_roi(100, 100, (240, 200), half_size=40)
+    paper = DepthCue(lower=15, nearest_mm=None)(s["depth"], s["bg_depth"], roi=roi).measurement
+    assert paper is None  # the torso fills the window and touches its border
+    m = DepthCue(lower=15)(s["depth"], s["bg_depth"], roi=roi).measurement
+    assert _err(m, s["truth"]) < 1.0
+    assert m.extras["area"] == pytest.approx(np.count_nonzero(s["hand"]), abs=2)
+
+
+def test_stage_names_shapes_and_dtypes(scene):
+    s = scene()
+    roi = make_roi(150, 90, (240, 200), half_size=30)
+    st = DepthCue(**HAND_BAND)(s["depth"], s["bg_depth"], roi=roi, stages=True).stages
+    assert list(st) == STAGES
+    assert st["I_d1"].dtype == np.uint16 and st["I_d2"].dtype == np.uint16
+    assert st["I_d3"].dtype == np.uint8
+    for name in STAGES:
+        assert st[name].shape == (61, 61)
+    for name in STAGES[3:]:
+        assert st[name].dtype == np.uint8 and set(np.unique(st[name])) <= {0, 255}
+    assert int(st["I_d2"].max()) == 1800  # hand: 3000 - 1200 mm
+    assert int(st["I_d3"].max()) == 180  # 1800 mm at 10 mm per level
+
+
+def test_invalid_depth_never_counts_as_foreground(scene):
+    s = scene()
+    depth = s["depth"].copy()
+    depth[150:190, 150:230] = 0  # a band of invalid depth far bigger than the hand
+    bg = s["bg_depth"].copy()
+    bg[5:30, 5:60] = 0  # unknown background where the frame has (near) depth
+    depth[5:30, 5:60] = 800
+    m = DepthCue(**HAND_BAND)(depth, bg).measurement
+    assert _err(m, s["truth"]) < 1.0
+    zero = np.zeros_like(depth)
+    assert DepthCue(**HAND_BAND)(zero, s["bg_depth"]).measurement is None
+    assert DepthCue(lower=0)(zero, s["bg_depth"]).measurement is None
+    assert DepthCue(**HAND_BAND)(s["depth"], zero).measurement is None
+
+
+def test_temporal_difference_follows_the_moving_hand_not_static_clutter(scene):
+    prev, cur = scene(hand=(146.0, 90.0)), scene(hand=(150.0, 90.0))
+    clutter = (slice(150, 195), slice(150, 235))  # a static object at hand depth, larger than the hand
+    for s in (prev, cur):
+        s["depth"][clutter] = 1150
+    static = DepthCue(**HAND_BAND, temporal=False)
+    assert _err(static(cur["depth"], cur["bg_depth"]).measurement, cur["truth"]) > 40
+    cue = DepthCue(**HAND_BAND)
+    first = cue(prev["depth"], prev["bg_depth"]).measurement
+    assert first.extras["moved"] is False
+    res = cue(cur["depth"], cur["bg_depth"], stages=True)
+    assert res.measurement.extras["moved"] is True
+    assert _err(res.measurement, cur["truth"]) < 3.0
+    entered = cur["hand"] & ~prev["hand"]
+    assert np.mean(res.stages["I_d6"][entered] == 255) > 0.95  # the pixels the hand entered
+    cue.reset()
+    assert cue(cur["depth"], cur["bg_depth"]).measurement.extras["moved"] is False
+
+
+def test_previous_result_is_realigned_between_windows(scene):
+    prev, cur = scene(hand=(146.0, 90.0)), scene(hand=(150.0, 90.0))
+    cue = DepthCue(**HAND_BAND)
+    cue(prev["depth"], prev["bg_depth"], roi=make_roi(140, 85, (240, 200), half_size=30))
+    m = cue(cur["depth"], cur["bg_depth"], roi=make_roi(155, 95, (240, 200), half_size=30)).measurement
+    assert m.extras["moved"] is True and _err(m, cur["truth"]) < 3.0
+
+
+@pytest.mark.parametrize("du,dv", [(5, 0), (-17, 11), (30, -30)])
+def test_shift_invariance(scene, du, dv):
+    s0, s1 = scene(), scene(shift=(du, dv))
+    m0 = DepthCue(**HAND_BAND)(s0["depth"], s0["bg_depth"]).measurement
+    m1 = DepthCue(**HAND_BAND)(s1["depth"], s1["bg_depth"]).measurement
+    assert (m1.u - m0.u, m1.v - m0.v) == pytest.approx((du, dv), abs=1e-6)
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (1, 1)])
+def test_tiny_and_uniform_frames_give_none(shape):
+    d = np.full(shape, 1000, np.uint16)
+    assert DepthCue()(d, d.copy()).measurement is None
+    assert DepthCue()(d, np.full(shape, 3000, np.uint16)).measurement is None
+
+
+@pytest.mark.parametrize("u,v", [(0, 0), (239, 199), (-5, 100), (1000, 5)])
+def test_roi_partly_or_fully_outside(scene, u, v):
+    s = scene()
+    cue = DepthCue(**HAND_BAND)
+    for _ in range(2):
+        m = cue(s["depth"], s["bg_depth"], roi=make_roi(u, v, (240, 200), half_size=50), stages=True).measurement
+        assert m is None or (math.isfinite(m.u) and math.isfinite(m.v))
+
+
+@pytest.mark.parametrize(
+    "kwargs,needle",
+    [({"range_mm": (100, 100)}, "range_mm"), ({"range_mm": 5}, "range_mm"), ({"lower": 300}, "lower"),
+     ({"upper": 10, "lower": 20}, "upper"), ({"dilate": -1}, "dilate")],
+)
+def test_bad_options(kwargs, needle):
+    with pytest.raises(InputError, match=needle) as e:
+        DepthCue(**kwargs)
+    assert "\n" not in str(e.value)
+
+
+def test_wrong_dtype_is_an_input_error(scene):
+    s = scene()
+    with pytest.raises(InputError, match="uint16"):
+        DepthCue()(s["depth"].astype(np.float32), s["bg_depth"])

@@ -1,0 +1,108 @@
+import math
+
+import numpy as np
+import pytest
+
+from fusion_pf.cues.regions import (
+    Region,
+    clear_border,
+    dilate,
+    fill_holes,
+    largest_region,
+    measure,
+    region_quality,
+    remove_small,
+)
+
+
+def _mask(h=40, w=40):
+    return np.zeros((h, w), np.uint8)
+
+
+def test_remove_small_keeps_only_big_regions():
+    m = _mask()
+    m[2:4, 2:4] = 255  # 4 px
+    m[10:20, 10:20] = 255  # 100 px
+    out = remove_small(m, 5)
+    assert out[2:4, 2:4].max() == 0
+    assert (out[10:20, 10:20] == 255).all()
+    assert out.dtype == np.uint8 and out.shape == m.shape
+
+
+def test_fill_holes_fills_enclosed_but_not_border_open_zeros():
+    m = _mask()
+    m[5:25, 5:25] = 255
+    m[10:15, 10:15] = 0  # enclosed hole
+    m[0:3, 30:40] = 0
+    m[0:10, 28] = 255  # a wall that touches the border: its side is not a hole
+    out = fill_holes(m)
+    assert (out[10:15, 10:15] == 255).all()
+    assert out[0:3, 30:40].max() == 0
+    assert np.array_equal(out & ~np.uint8(0), out)  # still binary values
+    assert set(np.unique(out)) <= {0, 255}
+
+
+def test_dilate_grows_by_radius():
+    m = _mask()
+    m[20, 20] = 255
+    out = dilate(m, 3)
+    assert out[20, 23] == 255 and out[20, 24] == 0
+    assert np.array_equal(dilate(m, 0), m)
+
+
+def test_clear_border_removes_touching_regions_only():
+    m = _mask()
+    m[0:5, 0:5] = 255
+    m[15:20, 15:20] = 255
+    m[35:40, 10:12] = 255
+    out = clear_border(m)
+    assert out[0:5, 0:5].max() == 0 and out[35:40, 10:12].max() == 0
+    assert (out[15:20, 15:20] == 255).all()
+
+
+def test_largest_region_centroid_and_area():
+    m = _mask(50, 60)
+    m[10:21, 30:41] = 255  # 121 px square centred at (35, 15)
+    m[40:43, 2:5] = 255
+    r = largest_region(m)
+    assert r is not None
+    assert r.area == 121 and r.bbox == (30, 10, 11, 11)
+    assert (r.u, r.v) == pytest.approx((35.0, 15.0))
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (1, 1), (8, 8)])
+def test_largest_region_degenerate_is_none(shape):
+    assert largest_region(np.zeros(shape, np.uint8)) is None
+    for f in (fill_holes, clear_border):
+        assert f(np.zeros(shape, np.uint8)).shape == shape
+    assert remove_small(np.zeros(shape, np.uint8), 10).shape == shape
+
+
+def test_largest_region_respects_min_area():
+    m = _mask()
+    m[5:8, 5:8] = 255
+    assert largest_region(m, min_area=10) is None
+    assert largest_region(m, min_area=9) is not None
+
+
+def test_region_quality_peaks_for_a_disc_of_the_expected_area():
+    vv, uu = np.mgrid[0:80, 0:80]
+    disc = np.where((uu - 40) ** 2 + (vv - 40) ** 2 <= 15**2, np.uint8(255), np.uint8(0))
+    r = largest_region(disc)
+    q_match = region_quality(r, palm_area=math.pi * 15**2)
+    q_big = region_quality(r, palm_area=4 * math.pi * 15**2)
+    line = Region(10.0, 10.0, 60, (0, 10, 60, 1))
+    q_line = region_quality(line, palm_area=60)
+    assert q_match > 0.9
+    assert q_big == pytest.approx(q_match / 4, rel=0.05)
+    assert 0.0 <= q_line < q_match
+    assert 0.0 <= q_line <= 1.0
+
+
+def test_measure_adds_offset_and_extras():
+    m = _mask()
+    m[10:15, 20:25] = 255
+    meas = measure(m, (100, 50), "colour", palm_area=25)
+    assert (meas.u, meas.v) == pytest.approx((122.0, 62.0))
+    assert meas.extras["area"] == 25 and meas.extras["bbox"] == [120, 60, 5, 5]
+    assert measure(_mask(), (0, 0), "colour", palm_area=25) is None

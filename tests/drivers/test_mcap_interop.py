@@ -1,0 +1,148 @@
+"""Interop: files written by foxglove-sdk replay identically; our files pass `rerun mcap check`
+and the TypeScript @mcap readers (CRC-validated)."""
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from drivers import mcap_format as fmt
+from drivers.mcap_replay import McapReplay
+
+INTEROP = Path(__file__).resolve().parents[1] / "interop"
+VENV_BIN = Path(__file__).resolve().parents[2] / ".venv" / "bin"
+
+
+def replay(path):
+    with McapReplay(path) as r:
+        return list(r), r.info()
+
+
+@pytest.mark.parametrize("color, depth", [("rgb8", "16UC1"), ("bgr8", "mono16"), ("png", "png"), ("jpeg", "16UC1")])
+def test_foxglove_sdk_file_replays_to_identical_frames(tmp_path, make_frames, record, write_foxglove, same_frames,
+                                                       color, depth):
+    frames = make_frames(12, no_depth=(4,), no_skeleton=(7,), calibration_change=9)
+    # both writers encode JPEG with OpenCV at quality 95, so even JPEG frames decode identically
+    ours, our_info = replay(record(tmp_path / "ours.mcap", frames, jpeg_quality=95,
+                                   color_format="jpeg" if color == "jpeg" else "raw"))
+    theirs, info = replay(write_foxglove(tmp_path / "sdk.mcap", frames, color=color, depth=depth))
+    assert info.library.startswith("foxglove-sdk") and info.indexed and not info.truncated
+    same_frames(ours, theirs)
+    if color != "jpeg":
+        same_frames(frames, theirs)
+    assert (info.frames, info.missing_depth, info.missing_skeleton, info.background_frames) == (
+        our_info.frames, our_info.missing_depth, our_info.missing_skeleton, our_info.background_frames)
+    assert info.color_format == color and info.depth_format == depth
+
+
+def test_unchunked_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglove, same_frames):
+    """A writer without chunks or indexes: replay rebuilds the index by scanning."""
+    import foxglove
+    from foxglove import Context
+    from foxglove.mcap import MCAPWriteOptions
+
+    frames = make_frames(6)
+    indexed, _ = replay(write_foxglove(tmp_path / "a.mcap", frames))
+    original = foxglove.open_mcap
+
+    def unchunked(path, *, context: Context, writer_options: MCAPWriteOptions):
+        options = MCAPWriteOptions(use_chunks=False, emit_chunk_indexes=False, emit_message_indexes=False)
+        return original(path, context=context, writer_options=options)
+
+    foxglove.open_mcap = unchunked
+    try:
+        path = write_foxglove(tmp_path / "flat.mcap", frames)
+    finally:
+        foxglove.open_mcap = original
+    scanned, info = replay(path)
+    assert not info.indexed and not info.truncated
+    assert info.notes[0].startswith("file has no usable index (no chunk index)")
+    same_frames(indexed, scanned)
+    with McapReplay(path) as r:
+        same_frames([indexed[4]], [r.frame(4)])
+
+
+@pytest.fixture(scope="module")
+def rerun_env(tmp_path_factory):
+    rerun = VENV_BIN / "rerun"
+    assert rerun.exists(), f"{rerun} missing: install rerun-sdk (tools/setup.sh --test)"
+    home = tmp_path_factory.mktemp("rerun-home")
+    env = {
+        **os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / "config"),
+        "XDG_DATA_HOME": str(home / "data"), "XDG_CACHE_HOME": str(home / "cache"),
+        "RERUN_TELEMETRY_ENABLED": "false",
+    }
+    help_text = subprocess.run([str(rerun), "mcap", "--help"], env=env, capture_output=True, text=True, timeout=60)
+    assert "check" in help_text.stdout, "this rerun version has no `rerun mcap check`"
+    subprocess.run([str(rerun), "analytics", "disable"], env=env, capture_output=True, timeout=60, check=True)
+    return str(rerun), env
+
+
+@pytest.mark.parametrize("color_format, depth_format", [("raw", "raw"), ("jpeg", "png")])
+def test_rerun_mcap_check_passes(tmp_path, make_frames, record, rerun_env, color_format, depth_format):
+    rerun, env = rerun_env
+    path = record(tmp_path / "ours.mcap", make_frames(10), color_format=color_format, depth_format=depth_format)
+    proc = subprocess.run([rerun, "mcap", "check", str(path)], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split()[3]: line.split()[0] for line in proc.stdout.splitlines()
+            if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")}
+    assert rows == {topic: "ok" for topic in fmt.FRAME_TOPICS}, proc.stdout
+
+
+def test_rerun_mcap_check_catches_corruption(tmp_path, make_frames, record, rerun_env):
+    """The check used above is able to fail: a flipped byte in a chunk is reported."""
+    rerun, env = rerun_env
+    path = record(tmp_path / "ours.mcap", make_frames(10))
+    with McapReplay(path) as r:
+        victim = r._blocks[1]
+    data = bytearray(path.read_bytes())
+    data[victim.offset + victim.length // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+    proc = subprocess.run([rerun, "mcap", "check", str(path)], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "CRC" in proc.stderr
+
+
+def node_read(path):
+    node = shutil.which("node")
+    assert node, "node is not installed (tools/setup.sh --test installs it)"
+    assert (INTEROP / "node_modules" / "@mcap" / "core").is_dir(), "run `npm ci` in tests/interop (tools/setup.sh --test)"
+    return subprocess.run([node, str(INTEROP / "read_mcap.mjs"), str(path)], capture_output=True, text=True,
+                          timeout=120, cwd=INTEROP)
+
+
+def test_typescript_readers_agree(tmp_path, make_frames, record):
+    frames = make_frames(9, no_depth=(2,), no_skeleton=(3, 4))
+    path = record(tmp_path / "ours.mcap", frames, color_format="jpeg", metadata={"seed": "4"})
+    proc = node_read(path)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    indexed, stream = out["indexed"], out["stream"]
+    counts = {fmt.CALIBRATION_TOPIC: 1, fmt.COLOR_TOPIC: 9, fmt.DEPTH_TOPIC: 8, fmt.SKELETON_TOPIC: 7,
+              fmt.GROUND_TRUTH_TOPIC: 7}
+    assert {topic: t["count"] for topic, t in indexed["topics"].items()} == counts
+    assert stream["done"] and stream["counts"] == counts and stream["dataSectionCrc"] != 0
+    assert indexed["ordered"] and indexed["compression"] == ["zstd"] and indexed["messages"] == sum(counts.values())
+    assert indexed["statistics"]["messageCount"] == sum(counts.values())
+    topics = indexed["topics"]
+    assert topics[fmt.COLOR_TOPIC]["schema"] == fmt.COMPRESSED_IMAGE and topics[fmt.COLOR_TOPIC]["first"]["format"] == "jpeg"
+    assert topics[fmt.DEPTH_TOPIC]["first"] == {"width": 64, "height": 48, "encoding": "16UC1", "frame_id": "camera",
+                                                 "dataBytes": 64 * 48 * 2}
+    k = frames[0].intrinsics
+    assert topics[fmt.CALIBRATION_TOPIC]["first"]["K"] == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
+    assert topics[fmt.SKELETON_TOPIC]["schemaEncoding"] == "jsonschema" and topics[fmt.SKELETON_TOPIC]["first"] == {"keys": ["joints"]}
+    assert indexed["metadata"][-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
+        "format_version": "1", "writer": indexed["metadata"][0]["metadata"]["writer"], "seed": "4", "background_frames": "2"}}
+
+
+def test_typescript_reader_validates_crcs(tmp_path, make_frames, record):
+    path = record(tmp_path / "ours.mcap", make_frames(10))
+    with McapReplay(path) as r:
+        victim = r._blocks[1]
+    data = bytearray(path.read_bytes())
+    data[victim.offset + victim.length // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+    proc = node_read(path)
+    assert proc.returncode == 1 and "CRC" in proc.stderr and proc.stderr.count("\n") == 1

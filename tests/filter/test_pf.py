@@ -1,0 +1,227 @@
+"""The data-fusion particle filter: equations, fusion accuracy, robustness, errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from fusion_pf.cues.base import Measurement
+from fusion_pf.errors import InputError
+from fusion_pf.filter import Estimate, ParticleFilter
+from fusion_pf.filter.estimate import map_estimate, robust_mean, weighted_covariance, weighted_mean
+from fusion_pf.filter.likelihood import robust_loglik
+from fusion_pf.filter.scenario import rmse, run_tracker, scripted_scenario
+
+NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
+MS = [Measurement("colour", 320.0, 200.0), Measurement("depth", 324.0, 197.0), Measurement("skeleton", 310.0, 210.0)]
+
+
+def _clone(rng: np.random.Generator) -> np.random.Generator:
+    twin = np.random.default_rng()
+    twin.bit_generator.state = rng.bit_generator.state
+    return twin
+
+
+def test_step_reproduces_equations_3_to_7_by_hand():
+    """Predict (eq. 4) and weight update (eqs. 3, 5-7) recomputed independently, to 1e-12."""
+    rng = np.random.default_rng(11)
+    pf = ParticleFilter(n_particles=257, process_noise=(2.0, 0.5), ess_threshold=0.0, rng=rng)
+    pf.step(0, MS)
+    x0 = pf.particles.copy()
+    logw0 = pf.log_weights.copy()
+    noise = _clone(rng).standard_normal((4, 257)).T
+    frame = [MS[0], MS[2]]  # depth missing this frame: it must contribute nothing
+    est = pf.step(1, frame)
+    m = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+    x1 = x0 @ m.T + noise * np.array([2.0, 2.0, 0.5, 0.5])
+    np.testing.assert_allclose(pf.particles, x1, rtol=0, atol=1e-12)
+    ll = sum(-((x1[:, 0] - z.u) ** 2 + (x1[:, 1] - z.v) ** 2) / (2 * NOISE[z.source] ** 2) for z in frame)
+    logw = logw0 + ll
+    logw -= np.logaddexp.reduce(logw)
+    np.testing.assert_allclose(pf.log_weights, logw, rtol=0, atol=1e-9)
+    w = np.exp(logw)
+    assert est.ess == pytest.approx(1.0 / np.sum(w**2), rel=1e-9)
+    assert not est.resampled
+    assert np.exp(pf.log_weights).sum() == pytest.approx(1.0, abs=1e-12)
+
+
+def test_frame_without_measurements_only_predicts():
+    pf = ParticleFilter(n_particles=300, rng=1)
+    pf.step(0, MS)
+    logw = pf.log_weights.copy()
+    est = pf.step(5, [])
+    np.testing.assert_array_equal(pf.log_weights, logw)
+    assert isinstance(est, Estimate) and est.timestamp_ns == 5
+
+
+def test_not_initialised_until_measurement_or_prior():
+    pf = ParticleFilter(n_particles=50, rng=0)
+    assert pf.step(0, []) is None
+    est = pf.step(1, MS)
+    fused = np.array([[m.u, m.v] for m in MS]).T @ (w := np.array([1 / 36, 1 / 100, 1 / 225])) / w.sum()
+    assert math.hypot(est.u - fused[0], est.v - fused[1]) < 10.0
+    with_prior = ParticleFilter(n_particles=2000, prior=(100.0, 50.0), init_spread_px=5.0, rng=0)
+    est = with_prior.step(0, [])
+    assert est is not None and abs(est.u - 100) < 2 and abs(est.v - 50) < 2
+
+
+def test_shapes_and_estimate_fields():
+    pf = ParticleFilter(n_particles=123, rng=4)
+    est = pf.step(0, MS)
+    assert pf.particles.shape == (123, 4) and pf.log_weights.shape == (123,)
+    assert est.particles.shape == (123, 2) and est.n_particles == 123
+    assert est.cov.shape == (2, 2) and np.allclose(est.cov, est.cov.T) and np.all(np.linalg.eigvalsh(est.cov) > 0)
+    assert 1.0 <= est.ess <= 123.0
+    assert ParticleFilter(n_particles=10, keep_particles=False, rng=0).step(0, MS).particles is None
+
+
+def test_resampling_happens_exactly_when_ess_below_two_thirds():
+    sc = scripted_scenario(60, rng=5)
+    pf = ParticleFilter(n_particles=400, rng=5)
+    seen = set()
+    for k, ts in enumerate(sc.timestamps_ns):
+        est = pf.step(int(ts), sc.frame(k))
+        assert est.resampled == (est.ess < 2 / 3 * 400)
+        if est.resampled:
+            assert np.all(pf.log_weights == -math.log(400))
+        seen.add(est.resampled)
+    assert seen == {True, False}
+
+
+def test_same_seed_same_output_different_seed_different():
+    sc = scripted_scenario(40, rng=2)
+    a = run_tracker(ParticleFilter(n_particles=200, rng=9), sc)
+    b = run_tracker(ParticleFilter(n_particles=200, rng=9), sc)
+    c = run_tracker(ParticleFilter(n_particles=200, rng=10), sc)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("resampler", ["residual", "multinomial", "stratified", "systematic"])
+def test_fused_rmse_below_best_single_source(resampler):
+    """Paper 003's claim on a scripted path with known noise (sigma 6 / 10 / 15 px)."""
+    sc = scripted_scenario(200, noise_px=NOISE, rng=21)
+    settle = slice(10, None)
+    fused = rmse(run_tracker(ParticleFilter(n_particles=500, resampler=resampler, rng=1), sc), sc.truth, settle)
+    raw = {s: rmse(z, sc.truth, settle) for s, z in sc.measurements.items()}
+    single = {
+        s: rmse(run_tracker(ParticleFilter(n_particles=500, resampler=resampler, rng=1), sc, {s}), sc.truth, settle)
+        for s in NOISE
+    }
+    best = min(min(raw.values()), min(single.values()))
+    assert fused < 0.95 * best, (fused, raw, single)
+
+
+def test_missing_sources_and_dropouts_do_not_break_fusion():
+    sc = scripted_scenario(200, dropout=0.3, rng=8)
+    est = run_tracker(ParticleFilter(n_particles=500, rng=3), sc)
+    assert np.isfinite(est).all()
+    assert rmse(est, sc.truth, slice(10, None)) < rmse(sc.measurements["colour"], sc.truth)
+
+
+@pytest.mark.parametrize("liar", ["colour", "skeleton"])
+def test_robust_likelihood_resists_a_lying_source(liar):
+    """One source offset by 60 px for 20 frames: the robust mixture stays closer to the truth."""
+    sc = scripted_scenario(160, lie_source=liar, lie_start=80, lie_frames=20, rng=3)
+    err = {
+        lik: rmse(run_tracker(ParticleFilter(n_particles=1000, likelihood=lik, rng=0), sc), sc.truth, sc.lie_frames)
+        for lik in ("gaussian", "robust")
+    }
+    assert err["robust"] < err["gaussian"], err
+    if liar == "colour":  # the tightest source lying drags the Gaussian filter most of the 60 px
+        assert err["gaussian"] > 25.0 and err["robust"] < 12.0, err
+
+
+def test_low_quality_widens_robust_likelihood():
+    """A cue 8 px off pulls by its precision: sigma 10 at quality 1, ~31.6 at quality 0.1."""
+    est = {}
+    for q in (1.0, 0.1):
+        pf = ParticleFilter(n_particles=4000, likelihood="robust", estimator="weighted_mean", ess_threshold=0.0, rng=0)
+        pf.step(0, [Measurement("colour", 300.0, 200.0)])
+        est[q] = pf.step(1, [Measurement("depth", 308.0, 200.0, quality=q)]).u
+    assert est[1.0] > est[0.1] + 1.0, est
+
+
+def test_robust_loglik_matches_scipy_mixture():
+    rng = np.random.default_rng(0)
+    pts = rng.normal(300.0, 40.0, (50, 2))
+    z, sigma, eps, area = np.array([310.0, 290.0]), 7.0, 0.2, 640.0 * 400.0
+    d2 = np.sum((pts - z) ** 2, axis=1)
+    expected = np.log((1 - eps) * multivariate_normal(z, sigma**2 * np.eye(2)).pdf(pts) + eps / area)
+    np.testing.assert_allclose(robust_loglik(d2, sigma, eps, area), expected, rtol=1e-12)
+
+
+def test_underflow_reinitialises_instead_of_nan():
+    pf = ParticleFilter(n_particles=300, rng=0)
+    pf.step(0, MS)
+    far = [Measurement("colour", 1.0e5, -4.0e4), Measurement("skeleton", 1.0e5 + 5, -4.0e4)]
+    est = pf.step(1, far)
+    assert pf.reinitialisations == 1
+    assert np.isfinite(pf.log_weights).all() and np.isfinite([est.u, est.v]).all()
+    assert math.hypot(est.u - 1.0e5, est.v + 4.0e4) < 25.0
+
+
+def test_estimators_by_hand():
+    pos = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [4.0, 4.0]])
+    w = np.array([0.1, 0.2, 0.3, 0.4])
+    np.testing.assert_allclose(weighted_mean(pos, w), [2.0 + 1.6, 3.0 + 1.6])
+    np.testing.assert_allclose(map_estimate(pos, w), [4.0, 4.0])
+    # top half: particles 2 and 3, weights 0.3 / 0.4 renormalised
+    np.testing.assert_allclose(robust_mean(pos, w, 0.5), [(0.4 * 4) / 0.7, (0.3 * 10 + 0.4 * 4) / 0.7])
+    np.testing.assert_allclose(robust_mean(pos, w, 1.0), weighted_mean(pos, w))
+    m = weighted_mean(pos, w)
+    d = pos - m
+    np.testing.assert_allclose(weighted_covariance(pos, w), (w[:, None] * d).T @ d)
+    pf = ParticleFilter(n_particles=500, estimator="map", ess_threshold=0.0, rng=1)
+    est = pf.step(0, MS)
+    best = pf.particles[np.argmax(pf.log_weights)]
+    assert (est.u, est.v) == (best[0], best[1])
+
+
+def test_frame_period_bridges_dropped_frames():
+    period = 33_333_333
+    pf = ParticleFilter(n_particles=2000, process_noise=(0.0, 0.0), prior=(100, 100, 3, -2), init_spread_px=0.0,
+                        init_velocity_px=0.0, frame_period_ns=period, rng=0)
+    pf.step(0, [])
+    est = pf.step(3 * period, [])
+    assert (est.u, est.v) == pytest.approx((109.0, 94.0))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"n_particles": 0}, "n_particles"),
+        ({"likelihood": "cauchy"}, "likelihood must be one of gaussian, robust"),
+        ({"resampler": "best"}, "resampler must be one of"),
+        ({"estimator": "median"}, "estimator must be one of"),
+        ({"ess_threshold": 1.5}, r"ess_threshold must be in \[0, 1\]"),
+        ({"top_fraction": 0.0}, "top_fraction"),
+        ({"process_noise": (1.0, -1.0)}, "velocity std"),
+        ({"noise_px": {"colour": 0.0}}, "noise_px"),
+        ({"outlier_prob": 1.0}, "outlier_prob"),
+        ({"prior": (1.0, np.nan)}, "prior"),
+        ({"rng": -1}, "seed"),
+    ],
+)
+def test_bad_options_raise_input_error(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        ParticleFilter(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("ts", "ms", "message"),
+    [
+        (1, [Measurement("sonar", 1.0, 1.0)], "known sources: colour, depth, skeleton"),
+        (1, [Measurement("colour", float("nan"), 1.0)], "finite"),
+        (1, [Measurement("colour", 1.0, 1.0, quality=1.5)], r"quality must be in \[0, 1\]"),
+        (0, MS, "must increase"),
+        (2.5, MS, "must be an int"),
+    ],
+)
+def test_bad_steps_raise_input_error(ts, ms, message):
+    pf = ParticleFilter(n_particles=20, rng=0)
+    pf.step(0, MS)
+    with pytest.raises(InputError, match=message):
+        pf.step(ts, ms)

@@ -1,0 +1,171 @@
+"""``fusion-pf score`` on hand-written files: the report's numbers and bad inputs (exit 2, one line)."""
+
+import csv
+import json
+import math
+
+import pytest
+from mcap.writer import Writer
+
+from fusion_pf.cli import main
+
+HEADER = [
+    "frame", "timestamp_ns", "u", "v", "colour_u", "colour_v", "depth_u", "depth_v",
+    "skeleton_u", "skeleton_v", "x_mm", "y_mm", "z_mm", "ess", "resampled", "n_particles",
+    "latency_decode_ms", "latency_colour_ms", "latency_depth_ms", "latency_skeleton_ms",
+    "latency_filter_ms", "latency_total_ms",
+]
+T0, DT = 1_000_000_000, 33_333_333
+
+# Ground truth: frame 0 is a background frame (no ground-truth message).
+GT = {1: (100.0, 50.0, False), 2: (110.0, 50.0, True), 3: (120.0, 60.0, False)}
+# Per frame: estimate, colour, depth, skeleton (None = missing).
+ROWS = {
+    0: (None, None, None, None),
+    1: ((103.0, 54.0), (100.0, 50.0), (106.0, 58.0), None),  # e: 5, 0, 10, -
+    2: ((110.0, 53.0), None, (110.0, 54.0), (116.0, 58.0)),  # e: 3, -, 4, 10
+    3: ((120.0, 61.0), (123.0, 64.0), None, (120.0, 61.0)),  # e: 1, 5, -, 1 (tie fused/skeleton)
+}
+
+
+def write_csv(path, rows=ROWS, header=HEADER):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for frame, (est, col, dep, ske) in rows.items():
+            cells = [frame, T0 + frame * DT]
+            for p in (est, col, dep, ske):
+                cells += ["", ""] if p is None else [f"{p[0]:.3f}", f"{p[1]:.3f}"]
+            cells += ["", "", "", "", "0", "100", "0.5", "1.0", "9.0", "0.1", "0.2", "10.8"]
+            w.writerow([str(c) for c in cells][: len(header)])
+    return path
+
+
+def write_gt(path, gt=GT, t0=T0):
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("fusion_pf.PalmPoint", "jsonschema", b"{}")
+        cid = w.register_channel("/ground_truth/palm", "json", sid)
+        for frame, (u, v, occ) in gt.items():
+            t = t0 + frame * DT
+            w.add_message(cid, t, json.dumps({"u": u, "v": v, "occluded": occ}).encode(), t)
+        w.finish()
+    return path
+
+
+def run_cli(capsys, *argv):
+    code = main(["score", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_score_csv_against_ground_truth(tmp_path, capsys):
+    tracked, gt = write_csv(tmp_path / "t.csv"), write_gt(tmp_path / "gt.mcap")
+    code, out, err = run_cli(capsys, tracked, "--ground-truth", gt, "--json", "--plots", tmp_path / "plots")
+    assert code == 0, err
+    rep = json.loads(out)
+    src = rep["sources"]
+    assert src["fused"]["rmse_px"] == pytest.approx(math.sqrt((25 + 9 + 1) / 3))
+    assert src["depth"]["rmse_px"] == pytest.approx(math.sqrt((100 + 16) / 2))
+    assert src["colour"]["coverage"] == pytest.approx(2 / 3)
+    # BestMax: f1 colour (0); f2 fused (3); f3 fused & skeleton tie (1).
+    assert {k: v["bestmax"] for k, v in src.items()} == {"colour": 1, "depth": 0, "skeleton": 1, "fused": 2}
+    assert rep["bestmax"]["n_ties"] == 1
+    assert rep["n_reference"] == 3 and rep["n_occluded"] == 1
+    assert src["fused"]["rmse_occluded_px"] == pytest.approx(3.0)
+    assert rep["per_frame"]["error_px"]["fused"] == [None, 5.0, 3.0, 1.0]
+    assert rep["latency_ms"]["total"]["mean"] == pytest.approx(10.8)
+    for name in ("errors_per_frame.png", "latency_per_frame.png", "score.md", "score.json"):
+        assert (tmp_path / "plots" / name).stat().st_size > 0
+    assert json.loads((tmp_path / "plots" / "score.json").read_text())["sources"] == src
+    md = (tmp_path / "plots" / "score.md").read_text()
+    assert "| fused (DF-PF) | 3.42 |" in md  # sqrt(35/3) = 3.4157
+
+
+def test_markdown_is_default_output(tmp_path, capsys):
+    code, out, _ = run_cli(capsys, write_csv(tmp_path / "t.csv"), "--ground-truth", write_gt(tmp_path / "g.mcap"))
+    assert code == 0
+    assert out.startswith("## Accuracy against ground truth")
+    assert "| depth | 7.62 |" in out  # sqrt(116/2) = 7.6158
+
+
+def one_line_error(code, out, err):
+    assert code == 2
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fusion-pf: error: "), err
+    return lines[0]
+
+
+def test_missing_columns(tmp_path, capsys):
+    header = [h for h in HEADER if h not in ("depth_u", "depth_v")]
+    path = tmp_path / "t.csv"
+    with open(path, "w") as f:
+        f.write(",".join(header) + "\n")
+    msg = one_line_error(*run_cli(capsys, path, "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "missing column(s) depth_u, depth_v" in msg and str(path) in msg
+
+
+def test_frame_count_mismatch(tmp_path, capsys):
+    tracked = write_csv(tmp_path / "t.csv", rows={k: ROWS[k] for k in (0, 1, 2)})
+    msg = one_line_error(*run_cli(capsys, tracked, "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "frame count mismatch" in msg and "3 reference frames but 1 of them" in msg
+    assert f"timestamp_ns {T0 + 3 * DT}" in msg
+
+
+def test_ground_truth_from_another_recording(tmp_path, capsys):
+    gt = write_gt(tmp_path / "g.mcap", t0=T0 + 5)
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--ground-truth", gt))
+    assert "frame count mismatch" in msg and "3 of them" in msg
+
+
+@pytest.mark.parametrize("content", [b"hello\n", b"\x00\x01binary"])
+def test_unknown_reference_file(tmp_path, capsys, content):
+    ref = tmp_path / "ref.txt"
+    ref.write_bytes(content)
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--reference", ref))
+    assert str(ref) in msg and "unknown" in msg
+
+
+def test_recording_given_as_annotation_reference(tmp_path, capsys):
+    gt = write_gt(tmp_path / "g.mcap")
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--reference", gt))
+    assert "--ground-truth" in msg
+
+
+def test_ground_truth_without_topic(tmp_path, capsys):
+    gt = write_gt(tmp_path / "g.mcap", gt={})
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--ground-truth", gt))
+    assert "no /ground_truth/palm messages" in msg
+
+
+def test_missing_tracked_file(tmp_path, capsys):
+    msg = one_line_error(*run_cli(capsys, tmp_path / "nope.csv", "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "nope.csv" in msg
+
+
+def test_bad_cell(tmp_path, capsys):
+    path = write_csv(tmp_path / "t.csv")
+    text = path.read_text().splitlines()
+    cells = text[2].split(",")
+    cells[4] = "abc"
+    text[2] = ",".join(cells)
+    path.write_text("\n".join(text) + "\n")
+    msg = one_line_error(*run_cli(capsys, path, "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "line 3, column 'colour_u' must be a number or empty, got 'abc'" in msg
+
+
+@pytest.mark.parametrize(
+    "extra, expected",
+    [
+        (["--sweep", "5,x"], "'x'"),
+        (["--sweep", "0,5"], "must be >= 1, got 0"),
+        (["--sweep", "5", "--runs", "0"], "--runs must be >= 1, got 0"),
+    ],
+)
+def test_bad_sweep_options(tmp_path, capsys, extra, expected):
+    msg = one_line_error(
+        *run_cli(capsys, write_csv(tmp_path / "t.csv"), "--ground-truth", write_gt(tmp_path / "g.mcap"), *extra)
+    )
+    assert expected in msg

@@ -1,0 +1,127 @@
+"""End to end on a small synthetic recording: record, track, score (CSV and MCAP), sweep.
+
+Expected values are computed independently of the scorer: the tracker CSV is
+parsed with the csv module and the ground truth comes straight from the
+synthetic scene (not from the recording the scorer reads).
+"""
+
+import csv
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from drivers import open_source
+from drivers.synth import SynthSource
+from fusion_pf.cli import main
+from fusion_pf.track import extract_cues, run_filter
+
+SEED, FRAMES, BACKGROUND, SIZE = 5, 30, 5, (320, 200)  # seed 5: palm occluded in frames 5-11
+SPEC = f"synth:seed={SEED},frames={FRAMES},background_frames={BACKGROUND},size={SIZE[0]}x{SIZE[1]}"
+SOURCES = ("colour", "depth", "skeleton")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("synthetic")
+    rec, out, table = d / "rec.mcap", d / "tracked.mcap", d / "tracked.csv"
+    assert main(["record", SPEC, str(rec)]) == 0
+    assert main(["track", str(rec), "-o", str(out), "--csv", str(table), "--csv-latency", "--no-progress"]) == 0
+    return {"dir": d, "rec": rec, "mcap": out, "csv": table}
+
+
+def ground_truth():
+    scene = SynthSource(frames=FRAMES, seed=SEED, size=SIZE, background_frames=BACKGROUND)
+    return {i: scene.ground_truth(i) for i in range(FRAMES) if scene.ground_truth(i) is not None}
+
+
+def score_json(capsys, *argv):
+    code = main(["score", *map(str, argv), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    return json.loads(out)
+
+
+def expected_from_csv(path):
+    gt = ground_truth()
+    errors = {s: {} for s in (*SOURCES, "fused")}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            g = gt[int(row["frame"])]
+            for s, (cu, cv) in {**{s: (f"{s}_u", f"{s}_v") for s in SOURCES}, "fused": ("u", "v")}.items():
+                if row[cu] != "":
+                    errors[s][int(row["frame"])] = math.hypot(float(row[cu]) - g.u, float(row[cv]) - g.v)
+    wins = {s: 0 for s in errors}
+    for frame in gt:
+        present = {s: e[frame] for s, e in errors.items() if frame in e}
+        best = min(present.values())
+        for s, e in present.items():
+            wins[s] += e <= best + 1e-6
+    rmse = {s: math.sqrt(sum(x * x for x in e.values()) / len(e)) for s, e in errors.items()}
+    coverage = {s: len(e) / len(gt) for s, e in errors.items()}
+    return rmse, coverage, wins
+
+
+def test_score_csv_against_ground_truth_end_to_end(files, capsys):
+    rep = score_json(capsys, files["csv"], "--ground-truth", files["rec"], "--plots", files["dir"] / "plots")
+    rmse, coverage, wins = expected_from_csv(files["csv"])
+    gt = ground_truth()
+    assert rep["n_frames"] == FRAMES - BACKGROUND and rep["n_reference"] == len(gt)
+    assert rep["n_occluded"] == sum(p.occluded for p in gt.values()) == 7
+    for s in (*SOURCES, "fused"):
+        assert rep["sources"][s]["rmse_px"] == pytest.approx(rmse[s], rel=1e-9), s
+        assert rep["sources"][s]["coverage"] == pytest.approx(coverage[s]), s
+        assert rep["sources"][s]["bestmax"] == wins[s], s
+    lat = rep["latency_ms"]
+    assert {"colour", "depth", "skeleton", "filter", "total"} <= set(lat) and lat["total"]["mean"] > 0
+    for name in ("errors_per_frame.png", "latency_per_frame.png"):
+        assert (files["dir"] / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_score_mcap_matches_csv(files, capsys):
+    from_csv = score_json(capsys, files["csv"], "--ground-truth", files["rec"])
+    from_mcap = score_json(capsys, files["mcap"], "--ground-truth", files["mcap"])
+    for s in (*SOURCES, "fused"):
+        # The CSV rounds pixels to 3 decimals, the MCAP keeps full precision.
+        assert from_mcap["sources"][s]["rmse_px"] == pytest.approx(from_csv["sources"][s]["rmse_px"], abs=2e-3)
+        assert from_mcap["sources"][s]["coverage"] == from_csv["sources"][s]["coverage"]
+    assert from_mcap["per_frame"]["frame"] == from_csv["per_frame"]["frame"]
+
+
+def test_tiny_sweep_writes_figures_and_tables_and_is_deterministic(files, capsys):
+    plots = files["dir"] / "sweep"
+    argv = [files["mcap"], "--ground-truth", files["rec"], "--sweep", "5,50", "--runs", "2", "--no-progress"]
+    rep = score_json(capsys, *argv, "--plots", plots, "--workers", "2")
+    sweep = rep["sweep"]
+    assert sweep["particle_counts"] == [5, 50] and sweep["runs"] == 2 and sweep["workers"] == 2
+    bm = np.array(sweep["bestmax"])
+    assert bm.shape == (2, 2, 4)
+    n_ref = rep["n_reference"]
+    assert (bm.sum(axis=2) >= n_ref).all()  # every reference frame awards at least one point
+    for name in ("errors_per_frame.png", "latency_per_frame.png", "bestmax_vs_n.png", "multiexec_bestmax.png"):
+        data = (plots / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    md = (plots / "score.md").read_text()
+    assert "## Particle-count sweep (2 runs per N, seed 0)" in md
+    assert md.count("\n| 5 |") == 1 and md.count("\n| 50 |") == 1
+    assert json.loads((plots / "score.json").read_text())["sweep"]["bestmax"] == sweep["bestmax"]
+
+    # One worker gives the same numbers (job seeds do not depend on scheduling).
+    again = score_json(capsys, *argv, "--workers", "1")["sweep"]
+    assert again["bestmax"] == sweep["bestmax"] and again["rmse_px"] == sweep["rmse_px"]
+
+    # Independent recomputation of job (N=50, run 1): cues with the skeleton prior, the
+    # filter with SeedSequence([0, 50, 1]), errors against the scene's own ground truth.
+    from fusion_pf.score.sweep import sweep_config, tracker_settings
+
+    config = sweep_config(tracker_settings(str(files["mcap"])))
+    with open_source(str(files["rec"])) as src:
+        rows = extract_cues(src, config)
+    results = run_filter(rows, dataclasses.replace(config, particles=50),
+                         np.random.default_rng(np.random.SeedSequence([0, 50, 1])))
+    gt = ground_truth()
+    e = [math.hypot(r.estimate.u - gt[r.frame].u, r.estimate.v - gt[r.frame].v)
+         for r in results if r.estimate is not None and r.frame in gt]
+    assert sweep["rmse_px"][1][1][3] == pytest.approx(math.sqrt(np.mean(np.square(e))), abs=1e-3)
