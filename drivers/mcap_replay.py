@@ -37,7 +37,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, NamedTuple
 
+import lz4.frame
 import numpy as np
+import zstandard
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import Frame, Intrinsics
@@ -145,12 +149,8 @@ def _decompress_chunk(body: memoryview) -> memoryview:
     data = cur.take(cur.uint(8))
     try:
         if compression == "zstd":
-            import zstandard
-
             out = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
         elif compression == "lz4":
-            import lz4.frame
-
             out = lz4.frame.decompress(bytes(data))
         elif compression == "":
             out = bytes(data)
@@ -343,7 +343,7 @@ class McapReplay(ReplaySource):
         except BaseException:
             self.close()
             raise
-        self.stats.notes.extend(self._notes)
+        self.stats.notes[:0] = self._notes
 
     def close(self) -> None:
         """Close the file; safe to call twice."""
@@ -400,13 +400,12 @@ class McapReplay(ReplaySource):
         if summary is None or not summary.chunk_indexes:
             return "no chunk index"
         for ci in summary.chunk_indexes:
-            if ci.message_index_length and not ci.message_index_offsets:
+            if not ci.message_index_offsets:
                 return "no message index"
             if any(cid not in summary.channels for cid in ci.message_index_offsets):
                 return "channels missing from the summary"
-        schemas = {s.id: s for s in summary.schemas.values()}
         for ch in summary.channels.values():
-            schema = schemas.get(ch.schema_id)
+            schema = summary.schemas.get(ch.schema_id)
             self._add_channel(
                 _Channel(ch.id, ch.topic, ch.message_encoding, schema.name if schema else "", schema.encoding if schema else "")
             )
@@ -417,8 +416,6 @@ class McapReplay(ReplaySource):
                     _Block(ci.chunk_start_offset, ci.chunk_length, True, ci.message_start_time,
                            ci.message_end_time, frozenset(ci.message_index_offsets))
                 )
-                if not ci.message_index_offsets:
-                    continue
                 start = min(ci.message_index_offsets.values())
                 buf = memoryview(self._pread(start, ci.message_index_length))
                 for opcode, body in _records(buf, "message index"):
@@ -595,20 +592,15 @@ class McapReplay(ReplaySource):
         try:
             parts = self._parts_at(int(self._all[0]))
             self._build(0, int(self._all[0]), parts)
-        except _Corrupt as exc:
-            self._notes.append(f"the first frame cannot be read: {exc}")
-            return
+        except _Corrupt:
+            return  # noted by _corrupt_block; replay skips the block
         self._formats = tuple(  # type: ignore[assignment]
             self._format_of(*parts[kind]) if kind in parts else None for kind in ("color", "depth")
         )
 
     def _format_of(self, cid: int, data: memoryview) -> str:
         if self._channels[cid].schema_name == fmt.COMPRESSED_IMAGE:
-            from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-
             return CompressedImage.FromString(data).format.lower()
-        from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-
         return RawImage.FromString(data).encoding
 
     # ------------------------------------------------------------------ reading
@@ -645,9 +637,15 @@ class McapReplay(ReplaySource):
         hits = np.flatnonzero((self._block_end >= lo) & (self._block_start <= hi))
         return [b for b in (self._blocks[i] for i in hits) if b.channels & cids]
 
-    def _describe_corrupt(self, block: _Block, exc: _Corrupt) -> str:
+    def _corrupt_block(self, block: _Block, exc: _Corrupt) -> _Corrupt:
+        """Note (once per block) that ``block`` is corrupt; return the error to raise."""
         kind = "chunk" if block.is_chunk else "message"
-        return f"{self.path.name}: {kind} at byte {block.offset} is corrupt: {exc}"
+        text = f"{self.path.name}: {kind} at byte {block.offset} is corrupt: {exc}"
+        with self._lock:
+            if block.offset not in self._corrupt:
+                self._corrupt.add(block.offset)
+                self.stats.notes.append(text + "; skipped it")
+        return _Corrupt(text)
 
     def _parts_at(self, t: int) -> dict[str, tuple[int, memoryview]]:
         parts: dict[str, tuple[int, memoryview]] = {}
@@ -655,7 +653,7 @@ class McapReplay(ReplaySource):
             try:
                 records = self._block_records(block)
             except _Corrupt as exc:
-                raise _Corrupt(self._describe_corrupt(block, exc)) from None
+                raise self._corrupt_block(block, exc) from None
             for cid, log_time, data in records:
                 kind = self._kind.get(cid)
                 if log_time == t and kind is not None and kind != "calibration":
@@ -673,7 +671,7 @@ class McapReplay(ReplaySource):
             try:
                 records = self._block_records(block)
             except _Corrupt as exc:
-                raise _Corrupt(self._describe_corrupt(block, exc)) from None
+                raise self._corrupt_block(block, exc) from None
             for cid, log_time, data in records:
                 if log_time == c and self._kind.get(cid) == "calibration":
                     intrinsics = fmt.decode_calibration(data, f"{fmt.CALIBRATION_TOPIC} at t={c} ns")
@@ -798,24 +796,28 @@ class McapReplay(ReplaySource):
 
     def _stream(self, lo: int, hi: int) -> Iterator[Frame]:
         times = self._all[lo:hi]
-        wanted = set(times.tolist())
+        n = len(times)
+
+        def wanted(log_time: int) -> bool:
+            i = int(np.searchsorted(times, log_time))
+            return i < n and times[i] == log_time
+
         blocks = self._blocks_between(int(times[0]), int(times[-1]), ("color", "depth", "skeleton", "truth"))
         pending: dict[int, dict[str, tuple[int, memoryview]]] = {}
         next_block = 0
-        for k, t in enumerate(times.tolist()):
+        for k in range(n):
+            t = int(times[k])
             while next_block < len(blocks) and blocks[next_block].start_ns <= t:
                 block = blocks[next_block]
                 next_block += 1
                 try:
                     records = self._block_records(block)
                 except _Corrupt as exc:
-                    if block.offset not in self._corrupt:
-                        self._corrupt.add(block.offset)
-                        self.stats.notes.append(self._describe_corrupt(block, exc) + "; skipped it")
+                    self._corrupt_block(block, exc)
                     continue
                 for cid, log_time, data in records:
                     kind = self._kind.get(cid)
-                    if kind is not None and kind != "calibration" and log_time in wanted:
+                    if kind is not None and kind != "calibration" and wanted(log_time):
                         pending.setdefault(log_time, {})[kind] = (cid, data)
             parts = pending.pop(t, {})
             if "color" not in parts:

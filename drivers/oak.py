@@ -382,7 +382,9 @@ class GroupConverter:
         self._last_seq = seq
 
 
-def frames_from_queue(queue: Any, converter: GroupConverter, timeout_s: float) -> Iterator[Frame]:
+def frames_from_queue(
+    queue: Any, converter: GroupConverter, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S
+) -> Iterator[Frame]:
     """Yield a frame per message group from ``queue`` until the device stops.
 
     Parameters
@@ -392,8 +394,10 @@ def frames_from_queue(queue: Any, converter: GroupConverter, timeout_s: float) -
     converter : GroupConverter
         Turns each group into a frame and counts gaps.
     timeout_s : float
-        Longest wait for a group after the first; the first may take
-        :data:`START_TIMEOUT_S` (or ``timeout_s`` if longer).
+        Longest wait for a group after the first.
+    start_timeout_s : float
+        Longest wait for the first group (device boot, network upload), at
+        least ``timeout_s``.
 
     Yields
     ------
@@ -409,7 +413,7 @@ def frames_from_queue(queue: Any, converter: GroupConverter, timeout_s: float) -
     dai = _dai()
     received = 0
     first_ns = last_ns = 0
-    wait_s = max(START_TIMEOUT_S, timeout_s)
+    wait_s = max(start_timeout_s, timeout_s)
     while True:
         try:
             group = _get(queue, wait_s)

@@ -64,12 +64,12 @@ MOVENET_KEYPOINTS = (
 )
 
 #: Fraction of the elbow -> wrist length by which the segment is extended past
-#: the wrist to estimate the palm centre. Anthropometric segment lengths
-#: (Drillis & Contini: forearm 0.146 H, hand 0.108 H of body height H) put the
-#: palm centre about 0.4 hand lengths past the wrist joint, i.e.
-#: 0.4 * 0.108 / 0.146 ~= 0.3 forearm lengths. Exact only when the wrist is not
-#: flexed; the filter's skeleton noise covers the rest.
-HAND_EXTENSION = 0.3
+#: the wrist to estimate the palm centre. Adult averages: forearm (elbow to
+#: wrist joint centres) about 26 cm; palm centre about 6.5 cm past the wrist
+#: joint centre (half of an about 11 cm palm plus about 1 cm from the joint
+#: centre to the wrist crease); 6.5 / 26 = 0.25. Exact only for a straight
+#: wrist and an average hand; the filter's skeleton noise covers the rest.
+HAND_EXTENSION = 0.25
 
 #: Half-size of the depth window around a joint: 2 -> a 5 x 5 pixel window.
 DEPTH_WINDOW_RADIUS = 2

@@ -283,7 +283,7 @@ def _track_latencies(path: Path, roi: bool, workdir: Path) -> dict:
 
     from .track import STAGES, TrackConfig, TrackCsv, TrackerTopics, track
 
-    config = TrackConfig(filter="pf", n_particles=100, roi_half_size=None if roi else 2000, seed=0)
+    config = TrackConfig(filter="pf", particles=100, roi_half_size=None if roi else 2000, seed=0)
     stages: dict[str, list[int]] = {s: [] for s in (*STAGES, "sinks")}
     cues_filter: list[int] = []
     tag = f"{path.stem}_{'roi' if roi else 'full'}"
@@ -308,9 +308,13 @@ def _track_latencies(path: Path, roi: bool, workdir: Path) -> dict:
     return out
 
 
-def pipeline_bench(workdir: Path, *, quick: bool) -> dict:
-    """Per-stage latency at 640x400 and 1280x800, with and without ROI (synthetic recordings)."""
-    frames = {(640, 400): 40 if quick else 150, (1280, 800): 20 if quick else 80}
+def pipeline_bench(workdir: Path, *, frames: tuple[int, int] = (150, 80)) -> dict:
+    """Per-stage latency at 640x400 and 1280x800, with and without ROI.
+
+    Each size is a synthetic recording of ``frames`` tracked frames after 10
+    background frames, replayed from MCAP (so ``decode`` is real decoding).
+    """
+    frames = dict(zip(((640, 400), (1280, 800)), frames))
     out = {}
     for size, n in frames.items():
         path = workdir / f"synth_{size[0]}x{size[1]}.mcap"
@@ -330,7 +334,7 @@ def replay_child(path: str, csv_path: str) -> None:
     t0 = time.perf_counter()
     n = 0
     with McapReplay(Path(path)) as src, TrackCsv(Path(csv_path)) as out:
-        for result in track(src, TrackConfig(n_particles=100, seed=0)):
+        for result in track(src, TrackConfig(particles=100, seed=0)):
             out.write(result)
             n += 1
     seconds = time.perf_counter() - t0
@@ -347,13 +351,12 @@ def _run_child(path: Path, workdir: Path) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def replay_bench(workdir: Path, *, quick: bool, sample: Path | None = None) -> dict:
-    """End-to-end replay frames/s (subprocess) and peak RSS, short vs 4x longer recording."""
-    short_n = 60 if quick else 200
+def replay_bench(workdir: Path, *, short_n: int = 200, sample: Path | None = None) -> dict:
+    """End-to-end replay frames/s (subprocess) and peak RSS, ``short_n`` vs ``4 short_n`` frames."""
     short = workdir / "replay_short.mcap"
     long = workdir / "replay_long.mcap"
-    _record_synth(short, short_n, (640, 400), background_frames=10, seed=1)
-    _record_synth(long, 4 * short_n, (640, 400), background_frames=10, seed=1)
+    _record_synth(short, short_n + 10, (640, 400), background_frames=10, seed=1)
+    _record_synth(long, 4 * short_n + 10, (640, 400), background_frames=10, seed=1)
     out: dict = {}
     if sample is not None and sample.exists():
         out["sample"] = {"path": str(sample), **_run_child(sample, workdir)}
@@ -421,6 +424,8 @@ def run_bench(
     sizes: Iterable[int] = SIZES,
     sections: Iterable[str] = ("pf", "stonesoup", "resampling", "robustness", "pipeline", "replay"),
     sample: Path | None = Path("recordings/sample.mcap"),
+    pipeline_frames: tuple[int, int] | None = None,
+    replay_frames: int | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict:
     """Run the benchmarks, write ``bench.json`` and ``bench.md`` into ``out_dir``, return the results.
@@ -437,6 +442,10 @@ def run_bench(
         Which sections to run.
     sample : Path, optional
         Recording replayed for the end-to-end throughput if it exists.
+    pipeline_frames : (int, int), optional
+        Tracked frames at 640x400 and 1280x800 (default 40, 20 quick; 150, 80 full).
+    replay_frames : int, optional
+        Frames of the short replay recording (default 60 quick, 200 full).
     progress : callable, optional
         Called with a short line before each measurement.
     """
@@ -482,10 +491,10 @@ def run_bench(
     with tempfile.TemporaryDirectory(prefix="fusion-pf-bench-") as tmp:
         if "pipeline" in sections:
             say("pipeline per-stage latency")
-            result["pipeline"] = pipeline_bench(Path(tmp), quick=quick)
+            result["pipeline"] = pipeline_bench(Path(tmp), frames=pipeline_frames or ((40, 20) if quick else (150, 80)))
         if "replay" in sections:
             say("replay throughput and peak memory")
-            result["replay"] = replay_bench(Path(tmp), quick=quick, sample=sample)
+            result["replay"] = replay_bench(Path(tmp), short_n=replay_frames or (60 if quick else 200), sample=sample)
     result["meta"]["loadavg_end"] = list(os.getloadavg())
     result["meta"]["seconds"] = time.perf_counter() - started
     result["targets"] = _targets(result)

@@ -42,9 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="fewer repeats, smaller recordings (< 5 min)")
     p.add_argument("--out", type=Path, default=Path("bench-out"), metavar="DIR",
                    help="directory for bench.json and bench.md")
-    p.add_argument("--sizes", type=_sizes, default=[100, 1_000, 10_000, 100_000, 1_000_000], metavar="N,N,...",
+    p.add_argument("--sizes", type=_sizes, default="1e2,1e3,1e4,1e5,1e6", metavar="N,N,...",
                    help="particle counts of the PF-step and resampling sections")
-    p.add_argument("--sections", type=_sections, default=list(SECTIONS), metavar="NAME,...",
+    p.add_argument("--sections", type=_sections, default=",".join(SECTIONS), metavar="NAME,...",
                    help=f"which sections to run, among {','.join(SECTIONS)}")
     p.add_argument("--sample", type=Path, default=Path("recordings/sample.mcap"), metavar="FILE.mcap",
                    help="recording replayed end to end if it exists (else only synthetic ones)")

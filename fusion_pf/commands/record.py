@@ -44,6 +44,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=_positive(float), metavar="S",
                    help="stop after S seconds of capture time")
     p.add_argument("--frames", type=_positive(int), metavar="N", help="stop after N frames")
+    p.add_argument("--size", metavar="WxH",
+                   help="colour/depth size in pixels for a camera or synthetic source "
+                        "(default: the source's own, 640x400)")
+    p.add_argument("--fps", type=_positive(float), metavar="F",
+                   help="frame rate for a camera or synthetic source (default: the source's own, 30)")
     p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
                    help="colour as RawImage rgb8, or CompressedImage jpeg/png")
     p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
@@ -89,7 +94,14 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.errors import RecordingError
 
     _check_output(args)
-    source = open_source(args.source)
+    overrides = {k: v for k, v in (("size", args.size), ("fps", args.fps)) if v is not None}
+    if overrides and args.source.lower().endswith(".mcap"):
+        from fusion_pf.errors import InputError
+
+        raise InputError(
+            f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}"
+        )
+    source = open_source(args.source, **overrides)
     duration_ns = None if args.duration is None else int(round(args.duration * 1e9))
     failure: BaseException | None = None
     interrupted = False

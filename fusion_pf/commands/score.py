@@ -33,15 +33,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-tol", type=float, default=1e-6, metavar="PX",
                    help="BestMax: errors within this many pixels of the best tie (each tied source scores)")
     s = p.add_argument_group("particle-count sweep (paper 003 §4.4-4.5)")
-    s.add_argument("--sweep", metavar="N1,N2,...",
-                   help="re-run the filter for these particle counts, e.g. 5,10,25,50,75,100,125,150,200,250")
+    s.add_argument("--sweep", metavar="N1,N2,...", nargs="?", const="5,10,25,50,75,100,125,150,200,250",
+                   help="re-run the filter for these particle counts (alone: the paper's "
+                        "5,10,25,50,75,100,125,150,200,250)")
     s.add_argument("--runs", type=int, default=20, help="runs (seeds) per particle count")
     s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
     s.add_argument("--workers", type=int, default=None,
-                   help="worker processes (default: the machine's cores)")
+                   help="worker processes; not given: one per core")
     s.add_argument("--recording", metavar="SOURCE",
-                   help="recording to re-track for the sweep (default: TRACKED if it is an MCAP, "
-                        "else the --ground-truth recording). The sweep uses the tracker settings stored "
+                   help="recording to re-track for the sweep; not given: TRACKED if it is an MCAP, "
+                        "else the --ground-truth recording. The sweep uses the tracker settings stored "
                         "in TRACKED.mcap (defaults for a CSV) with the cue window on the skeleton joint, "
                         "so the cues are computed once and every run fuses the same cues")
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

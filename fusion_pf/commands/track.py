@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
@@ -182,6 +183,21 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
+@contextmanager
+def _ctrl_c_held():
+    """Hold Ctrl-C back while one frame's outputs are written, so every output ends on a whole frame."""
+    import signal
+
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def run(args: argparse.Namespace) -> int:
     """Track SOURCE, writing OUT.mcap (and the CSV / PLY files); returns the exit status."""
     import json
@@ -214,17 +230,18 @@ def run(args: argparse.Namespace) -> int:
         )
         topics = TrackerTopics(recorder, config)
         for result in track(src, config):
-            t0 = time.perf_counter_ns()
-            recorder.write(result.source_frame)
-            topics.write(result)
-            if args.export_ply is not None and not result.background and result.roi is not None \
-                    and result.source_frame.depth is not None:
-                r = result.roi
-                write_roi_ply(args.export_ply / f"frame_{result.frame:06d}.ply", result.source_frame,
-                              (r.x0, r.y0, r.x1, r.y1), palm=result.xyz_mm)
-            result.latency_ns["sinks"] = time.perf_counter_ns() - t0
-            if table is not None:
-                table.write(result)
+            with _ctrl_c_held():
+                t0 = time.perf_counter_ns()
+                recorder.write(result.source_frame)
+                topics.write(result)
+                if args.export_ply is not None and not result.background and result.roi is not None \
+                        and result.source_frame.depth is not None:
+                    r = result.roi
+                    write_roi_ply(args.export_ply / f"frame_{result.frame:06d}.ply", result.source_frame,
+                                  (r.x0, r.y0, r.x1, r.y1), palm=result.xyz_mm)
+                result.latency_ns["sinks"] = time.perf_counter_ns() - t0
+                if table is not None:
+                    table.write(result)
             result.source_frame = None
             background += result.background
             tracked += not result.background

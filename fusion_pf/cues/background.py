@@ -52,8 +52,9 @@ class BackgroundModel:
 
     Parameters
     ----------
-    color : ndarray, shape (H, W, 3), uint8
-        Background colour image (RGB).
+    color : ndarray, shape (H, W, 3), uint8, or None
+        Background colour image (RGB); None only inside :meth:`running`
+        before its first frame.
     depth : ndarray, shape (H, W), uint16, or None
         Background depth in millimetres (0 = unknown), None without depth.
     """
@@ -112,14 +113,10 @@ class BackgroundModel:
         The median is recomputed after every frame, so the model is usable from
         the first frame and final after ``K``.
         """
-        if self._target == 0 or len(self._colors) >= self._target:
+        if len(self._colors) >= self._target:
             return
         self._colors.append(frame.color)
         if frame.depth is not None:
             self._depths.append(frame.depth)
         self.color = median_color(np.stack(self._colors))
         self.depth = median_valid_depth(np.stack(self._depths)) if self._depths else None
-        if len(self._colors) >= self._target:
-            self._colors.clear()
-            self._depths.clear()
-            self._target = -1

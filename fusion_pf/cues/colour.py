@@ -21,9 +21,13 @@ I_C9       (h, w) uint8 {0, 255}   regions touching the window border removed
 =========  ======================  =============================================
 
 The centroid of the largest region of I_C9 (plus the window offset) is the
-measurement. Default thresholds come from the synthetic scene's measured
-grayscale differences (skin vs wall ~15-60, dark clothing vs wall > 70, noise
-sigma 2-3); tune them on your own scene with ``fusion-pf cues --stages``.
+measurement. Default thresholds come from the synthetic scene
+(``drivers.synth``, seed 0, 200 frames, 1st-99th percentile of the grayscale
+difference against the 30-frame median background, masks eroded by 2 px):
+background 0-6, skin 20-41 (palm 20-48), dark clothing and hair 102-126; so
+``lower = 12``, ``upper = 66``. The blurred outline between clothing and wall
+passes both thresholds as 1-2 px lines; the opening in I_C6 removes them.
+Tune the thresholds on your own scene with ``fusion-pf cues --stages``.
 """
 
 from __future__ import annotations
@@ -36,7 +40,6 @@ import numpy as np
 from ..errors import InputError
 from .base import CueResult
 from .regions import (
-    DEFAULT_PALM_AREA,
     check_int,
     clear_border,
     dilate,
@@ -147,7 +150,7 @@ class ColourCue:
         c9 = clear_border(c8) if self.clear_border else c8  # I_C9 = border cleared
         m = measure(
             c9, roi.offset, self.source,
-            palm_area=roi.palm_area if roi.palm_area else DEFAULT_PALM_AREA,
+            palm_area=roi.palm_area,
             min_area=self.min_area, extras={"roi": roi.as_list()},
         )
         if stages:

@@ -13,6 +13,7 @@ I_d4A      (h, w) uint8 {0, 255}   ``I_d3 > lower``
 I_d4B      (h, w) uint8 {0, 255}   ``I_d3 <= upper``
 I_d5       (h, w) uint8 {0, 255}   I_d4A AND I_d4B, restricted to the slab
                                    ``nearest_mm`` behind the nearest surface
+                                   and opened (radius ``open_radius``)
 I_d6       (h, w) uint8 {0, 255}   ``|I_d5(t) - I_d5(t-1)|`` (changed pixels),
                                    regions < ``min_area`` removed
 I_d7       (h, w) uint8 {0, 255}   I_d6 with its holes filled
@@ -68,7 +69,6 @@ import numpy as np
 from ..errors import InputError
 from .base import CueResult
 from .regions import (
-    DEFAULT_PALM_AREA,
     check_int,
     clear_border,
     dilate,
@@ -214,9 +214,8 @@ class DepthCue:
         d4b = cv2.threshold(d3, self.upper, 255, cv2.THRESH_BINARY_INV)[1]  # I_d4B = I_d3 <= upper
         d5 = cv2.bitwise_and(d4a, d4b)  # I_d5 = I_d4A AND I_d4B
         if self.nearest_mm is not None and d5.any():
-            near = d1[d5 > 0]
-            near = near[near > 0]
-            z0 = float(np.partition(near, near.size // 50)[near.size // 50]) if near.size else 0.0  # nearest surface
+            near = d1[d5 > 0]  # valid depths of the coarse region
+            z0 = float(np.partition(near, near.size // 50)[near.size // 50])  # nearest surface: 2nd percentile
             d5[d1 > z0 + self.nearest_mm] = 0  # keep the slab of the nearest surface
             d5 = open_thin(d5, self.open_radius)  # the slab's ragged noisy edge removed
         prev = self._previous(roi, (h, w)) if self.temporal else None
@@ -231,8 +230,8 @@ class DepthCue:
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border else d9  # I_d10 = border cleared
         m = measure(
-            remove_small(d10, self.min_area), roi.offset, self.source,
-            palm_area=roi.palm_area if roi.palm_area else DEFAULT_PALM_AREA,
+            d10, roi.offset, self.source,
+            palm_area=roi.palm_area,
             min_area=self.min_area, extras={"roi": roi.as_list(), "moved": moved},
         )
         if stages:

@@ -40,9 +40,9 @@ def check_float(name: str, value: object, lo: float, hi: float) -> float:
     return f
 
 
-def _labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-    return n, labels, stats
+def _labels(mask: np.ndarray) -> tuple[int, np.ndarray]:
+    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    return n, labels
 
 
 def _touching_border(labels: np.ndarray, n: int) -> np.ndarray:
@@ -60,9 +60,9 @@ def remove_small(mask: np.ndarray, min_area: int) -> np.ndarray:
 
     Paper 003 Fig. 3 I_C5 -> I_C6 ("the unwanted small regions are eliminated").
     """
-    if mask.size == 0 or min_area <= 1:
+    if mask.size == 0 or min_area <= 1 or not cv2.countNonZero(mask):
         return mask.copy()
-    n, labels, stats = _labels(mask)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area  # region kept when its area reaches min_area
     keep[0] = False  # label 0 is the background
     return np.where(keep[labels], np.uint8(255), np.uint8(0))
@@ -83,9 +83,9 @@ def open_thin(mask: np.ndarray, radius: int) -> np.ndarray:
 
 def keep_marked(mask: np.ndarray, marker: np.ndarray) -> np.ndarray:
     """The regions of ``mask`` that share at least one pixel with ``marker`` (reconstruction)."""
-    if mask.size == 0:
+    if mask.size == 0 or not cv2.countNonZero(mask):
         return mask.copy()
-    n, labels, _ = _labels(mask)
+    n, labels = _labels(mask)
     keep = np.zeros(n, dtype=bool)
     keep[labels[marker > 0]] = True  # every region the marker touches
     keep[0] = False
@@ -98,13 +98,13 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
     Paper 003 Fig. 3 I_C7, Fig. 4 I_d7. A hole is a connected zero region that
     does not touch the image border.
     """
-    if mask.size == 0:
+    if mask.size == 0 or not cv2.countNonZero(mask):
         return mask.copy()
-    inverse = cv2.bitwise_not(mask)
-    n, labels, _ = _labels(inverse)
-    hole = ~_touching_border(labels, n)  # zero regions enclosed by the mask
-    hole[0] = False  # label 0 of the inverse is the mask itself
-    return cv2.bitwise_or(mask, np.where(hole[labels], np.uint8(255), np.uint8(0)))
+    h, w = mask.shape
+    outside = np.zeros((h + 2, w + 2), np.uint8)
+    outside[1:-1, 1:-1] = mask
+    cv2.floodFill(outside, None, (0, 0), 255)  # the zeros reachable from the border
+    return cv2.bitwise_or(mask, cv2.bitwise_not(outside[1:-1, 1:-1]))  # mask OR the enclosed zeros
 
 
 def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
@@ -121,9 +121,9 @@ def clear_border(mask: np.ndarray) -> np.ndarray:
     Paper 003 Fig. 3 I_C9, Fig. 4 I_d10: the pixels "around the borders of the
     region of interest" left by the morphological steps are eliminated.
     """
-    if mask.size == 0:
+    if mask.size == 0 or not cv2.countNonZero(mask):
         return mask.copy()
-    n, labels, _ = _labels(mask)
+    n, labels = _labels(mask)
     drop = _touching_border(labels, n)  # regions with a pixel on the border
     drop[0] = True
     return np.where(drop[labels], np.uint8(0), np.uint8(255))
@@ -161,7 +161,7 @@ def largest_region(mask: np.ndarray, min_area: int = 1) -> Region | None:
     (i) find all regions in the window, (ii) compute their areas, (iii) take the
     centroid of the largest. Returns None when no region has ``min_area`` pixels.
     """
-    if mask.size == 0:
+    if mask.size == 0 or not cv2.countNonZero(mask):
         return None
     n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:

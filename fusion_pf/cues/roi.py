@@ -85,7 +85,7 @@ def make_roi(
     fx: float | None = None,
     half_size: int | None = None,
     extent_mm: float = 250.0,
-    palm_radius_mm: float = 45.0,
+    palm_radius_mm: float = 55.0,
     min_half: int = 8,
 ) -> Roi:
     """The window around the prior ``(u, v)`` in a frame of ``size = (width, height)``.
@@ -108,7 +108,8 @@ def make_roi(
         (~100 px at 1.25 m with fx = 499) keeps the palm inside the window
         while the synthetic skeleton's occlusion bias (24-56 px) lasts.
     palm_radius_mm : float
-        Palm radius used for the expected palm area (5-200 mm).
+        Radius of the disc with the area of a palm seen face-on (5-200 mm;
+        55 mm ~ a 100 x 120 mm palm ellipse), for the expected palm area.
     min_half : int
         Smallest half-size in pixels (1-1000).
 

@@ -39,7 +39,6 @@ from ..errors import InputError
 from ..rng import as_rng
 from .base import CueResult
 from .regions import (
-    DEFAULT_PALM_AREA,
     check_float,
     check_int,
     clear_border,
@@ -160,11 +159,10 @@ class RgbRuleSkin:
     def mask(self, window: np.ndarray, frame: np.ndarray | None = None) -> np.ndarray:
         """Eq. 4: R>45, G>40, B>20, max-min>15, |R-G|>15, R>G, R>B."""
         _check_rgb("skin window", window)
-        c = window.astype(np.int16)
-        R, G, B = c[..., 0], c[..., 1], c[..., 2]
-        spread = c.max(axis=2) - c.min(axis=2)  # max(R,G,B) - min(R,G,B)
+        R, G, B = window[..., 0], window[..., 1], window[..., 2]
+        spread = np.maximum(np.maximum(R, G), B) - np.minimum(np.minimum(R, G), B)  # max - min, no overflow
         ok = (R > 45) & (G > 40) & (B > 20)  # bright enough in every channel
-        ok &= (spread > 15) & (np.abs(R - G) > 15)  # saturated, red distinct from green
+        ok &= (spread > 15) & (cv2.absdiff(R, G) > 15)  # saturated, red distinct from green
         ok &= (R > G) & (R > B)  # red dominant
         return np.where(ok, np.uint8(255), np.uint8(0))
 
@@ -400,7 +398,7 @@ class SkinCue:
         s7 = clear_border(s6) if self.clear_border else s6  # border cleared
         m = measure(
             s7, roi.offset, self.source,
-            palm_area=roi.palm_area if roi.palm_area else DEFAULT_PALM_AREA,
+            palm_area=roi.palm_area,
             min_area=self.min_area, extras={"roi": roi.as_list()},
         )
         if stages:

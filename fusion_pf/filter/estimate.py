@@ -94,14 +94,11 @@ def weighted_covariance(positions: np.ndarray, weights: np.ndarray, mean: np.nda
     """
     if mean is None:
         mean = weighted_mean(positions, weights)
-    du = positions[:, 0] - mean[0]
-    dv = positions[:, 1] - mean[1]
-    wdu = weights * du
+    d = positions.T - np.asarray(mean, dtype=np.float64)[:, None]
+    wd = d * weights
     # C = sum_i w_i (p_i - m)(p_i - m)^T
-    cuu = _dot(wdu, du)
-    cuv = _dot(wdu, dv)
-    cvv = _dot(weights * dv, dv)
-    return np.array([[cuu, cuv], [cuv, cvv]])
+    c = np.einsum("ji,ki->jk", wd, d)
+    return (c + c.T) / 2.0
 
 
 #: Estimators by name (``estimator=`` values).

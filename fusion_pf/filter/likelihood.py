@@ -31,6 +31,7 @@ __all__ = [
     "DEFAULT_NOISE_PX",
     "DEFAULT_OUTLIER_AREA_PX2",
     "LIKELIHOODS",
+    "MAX_COORD_PX",
     "UNDERFLOW_LOG",
     "JointLikelihood",
     "check_noise_px",
@@ -51,6 +52,9 @@ DEFAULT_OUTLIER_AREA_PX2 = 1280.0 * 800.0
 #: log of the smallest normal float64: below it the paper's linear-space
 #: likelihood ``exp(-L / 2 rho)`` underflows to zero.
 UNDERFLOW_LOG = math.log(np.finfo(np.float64).tiny)
+
+#: Largest accepted cue coordinate (px): keeps squared distances far from overflow.
+MAX_COORD_PX = 1.0e7
 
 #: Likelihood names (``--likelihood`` values).
 LIKELIHOODS = ("gaussian", "robust")
@@ -220,7 +224,7 @@ class JointLikelihood:
         self._work: np.ndarray | None = None
 
     def check(self, measurements: Sequence[Measurement]) -> list[Measurement]:
-        """Validate measurements (known source, finite position, quality in [0, 1])."""
+        """Validate measurements (known source, finite position within :data:`MAX_COORD_PX`, quality in [0, 1])."""
         out = []
         for m in measurements:
             if not isinstance(m, Measurement):
@@ -229,8 +233,10 @@ class JointLikelihood:
                 raise InputError(
                     f"measurement source {m.source!r} has no noise; known sources: {', '.join(self.noise_px)}"
                 )
-            if not (math.isfinite(m.u) and math.isfinite(m.v)):
-                raise InputError(f"{m.source} measurement must be finite pixels, got ({m.u}, {m.v})")
+            if not (abs(m.u) <= MAX_COORD_PX and abs(m.v) <= MAX_COORD_PX):
+                raise InputError(
+                    f"{m.source} measurement must be finite pixels within +-{MAX_COORD_PX:g}, got ({m.u}, {m.v})"
+                )
             if not (0.0 <= m.quality <= 1.0):
                 raise InputError(f"{m.source} measurement quality must be in [0, 1], got {m.quality}")
             out.append(m)

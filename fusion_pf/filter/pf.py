@@ -126,8 +126,9 @@ class ParticleFilter(Tracker):
         (dropped frames are bridged); default: every step is one frame step, as
         in the paper.
     keep_particles : bool
-        Copy the particle positions into each :class:`Estimate` (``particles``);
-        False saves a copy per step (benchmarks, sweeps).
+        Copy the particle positions into each :class:`Estimate` (``particles``:
+        the set after this step, i.e. after resampling if it happened, matching
+        :attr:`log_weights`); False saves that copy (benchmarks, sweeps).
     rng : numpy.random.Generator, int or None
         Random source (see :func:`fusion_pf.rng.as_rng`).
 
@@ -140,6 +141,17 @@ class ParticleFilter(Tracker):
         Their normalised log-weights.
     initialised : bool
         Whether the filter holds a particle set.
+    reinitialisations : int
+        How many times the particles were re-initialised because a source's
+        likelihood underflowed for every particle.
+
+    Notes
+    -----
+    Cost per step is O(N) numpy work on preallocated ``(4, N)`` buffers (no
+    per-particle Python loop): ~0.07 ms at N = 100, < 1 ms at N = 1e4 on one
+    core, dominated by the 4 N normal draws of eq. 4. From
+    :data:`~fusion_pf.filter.resample.COMPILED_MIN_N` particles, residual
+    resampling runs compiled with numba (first use compiles, ~1 s).
     """
 
     def __init__(

@@ -19,6 +19,12 @@ loop:
   of particle ``i`` and draws the remaining ``R = N - sum floor(N w_i)``
   multinomially from the residuals ``N w_i - floor(N w_i)``.
 
+From :data:`COMPILED_MIN_N` particles on, when numba is installed, ``residual``
+and the inverse CDF of ``multinomial`` run as compiled O(N) loops (a merge of two
+sorted arrays instead of a binary search per draw). They consume the same
+random numbers and return the same indices as the numpy code (tested), only
+faster; the first use on a machine compiles them (~1 s, then cached on disk).
+
 Indices come back sorted (residual: two sorted runs); particles are
 exchangeable after resampling, so the order carries no information.
 """
@@ -26,6 +32,7 @@ exchangeable after resampling, so the order carries no information.
 from __future__ import annotations
 
 import functools
+from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
@@ -33,10 +40,10 @@ import numpy as np
 from fusion_pf.errors import InputError
 from fusion_pf.rng import as_rng
 
-#: Particle count from which the inverse CDF uses the compiled merge (if numba is installed).
-MERGE_MIN_N = 65536
+#: Particle count from which residual resampling and the inverse CDF run compiled loops (if numba is installed).
+COMPILED_MIN_N = 4096
 
-__all__ = ["MERGE_MIN_N", "RESAMPLERS", "ess", "multinomial", "residual", "stratified", "systematic"]
+__all__ = ["COMPILED_MIN_N", "RESAMPLERS", "ess", "multinomial", "residual", "stratified", "systematic"]
 
 
 def _checked(weights: np.ndarray) -> tuple[np.ndarray, float]:
@@ -49,7 +56,7 @@ def _checked(weights: np.ndarray) -> tuple[np.ndarray, float]:
     w = w.astype(np.float64, copy=False)
     total = float(w.sum())
     if not np.isfinite(total):
-        raise InputError(f"weights must be finite, got a sum of {total} (NaN or inf present)")
+        raise InputError(f"weights must be finite with a finite sum, got a sum of {total}")
     lowest = float(w.min())
     if lowest < 0.0:
         raise InputError(f"weights must be >= 0, got a minimum of {lowest}")
@@ -73,11 +80,17 @@ def _scaled_cdf(w: np.ndarray) -> np.ndarray:
 
 
 @functools.cache
-def _merge_kernel() -> Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None:
-    """The compiled O(N + M) merge of :func:`_inverse_cdf`, or None without numba.
+def _kernels() -> SimpleNamespace | None:
+    """Compiled O(N) loops for large N, or None without numba.
 
-    Compiled on first use and cached on disk (``cache=True``), so only the very
-    first large resampling on a machine pays the compilation (~0.5 s).
+    ``merge(c, u, out)``: ``out[j]`` = first ``i`` with ``c_i > u_j`` for sorted
+    ``u``. ``residual_floor(nw, out, res)``: writes the ``floor(nw_i)`` copies
+    into ``out`` and the residuals into ``res``; returns (copies, sum of
+    residuals). ``residual_draws(res, u, out, k)``: the inverse CDF of the
+    residuals (running sum, same order as ``residual_floor``'s total, so it
+    never runs past the end) into ``out[k:]``. Compiled on first use and cached
+    on disk (``cache=True``): only the very first large resampling on a machine
+    pays the compilation (~1 s).
     """
     try:
         import numba
@@ -93,25 +106,50 @@ def _merge_kernel() -> Callable[[np.ndarray, np.ndarray, np.ndarray], None] | No
                 i += 1
             out[j] = i
 
-    return merge
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    def residual_floor(nw, out, res):  # pragma: no cover - runs compiled
+        n = out.shape[0]
+        k = 0
+        total = 0.0
+        for i in range(nw.shape[0]):
+            f = np.floor(nw[i])
+            for _ in range(min(int(f), n - k)):
+                out[k] = i
+                k += 1
+            res[i] = nw[i] - f
+            total += res[i]
+        return k, total
+
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
+    def residual_draws(res, u, out, k):  # pragma: no cover - runs compiled
+        i = 0
+        s = res[0]
+        for j in range(u.shape[0]):
+            x = u[j]
+            while s <= x:
+                i += 1
+                s += res[i]
+            out[k + j] = i
+
+    return SimpleNamespace(merge=merge, residual_floor=residual_floor, residual_draws=residual_draws)
 
 
 def _inverse_cdf(c: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Index ``i`` with ``c_(i-1) <= u < c_i`` for sorted ``u`` in ``[0, c[-1])``.
 
     ``np.searchsorted`` (binary search, ~20 ns per query) below
-    :data:`MERGE_MIN_N` particles; above it, when numba is installed, one linear
+    :data:`COMPILED_MIN_N` particles; above it, when numba is installed, one linear
     merge of the two sorted arrays (~2 ns per element), which is what keeps the
     1e6-particle resampling at parity with compiled libraries.
     """
     np.minimum(u, np.nextafter(c[-1], 0.0), out=u)
-    merge = _merge_kernel() if c.shape[0] >= MERGE_MIN_N else None
-    if merge is None:
+    kernels = _kernels() if c.shape[0] >= COMPILED_MIN_N else None
+    if kernels is None:
         # i such that c_(i-1) <= u < c_i  (inverse CDF; sorted queries search fast)
         return np.searchsorted(c, u, side="right").astype(np.int64, copy=False)
     out = np.empty(u.shape[0], dtype=np.int64)
     # the same i, walking both sorted arrays once
-    merge(c, u, out)
+    kernels.merge(c, u, out)
     return out
 
 
@@ -185,8 +223,8 @@ def stratified(weights: np.ndarray, rng: np.random.Generator | int | None = None
     Returns
     -------
     ndarray, shape (N,), int64
-        Ascending indices; particle ``i`` gets ``floor(N w_i)`` or more copies
-        in expectation ``N w_i``.
+        Ascending indices; particle ``i`` gets ``N w_i`` copies in
+        expectation and always fewer than 2 away from it.
     """
     w, _ = _checked(weights)
     rng = as_rng(rng)
@@ -250,20 +288,47 @@ def residual(weights: np.ndarray, rng: np.random.Generator | int | None = None) 
     w, total = _checked(weights)
     rng = as_rng(rng)
     n = w.shape[0]
+    # N w_i
     nw = w * (n / total)
+    kernels = _kernels() if n >= COMPILED_MIN_N else None
+    if kernels is None:
+        return _residual_numpy(nw, rng)
+    return _residual_compiled(nw, rng, kernels)
+
+
+def _residual_numpy(nw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Residual resampling of ``nw = N w`` in numpy (small N)."""
+    n = nw.shape[0]
     # n_i = floor(N w_i) deterministic copies
     floor_nw = np.floor(nw)
     kept = floor_nw.astype(np.int64)
     n_rest = n - int(kept.sum())
+    copies = np.repeat(np.arange(n, dtype=np.int64), kept)
     if n_rest == 0:
-        return np.repeat(np.arange(n, dtype=np.int64), kept)
+        return copies
     # r_i = N w_i - n_i, the residual weights
     np.subtract(nw, floor_nw, out=nw)
     c = np.cumsum(nw)
     u = _sorted_uniforms(n_rest, rng)
     u *= c[-1]
-    extra = _inverse_cdf(c, u)
-    return np.concatenate([np.repeat(np.arange(n, dtype=np.int64), kept), extra])
+    return np.concatenate([copies, _inverse_cdf(c, u)])
+
+
+def _residual_compiled(nw: np.ndarray, rng: np.random.Generator, kernels: SimpleNamespace) -> np.ndarray:
+    """The same algorithm and random draws as :func:`_residual_numpy`, in two compiled passes."""
+    n = nw.shape[0]
+    out = np.empty(n, dtype=np.int64)
+    res = np.empty(n)
+    # n_i = floor(N w_i) copies, r_i = N w_i - n_i
+    k, total = kernels.residual_floor(nw, out, res)
+    if k == n:
+        return out
+    u = _sorted_uniforms(n - k, rng)
+    u *= total
+    np.minimum(u, np.nextafter(total, 0.0), out=u)
+    # i such that sum_(j<i) r_j <= u < sum_(j<=i) r_j
+    kernels.residual_draws(res, u, out, k)
+    return out
 
 
 #: Resamplers by name (``--resampler`` values).

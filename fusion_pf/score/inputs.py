@@ -161,16 +161,22 @@ def _column(path: str, name: str, cells: list[str], dtype: type) -> np.ndarray:
         arr = np.where(arr == "", "nan", arr)
     try:
         out = arr.astype(np.float64 if dtype is float else np.int64)
-    except ValueError:
+    except (ValueError, OverflowError):
+        # numpy's parser is stricter than Python's (e.g. about surrounding spaces):
+        # convert cell by cell, naming the first cell neither accepts.
+        values = []
         for row, cell in enumerate(cells, start=2):
             try:
-                float(cell or "nan") if dtype is float else int(cell)
+                values.append(float(cell or "nan") if dtype is float else int(cell))
             except ValueError:
                 kind = "a number or empty" if dtype is float else "an integer"
                 raise InputError(
                     f"{path}: line {row}, column {name!r} must be {kind}, got {cell!r}"
                 ) from None
-        raise
+        try:
+            out = np.array(values, dtype=np.float64 if dtype is float else np.int64)
+        except OverflowError:
+            raise InputError(f"{path}: column {name!r} has an integer out of the int64 range") from None
     if dtype is float and np.isinf(out).any():
         row = int(np.flatnonzero(np.isinf(out))[0]) + 2
         raise InputError(f"{path}: line {row}, column {name!r} must be finite, got {cells[row - 2]!r}")

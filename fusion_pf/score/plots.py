@@ -61,6 +61,11 @@ def _save(plt, fig, path: str | Path) -> Path:
     return path
 
 
+def _contested(sweep) -> int:
+    """Frames where at least one source was scored (the frames BestMax awards), most over jobs."""
+    return int(np.isfinite(sweep.errors).any(axis=2).sum(axis=-1).max())
+
+
 def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
     """Figure 8: BestMax of each source against the particle count, one execution.
 
@@ -84,7 +89,7 @@ def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
                 linewidth=2.2 if s == "fused" else 1.4)
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])
     ax.set_xlabel("number of particles N")
-    ax.set_ylabel("BestMax (frames won, ties to each)")
+    ax.set_ylabel(f"BestMax (frames won of {_contested(sweep)}; ties to each)")
     ax.set_title(f"BestMax vs particle count, single execution (run {run}, seed {sweep.seed})")
     ax.grid(alpha=0.3)
     ax.set_ylim(bottom=0)
@@ -115,7 +120,7 @@ def plot_multiexec(sweep, path: str | Path) -> Path:
                color=st["color"], label=st["label"], error_kw={"elinewidth": 0.8})
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])
     ax.set_xlabel("number of particles N")
-    ax.set_ylabel(f"mean BestMax over {sweep.runs} runs (frames)")
+    ax.set_ylabel(f"mean BestMax over {sweep.runs} runs (frames of {_contested(sweep)})")
     ax.set_title(f"Multi-execution BestMax ({sweep.runs} runs per N, error bars ±1 std)")
     ax.grid(axis="y", alpha=0.3)
     ax.set_ylim(bottom=0)

@@ -243,13 +243,17 @@ def run_sweep(
     else:
         methods = multiprocessing.get_all_start_methods()
         ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-        with ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_init_worker, initargs=(cue_rows, config)) as pool:
+        pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_init_worker, initargs=(cue_rows, config))
+        try:
             futures = {pool.submit(_run_job, counts[c], r, seed): (c, r) for c, r in order}
             with tqdm(total=len(futures), desc="sweep", unit="run", disable=not progress, file=sys.stderr) as bar:
                 for fut in as_completed(futures):
                     c, r = futures[fut]
                     points[c, r], seconds[c, r] = fut.result()
                     bar.update(1)
+        finally:
+            # On an error or Ctrl-C, drop the jobs not started yet instead of finishing the sweep.
+            pool.shutdown(wait=True, cancel_futures=True)
     wall = time.perf_counter() - t0
     bestmax = np.zeros((len(counts), runs, len(SCORED_SOURCES)), dtype=np.int64)
     rmse = np.full((len(counts), runs, len(SCORED_SOURCES)), math.nan)

@@ -133,3 +133,20 @@ def test_unusable_files_exit_2_with_one_line(tmp_path, make, message):
     proc = fusion_pf("info", path)
     assert proc.returncode == 2 and proc.stdout == ""
     assert re.search(message, one_error_line(proc))
+
+
+def test_ten_cut_points_never_traceback_or_hang(tmp_path):
+    data = recording(tmp_path / "rec.mcap", n=12).read_bytes()
+    results = []
+    for cut in np.linspace(1, len(data) - 1, 10).astype(int):
+        path = tmp_path / f"cut{cut}.mcap"
+        path.write_bytes(data[:cut])
+        proc = fusion_pf("info", path, "--json")
+        assert "Traceback" not in proc.stderr and len(proc.stderr.splitlines()) == 1, proc.stderr
+        if proc.returncode == 0:
+            assert proc.stderr.startswith("fusion-pf: warning: file truncated")
+            results.append(json.loads(proc.stdout)["frames"])
+        else:
+            assert proc.returncode == 2 and proc.stderr.startswith("fusion-pf: error:") and str(path) in proc.stderr
+            results.append(0)
+    assert results[0] == 0 and results[-1] == 12 and results == sorted(results)

@@ -16,7 +16,7 @@ def test_depth_scaled_window_covers_fixed_physical_size():
     near = make_roi(320, 200, (640, 400), depth_mm=1000, fx=500, extent_mm=100)
     far = make_roi(320, 200, (640, 400), depth_mm=2000, fx=500, extent_mm=100)
     assert near.shape == (101, 101) and far.shape == (51, 51)
-    assert near.palm_area == pytest.approx(math.pi * (45 * 0.5) ** 2)
+    assert near.palm_area == pytest.approx(math.pi * (55 * 0.5) ** 2)
     assert far.palm_area == pytest.approx(near.palm_area / 4)
 
 

@@ -107,7 +107,7 @@ def test_schemas_are_self_describing():
     fds = FileDescriptorSet.FromString(fmt.protobuf_schema_data(RawImage))
     names = [f.name for f in fds.file]
     assert names[-1] == "foxglove/RawImage.proto" and "google/protobuf/timestamp.proto" in names
-    for name, schema in fmt.JSON_SCHEMAS.items():
+    for name in fmt.JSON_SCHEMAS:
         doc = json.loads(fmt.json_schema_data(name))
         assert doc["title"] == name and doc["type"] == "object" and doc["required"]
     custom = json.loads(fmt.json_schema_data("my.Thing", {"type": "object"}))

@@ -38,8 +38,14 @@ def test_foxglove_sdk_file_replays_to_identical_frames(tmp_path, make_frames, re
     assert info.color_format == color and info.depth_format == depth
 
 
-def test_unchunked_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglove, same_frames):
-    """A writer without chunks or indexes: replay rebuilds the index by scanning."""
+@pytest.mark.parametrize(
+    "options, reason",
+    [({"use_chunks": False, "emit_chunk_indexes": False, "emit_message_indexes": False}, "no chunk index"),
+     ({"emit_message_indexes": False}, "no message index")],
+    ids=["unchunked", "no-message-index"],
+)
+def test_unindexed_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglove, same_frames, options, reason):
+    """A writer without chunks or message indexes: replay rebuilds the index by scanning."""
     import foxglove
     from foxglove import Context
     from foxglove.mcap import MCAPWriteOptions
@@ -49,8 +55,7 @@ def test_unchunked_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglov
     original = foxglove.open_mcap
 
     def unchunked(path, *, context: Context, writer_options: MCAPWriteOptions):
-        options = MCAPWriteOptions(use_chunks=False, emit_chunk_indexes=False, emit_message_indexes=False)
-        return original(path, context=context, writer_options=options)
+        return original(path, context=context, writer_options=MCAPWriteOptions(chunk_size=20_000, **options))
 
     foxglove.open_mcap = unchunked
     try:
@@ -59,7 +64,7 @@ def test_unchunked_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglov
         foxglove.open_mcap = original
     scanned, info = replay(path)
     assert not info.indexed and not info.truncated
-    assert info.notes[0].startswith("file has no usable index (no chunk index)")
+    assert info.notes[0].startswith(f"file has no usable index ({reason})")
     same_frames(indexed, scanned)
     with McapReplay(path) as r:
         same_frames([indexed[4]], [r.frame(4)])

@@ -6,7 +6,6 @@ import subprocess
 import sys
 from collections import Counter
 
-import numpy as np
 import pytest
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.reader import make_reader
@@ -189,3 +188,26 @@ os._exit(9)
     assert [f.seq for f in frames] == list(range(len(frames)))
     assert info.background_frames == 3 and [f.background for f in frames[:4]] == [True, True, True, False]
     assert any("truncated" in note for note in info.notes)
+
+
+def test_ctrl_c_during_close_is_held_back_until_the_file_is_complete(tmp_path, make_frames, monkeypatch):
+    import signal
+
+    path = tmp_path / "late.mcap"
+    rec = McapRecorder(path)
+    rec.open()
+    for frame in make_frames(3):
+        rec.write(frame)
+    writer = rec._writer
+    real_finish = writer.finish
+
+    def finish_after_ctrl_c():
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C arrives while the summary is being written
+        real_finish()
+
+    monkeypatch.setattr(writer, "finish", finish_after_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        rec.close()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with McapReplay(path) as replay:
+        assert len(replay) == 3 and replay.info().indexed

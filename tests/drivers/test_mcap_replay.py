@@ -5,6 +5,8 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from drivers import mcap_format as fmt
 from drivers import open_source
@@ -285,3 +287,34 @@ def test_replay_streams(tmp_path, make_frames, record):
     assert long_size > 24_000_000
     assert long_peak < 1.25 * short_peak + 1_000_000, (short_peak, long_peak)
     assert long_peak < long_size / 3
+
+
+@pytest.mark.parametrize("compression", ["lz4", "none"])
+def test_other_chunk_compressions(tmp_path, make_frames, record, same_frames, compression):
+    frames = make_frames(6)
+    out, _, info = replay_all(record(tmp_path / "c.mcap", frames, compression=compression))
+    same_frames(frames, out)
+    assert info.indexed
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    n=st.integers(1, 9),
+    chunk_size=st.sampled_from([1, 2_000, 5_000, 100_000]),
+    gaps=st.sets(st.integers(0, 8)),
+    skeleton_gaps=st.sets(st.integers(0, 8)),
+    background=st.integers(0, 3),
+    data=st.data(),
+)
+def test_any_chunking_replays_exactly(tmp_path, make_frames, record, same_frames, n, chunk_size, gaps,
+                                      skeleton_gaps, background, data):
+    frames = make_frames(n, size=(16, 12), no_depth=tuple(gaps), no_skeleton=tuple(skeleton_gaps),
+                         background=background, calibration_change=n // 2 if n > 2 else None)
+    path = record(tmp_path / f"h{n}_{chunk_size}.mcap", frames, chunk_size=chunk_size)
+    with McapReplay(path) as replay:
+        same_frames(frames, list(replay))
+        i = data.draw(st.integers(0, n - 1))
+        j = data.draw(st.integers(i, n))
+        same_frames(frames[i:j], list(replay.frames(i, j)))
+        same_frames([frames[i]], [replay.frame(i)])
+        assert replay.info().missing_depth == len([k for k in gaps if k < n])

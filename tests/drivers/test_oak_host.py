@@ -93,8 +93,8 @@ def _ts(seq: int) -> datetime.timedelta:
     return T0 + seq * PERIOD
 
 
-class _FakeCameraStreams(dai.node.ThreadedHostNode):
-    """Emits colour, depth and pose messages the way the device pipeline does.
+class _HostStreams(dai.node.ThreadedHostNode):
+    """Emits real colour, depth and pose messages shaped like the device pipeline's.
 
     ``seqs`` are the colour sequence numbers sent (gaps = frames the device
     lost); depth comes 1 ms after colour, like the stereo pipeline. After the
@@ -154,12 +154,12 @@ def _check_frame(frame, seq: int) -> None:
 
 
 def _run_live(seqs: list[int], *, stop: bool, timeout_s: float, colour_type=dai.ImgFrame.Type.BGR888i):
-    """Run the fake streams through a host Sync into frames_from_queue."""
+    """Run the host streams through a host Sync into frames_from_queue."""
     stats = SourceStats()
     converter = GroupConverter(INTRINSICS, CLOCK, (NN, NN), stats)
     frames = []
     with dai.Pipeline(False) as pipeline:
-        src = pipeline.create(_FakeCameraStreams)
+        src = pipeline.create(_HostStreams)
         src.seqs, src.stop, src.colour_type = seqs, stop, colour_type
         sync = _sync(pipeline)
         src.colour.link(sync.inputs["colour"])
@@ -197,6 +197,20 @@ def test_silent_device_times_out_after_the_frames_it_sent() -> None:
     assert time.monotonic() - start < 5.0
 
 
+def test_device_that_never_sends_times_out_before_the_first_frame() -> None:
+    with dai.Pipeline(False) as pipeline:
+        src = pipeline.create(_HostStreams)
+        src.stop = False
+        sync = _sync(pipeline)
+        src.colour.link(sync.inputs["colour"])
+        queue = sync.out.createOutputQueue()
+        pipeline.start()
+        converter = GroupConverter(INTRINSICS, CLOCK, None, SourceStats())
+        with pytest.raises(DeviceError, match=r"^no frame from the OAK device for 0.4 s \(device timeout\) before the first frame$"):
+            next(frames_from_queue(queue, converter, 0.2, start_timeout_s=0.4))
+        pipeline.stop()
+
+
 def test_rgb888i_colour_is_converted_exactly() -> None:
     frames, _, _, _ = _run_live([0, 1], stop=True, timeout_s=2.0, colour_type=dai.ImgFrame.Type.RGB888i)
     for frame in frames:
@@ -207,7 +221,7 @@ def _record(tmp_path: Path, seqs: list[int]) -> dict[str, Path]:
     """Colour and depth recorded by depthai's RecordMessage (its MCAP format)."""
     paths = {name: tmp_path / f"dai_{name}.mcap" for name in ("colour", "depth")}
     with dai.Pipeline(False) as pipeline:
-        src = pipeline.create(_FakeCameraStreams)
+        src = pipeline.create(_HostStreams)
         src.seqs, src.colour_type = seqs, dai.ImgFrame.Type.RGB888i
         src.release.set()
         src.linger_s = 0.3  # lets RecordMessage write the last frame before the pipeline stops
@@ -223,7 +237,7 @@ def _record(tmp_path: Path, seqs: list[int]) -> dict[str, Path]:
     return paths
 
 
-class _PoseOnly(_FakeCameraStreams):
+class _PoseOnly(_HostStreams):
     def __init__(self) -> None:
         super().__init__()
         self.send_colour_depth = False
@@ -417,7 +431,7 @@ def test_pulled_cable_mid_recording_leaves_a_complete_mcap(tmp_path: Path) -> No
     path = tmp_path / "oak.mcap"
     sent = []
     with dai.Pipeline(False) as pipeline:
-        src = pipeline.create(_FakeCameraStreams)
+        src = pipeline.create(_HostStreams)
         src.seqs = seqs
         sync = _sync(pipeline)
         src.colour.link(sync.inputs["colour"])

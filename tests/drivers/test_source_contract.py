@@ -86,6 +86,6 @@ def test_open_source_errors(spec, message):
 
 
 def test_iterating_outside_with_is_an_error():
-    src = open_source("synth:frames=2,size=32x24")
+    src = open_source("synth:frames=2,size=64x48")
     with pytest.raises(RuntimeError, match="inside a 'with' block"):
         next(iter(src))

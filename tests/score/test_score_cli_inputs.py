@@ -169,3 +169,69 @@ def test_bad_sweep_options(tmp_path, capsys, extra, expected):
         *run_cli(capsys, write_csv(tmp_path / "t.csv"), "--ground-truth", write_gt(tmp_path / "g.mcap"), *extra)
     )
     assert expected in msg
+
+
+def write_annotations(path, shift_ns=0):
+    from fusion_pf.annotate.db import AnnotationDB
+
+    db = AnnotationDB(path, recording="rec.mcap", n_frames=4, width=640, height=480)
+    try:
+        for op in ("ann", "bob"):
+            db.set_click(op, 0, T0, None, None)  # background frame: nobody sees a palm
+        for frame, (u, v, _occ) in GT.items():
+            t = T0 + frame * DT + (shift_ns if frame == 2 else 0)
+            # Two operators 4 px apart horizontally: their mean is the ground truth.
+            db.set_click("ann", frame, t, u - 2.0, v)
+            db.set_click("bob", frame, t, u + 2.0, v)
+    finally:
+        db.close()
+    return path
+
+
+def test_score_against_annotations(tmp_path, capsys):
+    db = write_annotations(tmp_path / "ann.sqlite")
+    code, out, err = run_cli(capsys, write_csv(tmp_path / "t.csv"), "--reference", db, "--json")
+    assert code == 0, err
+    rep = json.loads(out)
+    assert rep["reference"]["kind"] == "annotations"
+    assert rep["n_reference"] == 3 and rep["n_occluded"] is None
+    assert rep["sources"]["fused"]["rmse_px"] == pytest.approx(math.sqrt((25 + 9 + 1) / 3))
+    assert rep["sources"]["fused"]["rmse_occluded_px"] is None
+    assert {k: v["bestmax"] for k, v in rep["sources"].items()} == {"colour": 1, "depth": 0, "skeleton": 1, "fused": 2}
+
+
+def test_annotation_timestamp_mismatch(tmp_path, capsys):
+    db = write_annotations(tmp_path / "ann.sqlite", shift_ns=7)
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--reference", db))
+    assert f"timestamp mismatch at frame 2: {tmp_path / 't.csv'} has timestamp_ns {T0 + 2 * DT}" in msg
+    assert f"{db} has {T0 + 2 * DT + 7}" in msg
+
+
+def test_annotations_beyond_the_tracker_output(tmp_path, capsys):
+    db = write_annotations(tmp_path / "ann.sqlite")
+    tracked = write_csv(tmp_path / "t.csv", rows={k: ROWS[k] for k in (0, 1)})
+    msg = one_line_error(*run_cli(capsys, tracked, "--reference", db))
+    assert "frame count mismatch" in msg and "4 reference frames but 2 of them (first frame 2)" in msg
+
+
+def test_bad_frame_column_and_repeated_frames(tmp_path, capsys):
+    path = write_csv(tmp_path / "t.csv")
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0], lines[1].replace("0,", "0.5,", 1), *lines[2:]]) + "\n")
+    msg = one_line_error(*run_cli(capsys, path, "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "line 2, column 'frame' must be an integer, got '0.5'" in msg
+    path.write_text("\n".join([lines[0], lines[1], lines[1], *lines[2:]]) + "\n")
+    msg = one_line_error(*run_cli(capsys, path, "--ground-truth", write_gt(tmp_path / "g.mcap")))
+    assert "frame indices must be strictly increasing, got frame 0 after frame 0" in msg
+
+
+def test_sweep_of_a_csv_against_annotations_needs_the_recording(tmp_path, capsys):
+    db = write_annotations(tmp_path / "ann.sqlite")
+    msg = one_line_error(*run_cli(capsys, write_csv(tmp_path / "t.csv"), "--reference", db, "--sweep", "5"))
+    assert "--recording" in msg
+
+
+def test_untracked_recording_as_tracker_output(tmp_path, capsys):
+    gt = write_gt(tmp_path / "g.mcap")
+    msg = one_line_error(*run_cli(capsys, gt, "--ground-truth", gt))
+    assert "no /tracker/estimate or /tracker/cues messages" in msg and "fusion-pf track" in msg

@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fusion_pf.errors import InputError
 from fusion_pf.score.metrics import bestmax, bestmax_points, frame_errors, occlusion_episodes, rmse, score
@@ -117,3 +119,17 @@ def test_bestmax_rejects_bad_tolerance_and_ragged_errors():
         bestmax({"a": [1.0]}, tie_tol=-1)
     with pytest.raises(InputError, match="one length"):
         bestmax({"a": [1.0], "b": [1.0, 2.0]})
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.lists(st.one_of(st.none(), st.integers(0, 5)), min_size=4, max_size=4), min_size=1, max_size=20))
+def test_bestmax_awards_exactly_the_minimal_present_sources(rows):
+    # Integer errors make ties frequent; None is a missing source.
+    names = ("a", "b", "c", "d")
+    errors = {k: [NAN if r[i] is None else float(r[i]) for r in rows] for i, k in enumerate(names)}
+    points = bestmax_points(errors, tie_tol=0.0)
+    for t, r in enumerate(rows):
+        present = [x for x in r if x is not None]
+        for i, k in enumerate(names):
+            expected = r[i] is not None and r[i] == min(present)
+            assert points[k][t] == expected

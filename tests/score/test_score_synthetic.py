@@ -125,3 +125,26 @@ def test_tiny_sweep_writes_figures_and_tables_and_is_deterministic(files, capsys
     e = [math.hypot(r.estimate.u - gt[r.frame].u, r.estimate.v - gt[r.frame].v)
          for r in results if r.estimate is not None and r.frame in gt]
     assert sweep["rmse_px"][1][1][3] == pytest.approx(math.sqrt(np.mean(np.square(e))), abs=1e-3)
+
+
+def test_demo_on_a_small_recording(files, capsys):
+    out = files["dir"] / "demo"
+    code = main(["demo", "--recording", str(files["rec"]), "--out", str(out), "--sweep", "5,50", "--runs", "2",
+                 "--workers", "1", "--no-progress"])
+    stdout, err = capsys.readouterr()
+    assert code == 0, err
+    for name in ("tracked.csv", "errors_per_frame.png", "latency_per_frame.png", "bestmax_vs_n.png",
+                 "multiexec_bestmax.png", "score.md", "score.json"):
+        assert (out / name).stat().st_size > 0, name
+        assert str(out / name) in stdout, name
+    assert "## Particle-count sweep (2 runs per N, seed 0)" in stdout and "Demo took" in stdout
+    rep = json.loads((out / "score.json").read_text())
+    assert rep["n_reference"] == len(ground_truth()) and len(rep["sweep"]["bestmax"]) == 2
+
+
+def test_demo_without_recording_is_a_one_line_error(tmp_path, capsys):
+    code = main(["demo", "--recording", str(tmp_path / "none.mcap"), "--out", str(tmp_path / "o")])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.strip() == f"fusion-pf: error: --recording {tmp_path / 'none.mcap'} does not exist; " \
+                          "expected an MCAP recording with ground truth"

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.stats import multivariate_normal
 
 from fusion_pf.cues.base import Measurement
@@ -215,6 +217,7 @@ def test_bad_options_raise_input_error(kwargs, message):
     [
         (1, [Measurement("sonar", 1.0, 1.0)], "known sources: colour, depth, skeleton"),
         (1, [Measurement("colour", float("nan"), 1.0)], "finite"),
+        (1, [Measurement("colour", 3.0e7, 1.0)], r"within \+-1e\+07"),
         (1, [Measurement("colour", 1.0, 1.0, quality=1.5)], r"quality must be in \[0, 1\]"),
         (0, MS, "must increase"),
         (2.5, MS, "must be an int"),
@@ -225,3 +228,27 @@ def test_bad_steps_raise_input_error(ts, ms, message):
     pf.step(0, MS)
     with pytest.raises(InputError, match=message):
         pf.step(ts, ms)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    frames=st.lists(
+        st.lists(
+            st.tuples(st.sampled_from(sorted(NOISE)), st.floats(-1e6, 1e6), st.floats(-1e6, 1e6), st.floats(0, 1)),
+            max_size=3,
+        ),
+        min_size=1,
+        max_size=6,
+    ),
+    likelihood=st.sampled_from(["gaussian", "robust"]),
+)
+def test_weights_stay_finite_and_normalised_for_any_cues(frames, likelihood):
+    """Wild, contradictory cues (sources 1e6 px apart) never give NaN: log-sum-exp and re-initialisation."""
+    pf = ParticleFilter(n_particles=64, likelihood=likelihood, rng=0)
+    for k, frame in enumerate(frames):
+        est = pf.step(k, [Measurement(s, u, v, quality=q) for s, u, v, q in frame])
+        if est is None:
+            continue
+        assert np.isfinite(pf.log_weights).all() and np.isfinite(pf.particles).all()
+        assert np.exp(pf.log_weights).sum() == pytest.approx(1.0, abs=1e-9)
+        assert 1.0 - 1e-9 <= est.ess <= 64.0 + 1e-9 and np.isfinite([est.u, est.v]).all()

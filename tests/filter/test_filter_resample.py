@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 from fusion_pf.errors import InputError
 from fusion_pf.filter import resample
-from fusion_pf.filter.resample import MERGE_MIN_N, RESAMPLERS, ess
+from fusion_pf.filter.resample import COMPILED_MIN_N, RESAMPLERS, ess
 
 SCHEMES = sorted(RESAMPLERS)
 
@@ -134,10 +134,10 @@ def test_residual_matches_nchopin_particles_in_distribution():
     assert np.all(np.abs(ours - theirs) <= 5 * np.sqrt(2) * se)
 
 
-def test_compiled_merge_equals_binary_search():
-    """Above MERGE_MIN_N the inverse CDF takes the merge path; it must agree with searchsorted."""
+def test_compiled_paths_equal_numpy_paths():
+    """Above COMPILED_MIN_N the inverse CDF and residual run compiled; they must agree with numpy exactly."""
     rng = np.random.default_rng(3)
-    n = MERGE_MIN_N + 1000
+    n = COMPILED_MIN_N + 1000
     w = rng.random(n) ** 6
     w[rng.random(n) < 0.3] = 0.0  # flat CDF stretches (zero-weight particles)
     for scheme in ("multinomial", "residual"):
@@ -147,6 +147,10 @@ def test_compiled_merge_equals_binary_search():
     u = np.sort(rng.random(50_000)) * c[-1]
     expected = np.searchsorted(c, np.minimum(u, np.nextafter(c[-1], 0.0)), side="right")
     assert np.array_equal(resample._inverse_cdf(c, u.copy()), expected)
+    # the compiled residual makes the same draws as the numpy one, index for index
+    nw = w * (n / w.sum())
+    compiled = resample._residual_compiled(nw.copy(), np.random.default_rng(8), resample._kernels())
+    assert np.array_equal(compiled, resample._residual_numpy(nw.copy(), np.random.default_rng(8)))
 
 
 @pytest.mark.parametrize("scheme", SCHEMES + ["ess"])
