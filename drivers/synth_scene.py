@@ -161,9 +161,9 @@ def render_background(intr: Intrinsics, rng: np.random.Generator) -> Background:
     painting = _box(xn, yn, 0.22, 0.36, -0.36, -0.20)
     canvas = np.stack([_smooth_field(rng, (h, w), (3, 4)) for _ in range(3)], axis=-1)
     color[painting] = 150.0 + 60.0 * canvas[painting]
-    frame = _box(xn, yn, 0.21, 0.37, -0.37, -0.19) & ~painting
-    color[frame] = DOOR_FRAME_RGB
-    depth[painting | frame] -= 0.02
+    border = _box(xn, yn, 0.21, 0.37, -0.37, -0.19) & ~painting
+    color[border] = DOOR_FRAME_RGB
+    depth[painting | border] -= 0.02
 
     # Open doorway: the room behind is beyond the sensor's range.
     door_frame = _box(xn, yn, 0.415, 0.615, -0.36, 1.0)
@@ -210,7 +210,7 @@ def motion_parameters(rng: np.random.Generator) -> Motion:
         palm_mod_phase=float(u(0, 2 * math.pi)),
         palm_mod_depth=float(u(0.3, 0.6)),
         palm_amp_x=float(u(0.22, 0.26)),
-        palm_offset=0.45,
+        palm_offset=0.55,
         palm_y_mid=float(u(0.03, 0.07)),
         palm_amp_y=float(u(0.09, 0.12)),
         palm_y_period=palm_period * float(u(0.6, 0.8)),
@@ -250,8 +250,8 @@ def pose_at(m: Motion, t: float) -> Pose:
     tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
     torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
     head = np.array([tx, -0.37, tz - 0.02])
-    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y, tz])
-    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y, tz])
+    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
 
     theta = two_pi * t / m.palm_period + m.palm_phase + m.palm_mod_depth * math.sin(
         two_pi * t / m.palm_mod_period + m.palm_mod_phase
@@ -341,11 +341,12 @@ def ellipse_mask(
 
 
 def _ellipse_part(intr, centre, half_w, half_h, angle, thickness, rgb, label, on_top=False):
+    """A disc-like part (head, face, hand) bulging by ``thickness`` metres, lit from the upper left."""
     e = ellipse_mask(intr, centre, half_w, half_h, angle)
     if e is None:
         return None
     rows, cols, mask, q, du, dv = e
-    height = np.sqrt(np.clip(1.0 - q, 0.0, 1.0))
+    height = np.sqrt(np.maximum(1.0 - q, 0.0))
     r = max(half_w, half_h) * intr.fx / centre[2]
     shade = 0.80 + 0.20 * height - 0.07 * (du + dv) / r
     depth = np.float32(centre[2]) - np.float32(thickness) * height
@@ -353,6 +354,7 @@ def _ellipse_part(intr, centre, half_w, half_h, angle, thickness, rgb, label, on
 
 
 def _capsule_part(intr, a3, b3, radius, rgb, label):
+    """A cylinder with round ends (a sleeve) from ``a3`` to ``b3``, ``radius`` metres thick."""
     ua, va = project(intr, a3)
     ub, vb = project(intr, b3)
     ra, rb = radius * intr.fx / a3[2], radius * intr.fx / b3[2]
@@ -367,7 +369,7 @@ def _capsule_part(intr, a3, b3, radius, rgb, label):
     dist = np.hypot(uu - (ua + t * eu), vv - (va + t * ev))
     rad = ra + t * (rb - ra)
     mask = dist <= rad
-    height = np.sqrt(np.clip(1.0 - (dist / rad) ** 2, 0.0, 1.0))
+    height = np.sqrt(np.maximum(1.0 - (dist / rad) ** 2, 0.0))
     depth = (a3[2] + t * (b3[2] - a3[2]) - radius * height).astype(np.float32)
     shade = 0.70 + 0.35 * height
     return Part(rows, cols, mask, depth, shade, rgb, label)
@@ -383,16 +385,13 @@ def _polygon_part(intr, points3, centre_x, half_width, bulge, rgb, label):
         return None
     rows, cols, uu, _ = g
     z = float(points3[0][2])
-    mask = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.uint8)
-    shift = 4
-    local = np.round((uv - [cols.start, rows.start]) * (1 << shift)).astype(np.int32)
-    cv2.fillPoly(mask, [local], 1, lineType=cv2.LINE_8, shift=shift)
+    mask = _fill_polygon(intr, points3, rows, cols)
     cu = intr.fx * centre_x / z + intr.cx
     half = half_width * intr.fx / z
-    height = np.sqrt(np.clip(1.0 - ((uu - cu) / half) ** 2, 0.0, 1.0))
+    height = np.sqrt(np.maximum(1.0 - ((uu - cu) / half) ** 2, 0.0))
     depth = np.broadcast_to((z - bulge * height).astype(np.float32), mask.shape)
     shade = np.broadcast_to(0.74 + 0.30 * height, mask.shape)
-    return Part(rows, cols, mask.astype(bool), depth, shade, rgb, label)
+    return Part(rows, cols, mask, depth, shade, rgb, label)
 
 
 def torso_outline(pose: Pose) -> list[np.ndarray]:
@@ -419,26 +418,32 @@ def palm_mask(intr: Intrinsics, pose: Pose, clip: bool = True):
     return ellipse_mask(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH, angle, clip)
 
 
+def _fill_polygon(intr: Intrinsics, points3: list[np.ndarray], rows: slice, cols: slice) -> np.ndarray:
+    """Boolean mask over ``rows`` x ``cols`` of the projected polygon (1/16 px precision)."""
+    mask = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.uint8)
+    shift = 4
+    uv = np.array([project(intr, p) for p in points3])
+    local = np.round((uv - [cols.start, rows.start]) * (1 << shift)).astype(np.int32)
+    cv2.fillPoly(mask, [local], 1, lineType=cv2.LINE_8, shift=shift)
+    return mask.astype(bool)
+
+
+def _neck_outline(pose: Pose) -> list[np.ndarray]:
+    x, z = pose.torso[0], pose.torso[2] - 0.04
+    return [np.array([x + dx, y, z]) for dx, y in
+            ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))]
+
+
 def body_region(intr: Intrinsics, pose: Pose, rows: slice, cols: slice) -> np.ndarray:
     """Boolean mask, over ``rows`` x ``cols`` (may exceed the image), of the
     torso, neck and head silhouettes, whatever is in front of them."""
-    shape = (rows.stop - rows.start, cols.stop - cols.start)
-    region = np.zeros(shape, np.uint8)
-    shift = 4
-    uv = np.array([project(intr, p) for p in torso_outline(pose)])
-    local = np.round((uv - [cols.start, rows.start]) * (1 << shift)).astype(np.int32)
-    cv2.fillPoly(region, [local], 1, lineType=cv2.LINE_8, shift=shift)
-    out = region.astype(bool)
+    out = _fill_polygon(intr, torso_outline(pose), rows, cols)
+    out |= _fill_polygon(intr, _neck_outline(pose), rows, cols)
     uu = np.arange(cols.start, cols.stop, dtype=np.float32)[None, :]
     vv = np.arange(rows.start, rows.stop, dtype=np.float32)[:, None]
     hu, hv = project(intr, pose.head)
-    z = pose.head[2]
-    a, b = 0.088 * intr.fx / z, 0.115 * intr.fy / z
+    a, b = 0.088 * intr.fx / pose.head[2], 0.115 * intr.fy / pose.head[2]
     out |= ((uu - hu) / a) ** 2 + ((vv - hv) / b) ** 2 <= 1.0
-    x, z = pose.torso[0], pose.torso[2]
-    n0u, n0v = project(intr, np.array([x - 0.055, -0.29, z - 0.04]))
-    n1u, n1v = project(intr, np.array([x + 0.055, SHOULDER_Y, z - 0.04]))
-    out |= (uu >= n0u) & (uu <= n1u) & (vv >= n0v) & (vv <= n1v)
     return out
 
 
@@ -460,9 +465,7 @@ def person_parts(intr: Intrinsics, pose: Pose) -> list[Part]:
                ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
-    neck = [np.array([x + dx, y, z - 0.04]) for dx, y in
-            ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))]
-    parts.append(_polygon_part(intr, neck, x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
+    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
     parts.append(_ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2,
                                0.08, HAIR_RGB, LABEL_CLOTH))
     parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2,

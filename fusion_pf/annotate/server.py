@@ -5,7 +5,7 @@ HTTP API (all JSON responses; errors are ``{"error": message}`` with a 4xx statu
 ``GET /``
     The annotator page (``static/index.html``); ``/static/<file>`` its JS/CSS.
 ``GET /api/info``
-    ``recording``, ``n_frames``, ``width``, ``height`` (of frame 0),
+    ``recording``, ``n_frames``, ``width``, ``height``, ``start_ns`` (of frame 0),
     ``color_format``, ``max_operator_len``.
 ``GET /api/frames/<i>/color``
     Colour image of frame ``i`` (JPEG or PNG).
@@ -121,6 +121,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
         raise InputError(f"database has {db.n_frames} frames, recording has {images.n_frames}")
     app = Flask(__name__, static_folder=str(STATIC_DIR), static_url_path="/static")
     app.config["MAX_CONTENT_LENGTH"] = MAX_BODY_BYTES
+    app.url_map.merge_slashes = False  # no HTML redirects: '//x' is just an unknown path
     app.json.sort_keys = False
     first = images.meta(0)
 
@@ -163,10 +164,15 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     def index() -> Response:
         return send_from_directory(STATIC_DIR, "index.html", max_age=0)
 
+    @app.get("/favicon.ico")
+    def favicon() -> Response:
+        return Response(status=204)
+
     @app.get("/api/info")
     def info() -> Response:
         return jsonify(
             recording=recording, n_frames=images.n_frames, width=first.width, height=first.height,
+            start_ns=first.timestamp_ns,
             color_format=images.color_format, max_operator_len=MAX_OPERATOR_LEN,
         )
 
@@ -250,7 +256,7 @@ def serve(app: Flask, host: str = "127.0.0.1", port: int = 8765, *, threads: int
     from waitress import create_server
 
     server = create_server(app, host=host, port=port, threads=threads,
-                           max_request_body_size=MAX_BODY_BYTES * 4, ident="fusion-pf")
+                           max_request_body_size=1 << 20, ident="fusion-pf")
     bound_host = server.effective_host
     url = f"http://{'[' + bound_host + ']' if ':' in bound_host else bound_host}:{server.effective_port}/"
     if on_ready is not None:

@@ -23,7 +23,9 @@ def _sizes(text: str) -> list[int]:
     try:
         sizes = [int(float(s)) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated particle counts, e.g. 1e2,1e4, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated particle counts, e.g. 1e2,1e4, got {text!r}"
+        ) from None
     if not sizes or min(sizes) < 1 or max(sizes) > 10_000_000:
         raise argparse.ArgumentTypeError(f"particle counts must be in 1..1e7, got {text!r}")
     return sizes

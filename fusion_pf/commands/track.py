@@ -39,25 +39,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--filter", default="pf", metavar="pf|kf", help="particle filter or Kalman baseline")
     p.add_argument("--particles", default="100", metavar="N", help="particle count, 1-100000")
     p.add_argument("--seed", default="0", metavar="S", help="seed of the particle filter (and of --cue-noise), >= 0")
-    p.add_argument("--likelihood", default=None, metavar="gaussian|robust",
-                   help="particle-filter likelihood: paper eq. 6 or Gaussian + outlier mixture "
-                        "(default: robust for pf, gaussian for kf)")
+    p.add_argument("--likelihood", default="auto", metavar="auto|gaussian|robust",
+                   help="particle-filter likelihood: paper eq. 6 or Gaussian + outlier mixture; "
+                        "auto = robust for pf, gaussian for kf")
     p.add_argument("--joint", default="right_hand", metavar="NAME", help="skeleton joint used as the skeleton cue")
     p.add_argument("--background", type=Path, metavar="FILE.mcap",
                    help="empty-scene recording for the background model")
-    p.add_argument("--background-k", default=None, metavar="K",
-                   help="frames of the running-median background when there is no empty scene (default 30)")
+    p.add_argument("--background-k", default=argparse.SUPPRESS, metavar="K",
+                   help="frames of the running-median background when there is no empty scene (default: 30)")
     p.add_argument("--roi-prior", default="auto", metavar="auto|filter|skeleton",
                    help="centre of the cue window: the skeleton joint (paper), the filter prediction, or auto: the joint while confident, else the prediction")
-    p.add_argument("--noise", default=None, metavar="SRC=PX,...",
+    p.add_argument("--noise", default=argparse.SUPPRESS, metavar="SRC=PX,...",
                    help="measurement noise sigma per source in px, e.g. colour=4,depth=8,skeleton=20 "
-                        "(default: the tuned values in docs/architecture.md)")
-    p.add_argument("--process-noise", default=None, metavar="POS,VEL",
-                   help="process noise std per frame: position px, velocity px/frame")
+                        "(default: colour=5,depth=6,skeleton=40, tuned on synthetic scenes)")
+    p.add_argument("--process-noise", default=argparse.SUPPRESS, metavar="POS,VEL",
+                   help="process noise std per frame: position px, velocity px/frame (default: 3,1)")
     p.add_argument("--sources", default="colour,depth,skeleton", metavar="SRC,...",
                    help="sources the filter fuses (all cues are still computed and written)")
-    p.add_argument("--cue-noise", default=None, metavar="SRC=PX,...",
-                   help="add Gaussian noise to cue positions, as paper 003 §4.2-4.3 does (synthetic scenes)")
+    p.add_argument("--cue-noise", default=argparse.SUPPRESS, metavar="SRC=PX,...",
+                   help="add Gaussian noise (px) to cue positions, as paper 003 §4.2-4.3 does, e.g. "
+                        "colour=4,depth=4 (default: none)")
     p.add_argument("--export-ply", type=Path, metavar="DIR",
                    help="write the ROI point cloud of every tracked frame (mm, camera frame) as DIR/frame_NNNNNN.ply")
     p.add_argument("--color-format", default="auto", metavar="auto|raw|jpeg|png",
@@ -112,19 +113,19 @@ def config_from_args(args: argparse.Namespace):
         "filter": _choice("--filter", args.filter, FILTERS),
         "particles": _int("--particles", args.particles, 1, 100_000),
         "seed": _int("--seed", args.seed, 0, 2**63 - 1),
-        "likelihood": None if args.likelihood is None else _choice("--likelihood", args.likelihood, ("gaussian", "robust")),
+        "likelihood": None if args.likelihood == "auto" else _choice("--likelihood", args.likelihood, ("auto", "gaussian", "robust")),
         "joint": args.joint,
         "roi_prior": _choice("--roi-prior", args.roi_prior, ROI_PRIORS),
         "sources": tuple(s.strip() for s in args.sources.split(",") if s.strip()),
         "background": args.background,
     }
-    if args.background_k is not None:
+    if "background_k" in args:
         kwargs["background_k"] = _int("--background-k", args.background_k, 1, 10_000)
-    if args.noise is not None:
+    if "noise" in args:
         kwargs["noise_px"] = _pairs("--noise", args.noise)
-    if args.cue_noise is not None:
+    if "cue_noise" in args:
         kwargs["cue_noise_px"] = _pairs("--cue-noise", args.cue_noise)
-    if args.process_noise is not None:
+    if "process_noise" in args:
         parts = args.process_noise.split(",")
         try:
             kwargs["process_noise"] = tuple(float(x) for x in parts)

@@ -17,11 +17,17 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-__all__ = ["ESTIMATORS", "map_estimate", "robust_mean", "weighted_covariance", "weighted_mean"]
+__all__ = ["ESTIMATORS", "dot_product", "map_estimate", "robust_mean", "weighted_covariance", "weighted_mean"]
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """``sum(a * b)`` without BLAS: threaded BLAS dot stalls ~10 ms at N = 1e6 on busy cores."""
+#: From this length on, products are summed with ``einsum`` instead of BLAS.
+_BLAS_MAX = 8192
+
+
+def dot_product(a: np.ndarray, b: np.ndarray) -> float:
+    """``sum(a * b)``; from :data:`_BLAS_MAX` on via einsum (threaded BLAS dot stalls ~10 ms at 1e6 on busy cores)."""
+    if a.shape[0] < _BLAS_MAX:
+        return float(a @ b)
     return float(np.einsum("i,i->", a, b))
 
 
@@ -48,10 +54,11 @@ def robust_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float 
     k = max(1, math.ceil(top_fraction * n))
     if k >= n:
         return weighted_mean(positions, weights)
-    top = np.argpartition(weights, n - k)[n - k :]
+    top = weights.argpartition(n - k)[n - k :]
     w = weights.take(top)
     # x_hat = sum_top w_i p_i / sum_top w_i
-    return np.array([_dot(w, positions[:, 0].take(top)), _dot(w, positions[:, 1].take(top))]) / w.sum()
+    u, v = positions[:, 0].take(top), positions[:, 1].take(top)
+    return np.array([dot_product(w, u), dot_product(w, v)]) / w.sum()
 
 
 def weighted_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:
@@ -62,7 +69,7 @@ def weighted_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: floa
     ndarray, shape (2,)
     """
     # x_hat = sum_i w_i p_i / sum_i w_i
-    return np.array([_dot(weights, positions[:, 0]), _dot(weights, positions[:, 1])]) / weights.sum()
+    return np.array([dot_product(weights, positions[:, 0]), dot_product(weights, positions[:, 1])]) / weights.sum()
 
 
 def map_estimate(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:
@@ -76,7 +83,12 @@ def map_estimate(positions: np.ndarray, weights: np.ndarray, top_fraction: float
     return np.array(positions[int(np.argmax(weights))], dtype=np.float64)
 
 
-def weighted_covariance(positions: np.ndarray, weights: np.ndarray, mean: np.ndarray | None = None) -> np.ndarray:
+def weighted_covariance(
+    positions: np.ndarray,
+    weights: np.ndarray,
+    mean: np.ndarray | None = None,
+    work: np.ndarray | None = None,
+) -> np.ndarray:
     """Weighted covariance of the positions (the posterior's spread), px^2.
 
     Parameters
@@ -86,6 +98,8 @@ def weighted_covariance(positions: np.ndarray, weights: np.ndarray, mean: np.nda
         Normalised weights.
     mean : ndarray, shape (2,), optional
         The weighted mean if already known.
+    work : ndarray, shape (>= 2, N), optional
+        Scratch rows (3 avoid any allocation per call).
 
     Returns
     -------
@@ -94,11 +108,16 @@ def weighted_covariance(positions: np.ndarray, weights: np.ndarray, mean: np.nda
     """
     if mean is None:
         mean = weighted_mean(positions, weights)
-    d = positions.T - np.asarray(mean, dtype=np.float64)[:, None]
-    wd = d * weights
+    if work is None:
+        work = np.empty((3, weights.shape[0]))
+    du = np.subtract(positions[:, 0], mean[0], out=work[0])
+    dv = np.subtract(positions[:, 1], mean[1], out=work[1])
+    wdu = np.multiply(weights, du, out=work[2]) if work.shape[0] > 2 else weights * du
     # C = sum_i w_i (p_i - m)(p_i - m)^T
-    c = np.einsum("ji,ki->jk", wd, d)
-    return (c + c.T) / 2.0
+    cuu, cuv = dot_product(wdu, du), dot_product(wdu, dv)
+    wdv = np.multiply(weights, dv, out=work[0])
+    cvv = dot_product(wdv, dv)
+    return np.array([[cuu, cuv], [cuv, cvv]])
 
 
 #: Estimators by name (``estimator=`` values).

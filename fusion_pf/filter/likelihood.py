@@ -6,6 +6,9 @@ Paper pipeline for one frame: squared distance of every particle to the cue
 maximum, i.e. subtracting the max in log space), and the joint likelihood as the
 element-wise product over the available sources (eq. 7) -- a sum of log arrays.
 A source that gave no measurement in a frame is simply absent from the sum.
+For the Gaussian likelihood the product of eq. 7 is one Gaussian around the
+precision-weighted cue mean, so :class:`JointLikelihood` evaluates it in a
+single pass over the particles whatever the number of sources.
 
 Beyond the paper, the *robust* likelihood of one source is the mixture
 ``(1 - eps) N2(d; sigma_eff) + eps / A``: a 2-D Gaussian density of the particle
@@ -251,17 +254,30 @@ class JointLikelihood:
 
     def source_loglik(self, positions: np.ndarray, m: Measurement, out: np.ndarray) -> np.ndarray:
         """Unnormalised log-likelihood of one source (eqs. 5-6, or the robust mixture)."""
-        if self._work is None or self._work.shape != out.shape:
-            self._work = np.empty_like(out)
+        self._buffers(out)
         d2 = squared_distance(positions, (m.u, m.v), out=out, scratch=self._work)
         if self.likelihood == "robust":
             return robust_loglik(d2, self.sigma(m), self.outlier_prob, self.outlier_area_px2, out=d2)
         return gaussian_loglik(d2, self.sigma(m), out=d2)
 
+    def _buffers(self, out: np.ndarray) -> None:
+        if self._scratch is None or self._scratch.shape != out.shape:
+            self._scratch = np.empty_like(out)
+            self._work = np.empty_like(out)
+
     def __call__(
         self, positions: np.ndarray, measurements: Sequence[Measurement], out: np.ndarray
-    ) -> tuple[np.ndarray, float]:
-        """Joint normalised log-likelihood (eq. 7 in log space).
+    ) -> tuple[np.ndarray, bool]:
+        """Joint normalised log-likelihood (eqs. 5-7 in log space) and whether the target is lost.
+
+        Gaussian: the product of the per-source Gaussians (eq. 7) is itself a
+        Gaussian around the precision-weighted cue mean ``z_bar`` with
+        precision ``P = sum_phi 1 / rho_phi``, times a constant; it is computed
+        in one pass, ``log Lh = -P |p - z_bar|^2 / 2 - C``. Normalising each
+        source by its maximum (step 3) shifts every particle's log-likelihood
+        by the same constant, which eq. 2 removes; here the joint is normalised
+        by its own maximum instead (same weights). Robust: the per-source
+        mixtures are summed, each normalised by its maximum.
 
         Parameters
         ----------
@@ -275,25 +291,42 @@ class JointLikelihood:
         Returns
         -------
         joint : ndarray, shape (N,)
-            ``sum_phi (log Lh_phi - max log Lh_phi)``, <= 0 (eq. 7 of the
-            step-3-normalised likelihoods).
-        worst_peak : float
-            The smallest per-source maximum of the unnormalised log-likelihood;
-            below :data:`UNDERFLOW_LOG` that source's linear likelihood would be
-            zero for every particle (the filter has lost the target).
+            Normalised joint log-likelihood, <= 0 with maximum 0.
+        lost : bool
+            Gaussian: the unnormalised joint likelihood of every particle
+            underflows float64 (``max log Lh <`` :data:`UNDERFLOW_LOG`), where
+            the paper's linear-space filter would divide 0 by 0. Robust: every
+            cue is more likely an outlier than an inlier for every particle
+            (the whole cloud is far from all cues). Either way the particles
+            no longer cover the target.
         """
-        if self._scratch is None or self._scratch.shape != out.shape:
-            self._scratch = np.empty_like(out)
+        self._buffers(out)
+        if self.likelihood == "gaussian":
+            prec = np.array([1.0 / self.noise_px[m.source] ** 2 for m in measurements])
+            z = np.array([[m.u, m.v] for m in measurements])
+            total = float(prec.sum())
+            # z_bar = sum_phi z_phi / rho_phi / P
+            z_bar = prec @ z / total
+            # C = sum_phi |z_phi - z_bar|^2 / (2 rho_phi)
+            c = 0.5 * float(prec @ np.sum((z - z_bar) ** 2, axis=1))
+            d2 = squared_distance(positions, z_bar, out=out, scratch=self._work)
+            # log Lh = sum_phi -L_phi / (2 rho_phi) = -P |p - z_bar|^2 / 2 - C   (eqs. 5-7)
+            joint = np.multiply(d2, -0.5 * total, out=d2)
+            peak = float(joint.max())
+            # Lh~ = Lh / max Lh   (step 3)
+            joint -= peak
+            return joint, peak - c < UNDERFLOW_LOG
         out.fill(0.0)
         peaks = 0.0
-        worst = math.inf
+        inlier = False
         for m in measurements:
             ll = self.source_loglik(positions, m, self._scratch)
             peak = float(ll.max())
-            worst = min(worst, peak)
+            # some particle has (1 - eps) N(d) >= eps / A  <=>  log Lh >= log(2 eps / A)
+            inlier = inlier or peak >= math.log(2.0 * self.outlier_prob / self.outlier_area_px2)
             peaks += peak
             # Lh = Lh_K (x) Lh_C (x) Lh_D  ->  log Lh = sum_phi log Lh_phi
             out += ll
         # Lh~_phi = Lh_phi / max Lh_phi  (step 3, all sources at once)
         out -= peaks
-        return out, worst
+        return out, not inlier

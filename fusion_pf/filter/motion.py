@@ -123,7 +123,13 @@ def predict(
         state_t[:2] += state_t[2:]
     else:
         state_t[:2] += dt * state_t[2:]
-    rng.standard_normal(out=scratch)
+    # components without noise (std (pos, pos, vel, vel) of 0) draw nothing
+    lo = 0 if std[0] > 0.0 else 2
+    hi = 4 if std[2] > 0.0 else 2
+    if lo >= hi:
+        return
+    noise = scratch[lo:hi]
+    rng.standard_normal(out=noise)
     # x <- M x + gamma (x) sigma_x,  sigma_x ~ N(0, I)
-    scratch *= std[:, None]
-    state_t += scratch
+    noise *= std[lo:hi, None]
+    state_t[lo:hi] += noise

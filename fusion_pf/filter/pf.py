@@ -16,10 +16,12 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
    ESS < 2/3 N.
 
 A source absent from a frame contributes nothing; a frame without measurements
-only predicts. If the linear-space likelihood of any present source would
-underflow to zero for every particle (the target jumped far outside the
-cloud), the particles are re-initialised around the measurements instead of
-producing NaN weights.
+only predicts. When the particles have lost the target -- Gaussian: the joint
+likelihood of every particle underflows float64, where the paper's linear-space
+weights would become 0/0; robust: every cue is an outlier for every particle --
+the particles are re-initialised around the measurements (counted in
+``reinitialisations``) instead of producing NaN weights or ignoring the cues
+forever.
 """
 
 from __future__ import annotations
@@ -34,8 +36,8 @@ from fusion_pf.errors import InputError
 from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker
-from .estimate import ESTIMATORS, weighted_covariance, weighted_mean
-from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, UNDERFLOW_LOG, JointLikelihood
+from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
+from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, JointLikelihood
 from .motion import check_process_noise, noise_std, predict
 from .resample import RESAMPLERS
 
@@ -142,8 +144,8 @@ class ParticleFilter(Tracker):
     initialised : bool
         Whether the filter holds a particle set.
     reinitialisations : int
-        How many times the particles were re-initialised because a source's
-        likelihood underflowed for every particle.
+        How many times the particles were re-initialised because they had
+        lost the target (module docstring).
 
     Notes
     -----
@@ -267,13 +269,13 @@ class ParticleFilter(Tracker):
         return np.concatenate([fused_position(measurements, sigma), [0.0, 0.0]])
 
     def _update(self, measurements: Sequence[Measurement]) -> None:
-        """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising on underflow."""
+        """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising when the target is lost."""
         positions = self._x[:2].T
-        joint, worst = self._like(positions, measurements, self._joint)
-        if worst < UNDERFLOW_LOG:
+        joint, lost = self._like(positions, measurements, self._joint)
+        if lost:
             self.reinitialisations += 1
             self._initialise(self._centre_of(measurements))
-            joint, worst = self._like(positions, measurements, self._joint)
+            joint, _ = self._like(positions, measurements, self._joint)
         logw = self._logw
         # w_k ∝ w_(k-1) * p(z_k | x_k)   (eq. 3, logs)
         logw += joint
@@ -323,13 +325,13 @@ class ParticleFilter(Tracker):
         n = self.n_particles
         positions = self._x[:2].T
         u, v = self._estimate(positions, w, self.top_fraction)
-        cov = weighted_covariance(positions, w, weighted_mean(positions, w))
+        cov = weighted_covariance(positions, w, weighted_mean(positions, w), work=self._noise)
         # ESS = 1 / sum_i w_i^2
-        ess = 1.0 / float(np.einsum("i,i->", w, w))
+        ess = 1.0 / dot_product(w, w)
         resampled = ess < self.ess_threshold * n
         if resampled:
             idx = self._resample(w, self.rng)
-            np.take(self._x, idx, axis=1, mode="clip", out=self._spare)
+            self._x.take(idx, axis=1, mode="clip", out=self._spare)
             self._x, self._spare = self._spare, self._x
             # w_i = 1 / N after resampling
             self._logw.fill(-math.log(n))

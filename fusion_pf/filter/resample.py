@@ -41,7 +41,7 @@ from fusion_pf.errors import InputError
 from fusion_pf.rng import as_rng
 
 #: Particle count from which residual resampling and the inverse CDF run compiled loops (if numba is installed).
-COMPILED_MIN_N = 4096
+COMPILED_MIN_N = 1024
 
 __all__ = ["COMPILED_MIN_N", "RESAMPLERS", "ess", "multinomial", "residual", "stratified", "systematic"]
 
@@ -51,7 +51,7 @@ def _checked(weights: np.ndarray) -> tuple[np.ndarray, float]:
     w = np.asarray(weights)
     if w.ndim != 1 or w.shape[0] == 0:
         raise InputError(f"weights must be a non-empty (N,) array, got shape {w.shape}")
-    if not np.issubdtype(w.dtype, np.number) or np.issubdtype(w.dtype, np.complexfloating):
+    if w.dtype.kind not in "fiu":
         raise InputError(f"weights must be real numbers, got dtype {w.dtype}")
     w = w.astype(np.float64, copy=False)
     total = float(w.sum())
@@ -84,10 +84,10 @@ def _kernels() -> SimpleNamespace | None:
     """Compiled O(N) loops for large N, or None without numba.
 
     ``merge(c, u, out)``: ``out[j]`` = first ``i`` with ``c_i > u_j`` for sorted
-    ``u``. ``residual_floor(nw, out, res)``: writes the ``floor(nw_i)`` copies
-    into ``out`` and the residuals into ``res``; returns (copies, sum of
-    residuals). ``residual_draws(res, u, out, k)``: the inverse CDF of the
-    residuals (running sum, same order as ``residual_floor``'s total, so it
+    ``u``. ``residual_floor(w, scale, out)``: writes the ``floor(scale w_i)``
+    copies into ``out``; returns (copies, sum of residuals).
+    ``residual_draws(w, scale, u, out, k)``: the inverse CDF of the residuals
+    (recomputed, summed in the same order as ``residual_floor``'s total, so it
     never runs past the end) into ``out[k:]``. Compiled on first use and cached
     on disk (``cache=True``): only the very first large resampling on a machine
     pays the compilation (~1 s).
@@ -107,28 +107,35 @@ def _kernels() -> SimpleNamespace | None:
             out[j] = i
 
     @numba.njit(cache=True, nogil=True, boundscheck=False)
-    def residual_floor(nw, out, res):  # pragma: no cover - runs compiled
-        n = out.shape[0]
+    def residual_floor(w, scale, out):  # pragma: no cover - runs compiled
+        # out has 2 slack slots: two copies are written unconditionally (no
+        # branch for the usual 0-2 copies), the next particle overwrites extras
+        n = out.shape[0] - 2
         k = 0
         total = 0.0
-        for i in range(nw.shape[0]):
-            f = np.floor(nw[i])
-            for _ in range(min(int(f), n - k)):
-                out[k] = i
-                k += 1
-            res[i] = nw[i] - f
-            total += res[i]
+        for i in range(w.shape[0]):
+            x = w[i] * scale
+            f = np.floor(x)
+            c = min(int(f), n - k)
+            out[k] = i
+            out[k + 1] = i
+            for j in range(2, c):
+                out[k + j] = i
+            k += c
+            total += x - f
         return k, total
 
     @numba.njit(cache=True, nogil=True, boundscheck=False)
-    def residual_draws(res, u, out, k):  # pragma: no cover - runs compiled
+    def residual_draws(w, scale, u, out, k):  # pragma: no cover - runs compiled
+        # residuals recomputed as in residual_floor: same values, same running sum
         i = 0
-        s = res[0]
+        x = w[0] * scale
+        s = x - np.floor(x)
         for j in range(u.shape[0]):
-            x = u[j]
-            while s <= x:
+            while s <= u[j]:
                 i += 1
-                s += res[i]
+                x = w[i] * scale
+                s += x - np.floor(x)
             out[k + j] = i
 
     return SimpleNamespace(merge=merge, residual_floor=residual_floor, residual_draws=residual_draws)
@@ -155,16 +162,19 @@ def _inverse_cdf(c: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 def _sorted_uniforms(m: int, rng: np.random.Generator) -> np.ndarray:
     """``m`` ordered U(0, 1) variates in O(m) from exponential spacings."""
-    z = np.cumsum(rng.standard_exponential(m + 1))
+    z = rng.standard_exponential(m + 1)
+    np.cumsum(z, out=z)
+    u = z[:m]
     # U_(j) = S_j / S_(m+1), S_j = E_1 + ... + E_j: the order statistics of m uniforms
-    return z[:m] * (1.0 / z[m])
+    u *= 1.0 / z[m]
+    return u
 
 
 def _indices_from_below(below: np.ndarray) -> np.ndarray:
     """Indices from ``below[i]`` = number of ordered uniforms below cdf ``c_i``."""
     counts = np.diff(below, prepend=0)
     # particle i is drawn once per uniform in [c_(i-1), c_i)
-    return np.repeat(np.arange(below.shape[0], dtype=np.int64), counts)
+    return np.arange(below.shape[0], dtype=np.int64).repeat(counts)
 
 
 def ess(weights: np.ndarray) -> float:
@@ -288,12 +298,11 @@ def residual(weights: np.ndarray, rng: np.random.Generator | int | None = None) 
     w, total = _checked(weights)
     rng = as_rng(rng)
     n = w.shape[0]
-    # N w_i
-    nw = w * (n / total)
     kernels = _kernels() if n >= COMPILED_MIN_N else None
     if kernels is None:
-        return _residual_numpy(nw, rng)
-    return _residual_compiled(nw, rng, kernels)
+        # N w_i
+        return _residual_numpy(w * (n / total), rng)
+    return _residual_compiled(w, n / total, rng, kernels)
 
 
 def _residual_numpy(nw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -303,7 +312,7 @@ def _residual_numpy(nw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     floor_nw = np.floor(nw)
     kept = floor_nw.astype(np.int64)
     n_rest = n - int(kept.sum())
-    copies = np.repeat(np.arange(n, dtype=np.int64), kept)
+    copies = np.arange(n, dtype=np.int64).repeat(kept)
     if n_rest == 0:
         return copies
     # r_i = N w_i - n_i, the residual weights
@@ -314,21 +323,22 @@ def _residual_numpy(nw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([copies, _inverse_cdf(c, u)])
 
 
-def _residual_compiled(nw: np.ndarray, rng: np.random.Generator, kernels: SimpleNamespace) -> np.ndarray:
-    """The same algorithm and random draws as :func:`_residual_numpy`, in two compiled passes."""
-    n = nw.shape[0]
-    out = np.empty(n, dtype=np.int64)
-    res = np.empty(n)
-    # n_i = floor(N w_i) copies, r_i = N w_i - n_i
-    k, total = kernels.residual_floor(nw, out, res)
-    if k == n:
-        return out
-    u = _sorted_uniforms(n - k, rng)
-    u *= total
-    np.minimum(u, np.nextafter(total, 0.0), out=u)
-    # i such that sum_(j<i) r_j <= u < sum_(j<=i) r_j
-    kernels.residual_draws(res, u, out, k)
-    return out
+def _residual_compiled(w: np.ndarray, scale: float, rng: np.random.Generator, kernels: SimpleNamespace) -> np.ndarray:
+    """The same algorithm and random draws as :func:`_residual_numpy` (``nw = scale w``), compiled.
+
+    Two passes over the weights and no (N,) temporary besides the result.
+    """
+    n = w.shape[0]
+    out = np.empty(n + 2, dtype=np.int64)
+    # n_i = floor(N w_i) copies; total = sum_i (N w_i - n_i)
+    k, total = kernels.residual_floor(w, scale, out)
+    if k < n:
+        u = _sorted_uniforms(n - k, rng)
+        u *= total
+        np.minimum(u, np.nextafter(total, 0.0), out=u)
+        # i such that sum_(j<i) r_j <= u < sum_(j<=i) r_j
+        kernels.residual_draws(w, scale, u, out, k)
+    return out[:n]
 
 
 #: Resamplers by name (``--resampler`` values).

@@ -22,8 +22,8 @@ def test_filter_sections_json_and_markdown(tmp_path):
     assert on_disk == json.loads(json.dumps(result))
     assert set(result) >= {"meta", "pf_step", "stonesoup_step", "resampling", "targets"}
     assert result["meta"]["quick"] is True and len(result["meta"]["loadavg_end"]) == 3
-    assert [r["n"] for r in result["pf_step"]] == [40, 300]
-    for r in result["pf_step"]:
+    assert [r["n"] for r in result["pf_step"]] == [40, 300] == [r["n"] for r in result["pf_step_robust"]]
+    for r in result["pf_step"] + result["pf_step_robust"]:
         _check_timing(r)
         assert r["updates_per_s"] == pytest.approx(r["n"] / (r["median_ms"] / 1e3))
         assert r["resampled_fraction"] == 1.0  # forced resampling in every timed step

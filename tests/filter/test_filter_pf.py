@@ -14,7 +14,7 @@ from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
 from fusion_pf.filter import Estimate, ParticleFilter
 from fusion_pf.filter.estimate import map_estimate, robust_mean, weighted_covariance, weighted_mean
-from fusion_pf.filter.likelihood import robust_loglik
+from fusion_pf.filter.likelihood import JointLikelihood, robust_loglik
 from fusion_pf.filter.scenario import rmse, run_tracker, scripted_scenario
 
 NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
@@ -165,6 +165,31 @@ def test_underflow_reinitialises_instead_of_nan():
     assert math.hypot(est.u - 1.0e5, est.v + 4.0e4) < 25.0
 
 
+def test_robust_filter_reacquires_a_target_that_jumped_but_ignores_one_liar():
+    pf = ParticleFilter(n_particles=500, likelihood="robust", rng=0)
+    for k in range(10):
+        pf.step(k, MS)
+    liar = [MS[0], MS[1], Measurement("skeleton", 600.0, 200.0)]
+    est = pf.step(10, liar)
+    assert pf.reinitialisations == 0 and math.hypot(est.u - 321, est.v - 199) < 8.0
+    jumped = [Measurement(m.source, m.u + 300.0, m.v) for m in MS]
+    est = pf.step(11, jumped)
+    assert pf.reinitialisations == 1 and math.hypot(est.u - 621, est.v - 199) < 15.0
+
+
+def test_fused_gaussian_equals_product_of_source_gaussians():
+    """The one-pass joint (Gaussian around the precision-weighted mean) equals eq. 7 summed per source."""
+    like = JointLikelihood(NOISE)
+    rng = np.random.default_rng(1)
+    pos = rng.normal(300.0, 30.0, (400, 2))
+    joint, lost = like(pos, MS, np.empty(400))
+    ll = sum(-np.sum((pos - [m.u, m.v]) ** 2, axis=1) / (2 * NOISE[m.source] ** 2) for m in MS)
+    np.testing.assert_allclose(joint, ll - ll.max(), rtol=0, atol=1e-9)
+    assert not lost and joint.max() == 0.0
+    far = [Measurement("colour", 300.0 + 500.0, 300.0)]
+    assert like(pos, far, np.empty(400))[1]  # -(> 350 px)^2 / 72 < log(tiny): lost
+
+
 def test_estimators_by_hand():
     pos = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [4.0, 4.0]])
     w = np.array([0.1, 0.2, 0.3, 0.4])
@@ -180,6 +205,18 @@ def test_estimators_by_hand():
     est = pf.step(0, MS)
     best = pf.particles[np.argmax(pf.log_weights)]
     assert (est.u, est.v) == (best[0], best[1])
+
+
+@pytest.mark.parametrize(("pos", "vel"), [(2.0, 0.0), (0.0, 0.5), (0.0, 0.0)])
+def test_zero_process_noise_components_stay_deterministic(pos, vel):
+    pf = ParticleFilter(n_particles=300, process_noise=(pos, vel), ess_threshold=0.0, rng=3)
+    pf.step(0, MS)
+    x0 = pf.particles.copy()
+    pf.step(1, [])
+    x1 = pf.particles
+    moved = x0[:, :2] + x0[:, 2:]
+    assert np.array_equal(x1[:, 2:], x0[:, 2:]) == (vel == 0.0)
+    assert np.allclose(x1[:, :2], moved, rtol=0, atol=1e-12) == (pos == 0.0)
 
 
 def test_frame_period_bridges_dropped_frames():

@@ -148,9 +148,9 @@ def test_compiled_paths_equal_numpy_paths():
     expected = np.searchsorted(c, np.minimum(u, np.nextafter(c[-1], 0.0)), side="right")
     assert np.array_equal(resample._inverse_cdf(c, u.copy()), expected)
     # the compiled residual makes the same draws as the numpy one, index for index
-    nw = w * (n / w.sum())
-    compiled = resample._residual_compiled(nw.copy(), np.random.default_rng(8), resample._kernels())
-    assert np.array_equal(compiled, resample._residual_numpy(nw.copy(), np.random.default_rng(8)))
+    scale = n / w.sum()
+    compiled = resample._residual_compiled(w, scale, np.random.default_rng(8), resample._kernels())
+    assert np.array_equal(compiled, resample._residual_numpy(w * scale, np.random.default_rng(8)))
 
 
 @pytest.mark.parametrize("scheme", SCHEMES + ["ess"])

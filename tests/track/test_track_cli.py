@@ -157,7 +157,7 @@ def test_background_from_a_separate_file(tmp_path):
     (["--particles", "many"], "--particles must be an integer in [1, 100000], got 'many'"),
     (["--seed", "-1"], "--seed must be an integer in [0,"),
     (["--filter", "ukf"], "--filter must be one of pf, kf, got 'ukf'"),
-    (["--likelihood", "cauchy"], "--likelihood must be one of gaussian, robust, got 'cauchy'"),
+    (["--likelihood", "cauchy"], "--likelihood must be one of auto, gaussian, robust, got 'cauchy'"),
     (["--filter", "kf", "--likelihood", "robust"], "--likelihood robust needs --filter pf"),
     (["--roi-prior", "face"], "--roi-prior must be one of auto, filter, skeleton, got 'face'"),
     (["--noise", "colour=x"], "--noise must look like colour=PX,depth=PX,skeleton=PX, got 'colour=x'"),
@@ -230,3 +230,32 @@ def test_ctrl_c_finalises_the_output(tmp_path):
     counts = {t: len(topics[t]) for t in TRACKER_TOPICS}
     assert set(counts.values()) == {n - 5}, counts
     assert len((tmp_path / "live.csv").read_text().splitlines()) == n - 5 + 1
+
+
+def test_kalman_baseline_writes_no_particles(recording, tmp_path, capsys):
+    out = tmp_path / "kf.mcap"
+    assert main(["track", str(recording), "-o", str(out), "--filter", "kf", "--no-progress"]) == 0
+    assert "tracked 40 frames (10 background)" in capsys.readouterr().err
+    topics = messages(out)
+    assert "/tracker/particles" not in topics
+    assert all(len(topics[t]) == 40 for t in TRACKER_TOPICS[:3])
+    for _, _, data in topics["/tracker/estimate"]:
+        e = json.loads(data)
+        assert (e["filter"], e["likelihood"], e["n_particles"], e["ess"], e["resampled"]) == ("kf", "gaussian", 0, None, False)
+    ann = ImageAnnotations.FromString(topics["/tracker/overlay"][0][2])
+    assert len(ann.circles) == 1 and all(len(p.points) in (1, 4) for p in ann.points)
+
+
+def test_options_reach_the_tracker(recording, tmp_path, capsys):
+    out = tmp_path / "opts.mcap"
+    argv = ["track", str(recording), "-o", str(out), "--roi-prior", "skeleton", "--sources", "colour,depth",
+            "--cue-noise", "colour=2", "--noise", "skeleton=30", "--process-noise", "4,1.5",
+            "--likelihood", "gaussian", "--particles", "20", "--joint", "right_hand", "--no-progress"]
+    assert main(argv) == 0, capsys.readouterr().err
+    with McapReplay(out) as replay:
+        settings = json.loads(replay.info().metadata["tracker"])
+    assert settings["roi_prior"] == "skeleton" and settings["sources"] == ["colour", "depth"]
+    assert settings["cue_noise_px"] == {"colour": 2.0} and settings["noise_px"]["skeleton"] == 30.0
+    assert settings["process_noise"] == [4.0, 1.5] and settings["likelihood"] == "gaussian"
+    estimates = [json.loads(d) for _, _, d in messages(out)["/tracker/estimate"]]
+    assert {e["n_particles"] for e in estimates} == {20}

@@ -74,7 +74,7 @@ async function showFrame(index) {
   const token = ++state.token;
   state.frame = index;
   history.replaceState(null, "", `#frame=${index}`);
-  $("frame-label").textContent = `Frame ${index} / ${n - 1}`;
+  $("frame-label").textContent = `Frame ${index} / ${n}`;
   $("view").dataset.state = "loading";
   try {
     const wantDepth = $("depth-toggle").checked;
@@ -89,7 +89,7 @@ async function showFrame(index) {
     state.color = color;
     state.depth = depth;
     state.view = view;
-    $("time-label").textContent = `t = ${(meta.timestamp_ns / 1e9).toFixed(3)} s`;
+    $("time-label").textContent = `t = ${((meta.timestamp_ns - state.info.start_ns) / 1e9).toFixed(3)} s`;
     if (state.fitted) fitZoom();
     render();
     setStatus(meta.has_depth || !wantDepth ? "" : "This frame has no depth image.");

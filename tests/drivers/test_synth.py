@@ -1,0 +1,320 @@
+"""The synthetic scene source (drivers/synth.py) and the ``fusion-pf synth`` command.
+
+Every statistic is measured from rendered frames (or from the cheap geometric
+path ``ground_truth``/``joints``, which is checked against rendering) against the
+scene's ground truth; nothing is compared with values copied from a run.
+"""
+
+import math
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers import open_source
+from drivers.mcap_replay import McapReplay
+from drivers.synth import DEPTH_NOISE_C, SPECKLE_FRACTION, SynthSource
+from fusion_pf.cli import main
+from fusion_pf.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def same_frame(a, b):
+    return (
+        a.timestamp_ns == b.timestamp_ns
+        and a.seq == b.seq
+        and np.array_equal(a.color, b.color)
+        and np.array_equal(a.depth, b.depth)
+        and a.intrinsics == b.intrinsics
+        and dict(a.joints) == dict(b.joints)
+        and a.ground_truth == b.ground_truth
+        and a.background == b.background
+    )
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """640x400, seed 1: 10 background frames and a person frame every 6th frame up to 190."""
+    src = SynthSource(frames=190, seed=1, background_frames=10)
+    background = [src.render(i) for i in range(10)]
+    person = [src.render(i) for i in range(10, 190, 6)]
+    return src, background, person
+
+
+# -- determinism, random access, types -------------------------------------------------------
+
+
+def test_same_seed_gives_identical_frames_and_another_seed_differs():
+    def run(seed):
+        with SynthSource(frames=5, seed=seed, size=(160, 100), background_frames=1) as src:
+            return list(src)
+
+    a, b, c = run(4), run(4), run(5)
+    assert all(same_frame(x, y) for x, y in zip(a, b))
+    for x, z in zip(a[1:], c[1:]):
+        assert not np.array_equal(x.color, z.color)
+        assert not np.array_equal(x.depth, z.depth)
+        assert x.ground_truth != z.ground_truth
+
+
+def test_random_access_equals_iteration_and_windows():
+    src = SynthSource(frames=9, seed=7, size=(320, 200), background_frames=3, fps=15.0, start_ns=5)
+    with src:
+        frames = list(src)
+        assert all(same_frame(src.render(i)[0], frames[i]) for i in reversed(range(9)))
+        assert all(same_frame(x, y) for x, y in zip(src.frames(2, 6), frames[2:6]))
+        window = list(src.frames(start_ns=frames[4].timestamp_ns, end_ns=frames[7].timestamp_ns))
+        assert [f.seq for f in window] == [4, 5, 6]
+        assert [f.seq for f in src.frames(7, 100)] == [7, 8]
+    for i, f in enumerate(frames):
+        assert f.ground_truth == src.ground_truth(i)
+        assert dict(f.joints) == src.joints(i)
+
+
+def test_frame_types_sizes_timestamps_and_masks():
+    src = SynthSource(frames=4, seed=2, size=(200, 120), fps=25.0, background_frames=1)
+    assert len(src) == 4
+    k = src.intrinsics
+    assert (k.width, k.height, k.fx, k.fy, k.cx, k.cy) == (200, 120, 156.0, 156.0, 99.5, 59.5)
+    assert k.distortion_model == "none"
+    for i in range(4):
+        frame, masks = src.render(i)
+        assert frame.seq == i and frame.color.shape == (120, 200, 3) and frame.color.dtype == np.uint8
+        assert frame.depth.shape == (120, 200) and frame.depth.dtype == np.uint16
+        assert frame.timestamp_ns == 1_700_000_000_000_000_000 + i * 40_000_000
+        assert set(masks) == {"skin", "palm", "person"}
+        for m in masks.values():
+            assert m.shape == (120, 200) and m.dtype == bool
+        assert not (masks["palm"] & ~masks["skin"]).any() and not (masks["skin"] & ~masks["person"]).any()
+    assert set(frame.joints) == {
+        "right_hand", "left_hand", "right_wrist", "left_wrist", "right_elbow", "left_elbow",
+        "right_shoulder", "left_shoulder", "head", "torso",
+    }
+    meta = src.metadata()
+    assert all(isinstance(v, str) for v in meta.values())
+    assert (meta["generator"], meta["seed"], meta["background_frames"], meta["size"]) == (
+        "fusion_pf.synth", "2", "1", "200x120")
+
+
+# -- ground truth, occlusion, skeleton ---------------------------------------------------------
+
+
+def test_ground_truth_is_the_palm_centroid(scene):
+    _, _, person = scene
+    for frame, masks in person:
+        g = frame.ground_truth
+        palm = masks["palm"]
+        assert palm[round(g.v), round(g.u)]
+        vs, us = np.nonzero(palm)
+        assert math.hypot(us.mean() - g.u, vs.mean() - g.v) < 1.0, frame.seq
+        across = 2.0 * math.sqrt(len(us) / math.pi)  # diameter of the disc of the same area
+        assert 38 <= across <= 60, (frame.seq, across)
+
+
+def test_occlusion_fraction_and_episodes():
+    for seed in range(4):
+        src = SynthSource(frames=600, seed=seed)
+        occ = np.array([src.ground_truth(i).occluded for i in range(600)])
+        assert 0.25 <= occ.mean() <= 0.36, (seed, occ.mean())
+        episodes = int(np.sum(occ[1:] & ~occ[:-1]))
+        assert 5 <= episodes <= 8, (seed, episodes)
+
+
+def test_occluded_palm_is_seen_in_front_of_the_body(scene):
+    """Independent of the overlap geometry: the depth around an occluded palm is the body's."""
+    _, _, person = scene
+    near = {True: [], False: []}
+    for frame, masks in person:
+        palm = masks["palm"]
+        ring = cv2.dilate(palm.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool) & ~palm
+        d = frame.depth[ring]
+        d = d[d > 0]
+        near[frame.ground_truth.occluded].append(np.mean(d < 2000))
+    assert len(near[True]) >= 5 and len(near[False]) >= 5
+    assert min(near[True]) > 0.9
+    assert np.mean(near[False]) < 0.75
+
+
+def test_skeleton_is_accurate_when_clear_and_fails_under_occlusion():
+    clear, occluded = [], []
+    for seed in range(3):
+        src = SynthSource(frames=300, seed=seed)
+        for i in range(300):
+            g, joints, overlap = src.ground_truth(i), src.joints(i), src.palm_overlap(i)
+            hand, torso = joints["right_hand"], joints["torso"]
+            err = np.array([hand.u - g.u, hand.v - g.v])
+            to_torso = np.array([torso.u - g.u, torso.v - g.v])
+            row = (np.hypot(*err), hand.confidence, err @ to_torso / (np.hypot(*err) * np.hypot(*to_torso)),
+                   math.hypot(joints["left_hand"].u - g.u, joints["left_hand"].v - g.v))
+            if overlap == 0.0:
+                clear.append(row)
+            elif g.occluded:
+                occluded.append(row)
+    clear, occluded = np.array(clear), np.array(occluded)
+    assert len(clear) > 300 and len(occluded) > 200
+    assert np.mean(clear[:, 0]) < 3.5 and np.percentile(clear[:, 0], 95) < 7
+    assert 20 < np.mean(occluded[:, 0]) < 60
+    assert np.mean(occluded[:, 2]) > 0.7  # the error points at the torso
+    assert np.mean(clear[:, 1]) > 0.85 and 0.2 <= np.mean(occluded[:, 1]) <= 0.45
+    assert np.max(occluded[:, 1]) < 0.65
+
+
+def test_background_frames_show_the_empty_scene(scene):
+    _, background, person = scene
+    for frame, masks in background:
+        assert frame.background and frame.joints == {} and frame.ground_truth is None
+        assert not any(m.any() for m in masks.values())
+    ref = np.mean([f.color.astype(np.float32) for f, _ in background], axis=0)
+    for frame, _ in background:
+        assert np.abs(frame.color - ref).mean() < 4
+    frame, masks = person[0]
+    assert not frame.background and frame.ground_truth is not None
+    diff = np.abs(frame.color - ref).mean(axis=2)
+    assert diff[masks["person"] & ~masks["skin"]].mean() > 70
+
+
+def test_colour_difference_bands(scene):
+    """Paper 003 §3.5.1 pipeline: |frame - background| -> grey; skin sits between background and clothing."""
+    _, background, person = scene
+    ref = np.rint(np.mean([f.color.astype(np.float32) for f, _ in background], axis=0)).astype(np.uint8)
+    kernel = np.ones((5, 5), np.uint8)
+    values = {"skin": [], "cloth": [], "background": []}
+    for frame, masks in person:
+        grey = cv2.cvtColor(cv2.absdiff(np.ascontiguousarray(frame.color), ref), cv2.COLOR_RGB2GRAY)
+        for name, m in (("skin", masks["skin"]), ("cloth", masks["person"] & ~masks["skin"]),
+                        ("background", ~masks["person"])):
+            values[name].append(grey[cv2.erode(m.astype(np.uint8), kernel).astype(bool)])
+    skin, cloth, bg = (np.concatenate(values[k]) for k in ("skin", "cloth", "background"))
+    assert 15 <= np.percentile(skin, 1) and np.percentile(skin, 99) <= 60
+    assert np.percentile(cloth, 1) > 70
+    assert np.percentile(bg, 99) < 12
+
+
+# -- depth ------------------------------------------------------------------------------------
+
+
+def test_depth_noise_grows_with_z_squared():
+    src = SynthSource(frames=16, seed=3, background_frames=16)
+    depth = np.array([src.render(i)[0].depth for i in range(16)], dtype=np.float64)
+    valid = (depth > 0).all(axis=0)
+    z, sd = depth.mean(axis=0)[valid], depth.std(axis=0, ddof=1)[valid]
+    edges = np.arange(2300, 3250, 100)
+    centres, sigmas = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (z >= lo) & (z < hi)
+        if sel.sum() > 500:
+            centres.append(z[sel].mean())
+            sigmas.append(np.sqrt(np.mean(sd[sel] ** 2)))
+    assert len(centres) >= 5 and max(centres) / min(centres) > 1.25
+    slope = np.polyfit(np.log(centres), np.log(sigmas), 1)[0]
+    assert 1.7 < slope < 2.3, slope
+    ratio = np.array(sigmas) / (DEPTH_NOISE_C * np.array(centres) ** 2)
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
+
+
+def test_invalid_depth_bands_speckles_and_range(scene):
+    src, background, person = scene
+    frame, masks = person[3]
+    rows = np.nonzero(masks["person"].any(axis=1))[0]
+    left_band, right_band = [], []
+    for r in rows[(rows > 140) & (rows < 300)]:
+        cols = np.nonzero(masks["person"][r])[0]
+        u0, u1 = cols.min(), cols.max()
+        left_band.append(frame.depth[r, u0 - 6:u0] == 0)
+        right_band.append(frame.depth[r, u1 + 1:u1 + 7] == 0)
+    assert np.mean(np.concatenate(left_band)) > 0.97  # stereo shadow on the occluded (left) side
+    assert np.mean(np.concatenate(right_band)) < 0.06
+    bg = background[0][0]
+    k = src.intrinsics
+    wall = bg.depth[20:120, int(k.cx):int(k.cx + 0.35 * k.fx)]
+    assert abs(np.mean(wall == 0) - SPECKLE_FRACTION) < 0.006
+    assert 2800 < np.median(wall[wall > 0]) < 3200
+    doorway = bg.depth[int(k.cy):, int(k.cx + 0.47 * k.fx):int(k.cx + 0.56 * k.fx)]
+    assert doorway.size > 1000 and not doorway.any()  # beyond the range: invalid
+    palm = frame.depth[masks["palm"]]
+    assert 1100 < np.median(palm[palm > 0]) < 1400
+
+
+# -- options ----------------------------------------------------------------------------------
+
+
+def test_from_options_parses_strings():
+    src = SynthSource.from_options({"seed": "3", "frames": "7", "size": "320x200", "fps": "15",
+                                    "background_frames": "2"})
+    assert (src.seed, len(src), src.size, src.fps, src.background_frames) == (3, 7, (320, 200), 15.0, 2)
+    spec = open_source("synth:seed=3,frames=7,size=320x200,fps=15,background_frames=2")
+    assert same_frame(spec.render(4)[0], src.render(4)[0])
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"seed": "x"}, "seed must be an integer in [0, 9223372036854775807], got 'x'"),
+        ({"seed": "-1"}, "seed must be an integer in [0, 9223372036854775807], got -1"),
+        ({"frames": "0"}, "frames must be an integer in [1, 10000000], got 0"),
+        ({"frames": "2.5"}, "frames must be an integer in [1, 10000000], got '2.5'"),
+        ({"size": "640by400"}, "size must be WxH with both in [32, 4096], e.g. 640x400, got '640by400'"),
+        ({"size": "16x16"}, "size must be WxH with both in [32, 4096], e.g. 640x400, got '16x16'"),
+        ({"fps": "0"}, "fps must be a number in (0, 1000], got '0'"),
+        ({"fps": "nan"}, "fps must be a number in (0, 1000], got 'nan'"),
+        ({"frames": "3", "background_frames": "5"}, "background_frames must be an integer in [0, 3], got 5"),
+        ({"colour": "red"}, "unknown synth option 'colour'; expected one of seed, frames, size, fps"),
+    ],
+)
+def test_from_options_errors(options, message):
+    with pytest.raises(InputError, match=re.escape(message)) as info:
+        SynthSource.from_options(options)
+    assert "\n" not in str(info.value)
+
+
+def test_render_index_out_of_range():
+    src = SynthSource(frames=3, size=(64, 48))
+    with pytest.raises(InputError, match=re.escape("frame index must be an integer in [0, 2], got 3")):
+        src.render(3)
+
+
+# -- command and shipped sample -----------------------------------------------------------------
+
+
+def test_synth_command_writes_a_recording(tmp_path, capsys):
+    out = tmp_path / "s.mcap"
+    argv = ["synth", str(out), "--frames", "6", "--seed", "2", "--background-frames", "2", "--size", "160x100",
+            "--color-format", "png", "--depth-format", "png", "--no-progress"]
+    assert main(argv) == 0
+    expected = SynthSource(frames=6, seed=2, size=(160, 100), background_frames=2)
+    with McapReplay(out) as rec:
+        info = rec.info()
+        assert (info.frames, info.background_frames, info.ground_truth_frames) == (6, 2, 4)
+        assert info.metadata["generator"] == "fusion_pf.synth" and info.metadata["seed"] == "2"
+        assert {t.topic for t in info.topics} >= {"/camera/color", "/camera/depth", "/camera/calibration",
+                                                  "/skeleton/joints", "/ground_truth/palm"}
+        assert all(same_frame(a, expected.render(i)[0]) for i, a in enumerate(rec))
+    capsys.readouterr()
+    assert main(argv) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert main(["synth", str(tmp_path / "t.mcap"), "--frames", "many"]) == 2
+    assert "frames must be an integer" in capsys.readouterr().err
+    assert not (tmp_path / "t.mcap").exists()
+
+
+def test_shipped_sample_matches_its_readme_command():
+    sample = ROOT / "recordings" / "sample.mcap"
+    readme = (ROOT / "recordings" / "README.md").read_text()
+    command = re.search(r"fusion-pf synth recordings/sample\.mcap[^\n`]*", readme).group(0)
+    args = dict(re.findall(r"--([a-z-]+) (\S+)", command))
+    assert sample.stat().st_size <= 10_000_000
+    w, h = map(int, args["size"].split("x"))
+    src = SynthSource(frames=int(args["frames"]), seed=int(args["seed"]), size=(w, h),
+                      background_frames=int(args["background-frames"]))
+    with McapReplay(sample) as rec:
+        info = rec.info()
+        assert (info.frames, info.background_frames, info.width, info.height) == (len(src), src.background_frames, w, h)
+        assert info.color_format == args["color-format"] and info.depth_format == args["depth-format"]
+        for i in (0, src.background_frames, len(src) - 1):
+            a, b = rec.frame(i), src.render(i)[0]
+            assert np.array_equal(a.depth, b.depth) and a.ground_truth == b.ground_truth
+            assert dict(a.joints) == dict(b.joints)
+            assert np.abs(a.color.astype(int) - b.color).mean() < 3  # jpeg
