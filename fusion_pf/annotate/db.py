@@ -338,6 +338,10 @@ class AnnotationDB:
         ).fetchall()
         return [Click.from_row(r) for r in rows]
 
+    def count_clicks(self, operator: str) -> int:
+        """Number of frames ``operator`` has done (clicked or marked "not visible")."""
+        return self._conn().execute("SELECT count(*) FROM clicks WHERE operator = ?", (operator,)).fetchone()[0]
+
     def frame_clicks(self, frame: int) -> list[Click]:
         """Every operator's click on ``frame``, by operator name."""
         rows = self._conn().execute(

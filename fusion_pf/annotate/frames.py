@@ -150,6 +150,8 @@ class FrameImages:
             raise InputError(f"jpeg_quality must be in [1, 100], got {jpeg_quality}")
         if cache_size < 1:
             raise InputError(f"cache_size must be >= 1, got {cache_size}")
+        if not isinstance(provider, FrameProvider):
+            raise InputError(f"provider must have len() and get(index), got {type(provider).__name__}")
         self.provider = provider
         self.n_frames = len(provider)
         if self.n_frames < 1:
@@ -242,7 +244,10 @@ class FrameImages:
 
     def color(self, index: int) -> bytes:
         """The colour image of frame ``index``, encoded as :attr:`color_format`."""
-        return self._image(index, "color") or b""
+        data = self._image(index, "color")
+        if data is None:
+            raise InputError(f"frame {index} has no colour image")
+        return data
 
     def depth(self, index: int) -> bytes | None:
         """The colour-mapped depth of frame ``index`` as a BGRA PNG, None when it has no depth."""

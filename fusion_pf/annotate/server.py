@@ -36,11 +36,12 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from typing import Callable
 
 from flask import Flask, Response, jsonify, request, send_from_directory
 from werkzeug.exceptions import HTTPException
 
-from fusion_pf.errors import InputError
+from fusion_pf.errors import InputError, RecordingError
 
 from .db import MAX_OPERATOR_LEN, AnnotationDB, summarize_frame, validate_operator
 from .frames import FrameImages
@@ -132,6 +133,11 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     @app.errorhandler(InputError)
     def _input_error(exc: InputError) -> tuple[Response, int]:
         return jsonify(error=str(exc)), 400
+
+    @app.errorhandler(RecordingError)
+    def _recording_error(exc: RecordingError) -> tuple[Response, int]:
+        _log.error("recording error on %s: %s", request.path, exc)
+        return jsonify(error=f"the recording cannot be read here: {exc}"), 500
 
     @app.errorhandler(HTTPException)
     def _http_error(exc: HTTPException) -> tuple[Response, int]:
@@ -225,7 +231,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
             raise ApiError(400, f"({u}, {v}) is outside the {meta.width}x{meta.height} image of frame {frame}")
         db.set_click(operator, frame, meta.timestamp_ns, u, v)
         view = _frame_view(db, frame, operator)
-        view["done"] = len(db.operator_clicks(operator))
+        view["done"] = db.count_clicks(operator)
         return jsonify(view)
 
     def _frame_index(index: int) -> int:
@@ -237,7 +243,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
 
 
 def serve(app: Flask, host: str = "127.0.0.1", port: int = 8765, *, threads: int = 8,
-          on_ready=None) -> None:
+          on_ready: Callable[[str], None] | None = None) -> None:
     """Serve ``app`` with waitress until interrupted.
 
     Parameters

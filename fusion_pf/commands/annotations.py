@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("db", type=Path, metavar="DB", help="SQLite file written by fusion-pf annotate")
     e.add_argument("--csv", type=Path, required=True, metavar="OUT", help="per-frame reference CSV")
     e.add_argument("--operators-csv", type=Path, metavar="OPS",
-                   help="per-operator CSV (default: OUT with '_operators' before the suffix)")
+                   help="per-operator CSV; when omitted, OUT with '_operators' before the suffix")
 
 
 def operators_path(csv_path: Path) -> Path:

@@ -5,11 +5,14 @@ from __future__ import annotations
 import sqlite3
 
 import pytest
+from playwright.sync_api import expect
+
+from drivers.mcap_replay import McapReplay
 
 pytestmark = pytest.mark.browser
 
-#: Click positions (canvas fractions) on frames 0, 1, 2, 3, 5.
-TARGETS = {0: (0.25, 0.5), 1: (0.5, 0.25), 2: (0.75, 0.75), 3: (0.1, 0.9), 5: (0.6, 0.4)}
+#: Frames the operator clicks (on the true palm centre of the synthetic scene).
+FRAMES = (0, 1, 2, 3, 5)
 
 
 def _rows(db):
@@ -30,18 +33,22 @@ def _login(page, url, name):
     page.wait_for_selector("#operator-dialog[open]")
     page.fill("#operator-input", name)
     page.press("#operator-input", "Enter")
-    page.wait_for_selector("#operator-dialog:not([open])")
+    expect(page.locator("#operator-label")).to_have_text(name, timeout=15000)
 
 
-def _click_at(page, fx, fy):
+def _click_palm(page, u, v, width=320, height=200):
+    """Bring image point (u, v) into view and click it with the mouse, like an operator."""
+    page.evaluate(
+        """([u, v]) => {
+            const viewer = document.getElementById("viewer");
+            viewer.scrollLeft = (u + 0.5) * state.zoom - viewer.clientWidth / 2;
+            viewer.scrollTop = (v + 0.5) * state.zoom - viewer.clientHeight / 2;
+        }""",
+        [u, v],
+    )
     box = page.locator("#view").bounding_box()
-    page.locator("#view").click(position={"x": fx * box["width"], "y": fy * box["height"]})
-    return box
-
-
-def _expected_uv(fx, fy, box, width=320, height=200):
-    x, y = fx * box["width"], fy * box["height"]
-    return x / box["width"] * width - 0.5, y / box["height"] * height - 0.5
+    page.mouse.click(box["x"] + (u + 0.5) / width * box["width"], box["y"] + (v + 0.5) / height * box["height"])
+    return box["width"] / width  # screen pixels per image pixel
 
 
 def test_operator_clicks_navigates_reloads(browser, server_factory, rec20, tmp_path):
@@ -54,17 +61,29 @@ def test_operator_clicks_navigates_reloads(browser, server_factory, rec20, tmp_p
     _wait_frame(page, 0)
     assert page.inner_text("#frame-label") == "Frame 0 / 20"
     assert page.inner_text("#progress-label") == "0 of 20 done"
-    expected = {}
-    for index in sorted(TARGETS):
+    with McapReplay(rec20) as replay:
+        truth = {i: replay.frame(i) for i in FRAMES}
+    scale = {}
+    for n_done, index in enumerate(FRAMES, start=1):
         while page.locator("#view").get_attribute("data-frame") != str(index):
             page.keyboard.press("ArrowRight")
             _wait_frame(page, int(page.evaluate("state.frame")))
         _wait_frame(page, index)
-        box = _click_at(page, *TARGETS[index])
-        page.wait_for_selector("#own-click.done")
-        expected[index] = _expected_uv(*TARGETS[index], box)
-        page.wait_for_function(f"document.getElementById('progress-label').textContent === '{len(expected)} of 20 done'")
+        if index == 5:  # zoom in twice with the keyboard; the click must still land on the palm
+            zoom_before = page.inner_text("#zoom-label")
+            page.keyboard.press("+")
+            page.keyboard.press("+")
+            assert page.inner_text("#zoom-label") != zoom_before
+        gt = truth[index].ground_truth
+        scale[index] = _click_palm(page, gt.u, gt.v)
+        expect(page.locator("#progress-label")).to_have_text(f"{n_done} of 20 done")
+        expect(page.locator("#own-click")).to_have_class("value done")
+    assert scale[5] > scale[3] * 1.4
+    page.keyboard.press("d")  # depth overlay for the screenshot
+    _wait_frame(page, 5)
     page.screenshot(path=str(tmp_path / "annotator.png"))
+    page.keyboard.press("d")
+    page.keyboard.press("0")
     # keys: left goes back, n jumps to the first frame not done after the current one
     page.keyboard.press("ArrowLeft")
     _wait_frame(page, 4)
@@ -80,18 +99,20 @@ def test_operator_clicks_navigates_reloads(browser, server_factory, rec20, tmp_p
     _wait_frame(page, 6)  # the frame is kept in the URL, the name in localStorage
     assert page.inner_text("#operator-label") == "Operator One"
     assert page.inner_text("#progress-label") == "5 of 20 done"
-    for index in sorted(TARGETS, reverse=True):
-        page.evaluate(f"showFrame({index})")
-        _wait_frame(page, index)
-        u, v = expected[index]
-        assert page.inner_text("#own-click") == f"({u:.1f}, {v:.1f})"
-
     rows = _rows(db)
-    assert [(r[0], r[1]) for r in rows] == [("Operator One", i) for i in sorted(TARGETS)]
-    for r in rows:
-        u, v = expected[r[1]]
-        assert abs(r[3] - u) <= 0.6 and abs(r[4] - v) <= 0.6 and r[5] == 1
-    assert len({r[2] for r in rows}) == 5  # each frame's own capture timestamp
+    stored = {r[1]: (r[3], r[4]) for r in rows}
+    assert [(r[0], r[1], r[2], r[5]) for r in rows] == [
+        ("Operator One", i, truth[i].timestamp_ns, 1) for i in FRAMES]
+    for i in FRAMES:  # the stored click is the palm the mouse hit, to a screen pixel
+        gt = truth[i].ground_truth
+        assert abs(stored[i][0] - gt.u) <= 1.0 / scale[i] + 0.05
+        assert abs(stored[i][1] - gt.v) <= 1.0 / scale[i] + 0.05
+    for index in reversed(FRAMES):
+        while page.locator("#view").get_attribute("data-frame") != str(index):
+            page.keyboard.press("ArrowLeft")
+            _wait_frame(page, int(page.evaluate("state.frame")))
+        u, v = stored[index]
+        assert page.inner_text("#own-click") == f"({u:.1f}, {v:.1f})"
     assert errors == []
     page.close()
 
@@ -105,7 +126,7 @@ def test_two_operators_at_once(browser, server_factory, rec20, tmp_path):
     _login(b, server.url + "/#frame=4", "bob")
     _wait_frame(a, 4)
     _wait_frame(b, 4)
-    _click_at(a, 0.3, 0.3)
+    _click_palm(a, 96.0, 60.0)
     a.wait_for_selector("#own-click.done")
     assert a.inner_text("#ref-label") == "Nobody else has done this frame yet."
     b.keyboard.press("ArrowLeft")

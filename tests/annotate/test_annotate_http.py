@@ -15,6 +15,7 @@ import pytest
 import requests
 
 from drivers.mcap_replay import McapReplay
+from fusion_pf.errors import InputError
 
 from .conftest import REPO
 
@@ -179,3 +180,22 @@ def test_database_of_another_recording_fails_cleanly(rec20, tmp_path):
                            "--port", "0"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert "'paper.mcap' with n_frames = 111" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_frame_images_lru_cache(rec20):
+    from fusion_pf.annotate.frames import FrameImages, ReplayProvider
+
+    with McapReplay(rec20) as replay:
+        with pytest.raises(InputError, match="len\\(\\) and get"):
+            FrameImages(replay)  # a replay has frame(), not get(): needs the adapter
+        images = FrameImages(ReplayProvider(replay), color_format="png", cache_size=3)
+        first = images.color(0)
+        assert images.color(0) is first and images.hits == 1  # colour and depth of 0 cached
+        images.color(1)  # evicts the oldest entry (depth of frame 0)
+        assert images.color(0) is first and images.hits == 2
+        images.depth(0)
+        assert images.misses == 3  # frame 0 re-decoded for its depth only
+        png = cv2.imdecode(np.frombuffer(images.color(2), np.uint8), cv2.IMREAD_COLOR)
+        assert np.array_equal(png[..., ::-1], replay.frame(2).color)  # PNG is lossless
+        with pytest.raises(InputError, match="out of range"):
+            images.color(20)
