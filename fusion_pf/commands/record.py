@@ -60,21 +60,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
 
 
-def _check_output(args: argparse.Namespace) -> None:
-    from fusion_pf.errors import InputError
-
-    out: Path = args.output
-    if out.is_dir():
-        raise InputError(f"output {out} is a directory; expected an .mcap file name")
-    if out.exists() and not args.force:
-        raise InputError(f"output {out} already exists; pass --force to overwrite it")
-    if not out.parent.is_dir():
-        raise InputError(f"output directory {out.parent} does not exist")
-    source = Path(args.source)
-    if out.exists() and source.exists() and source.resolve() == out.resolve():
-        raise InputError(f"output {out} is the recording being read; choose another output file")
-
-
 def _one_line(exc: BaseException) -> str:
     from fusion_pf.errors import FusionPFError
 
@@ -93,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
     from drivers.mcap_record import McapRecorder
     from fusion_pf.errors import RecordingError
 
-    _check_output(args)
+    from ._paths import check_output
+
+    check_output(args.output, force=args.force, inputs=(args.source,))
     overrides = {k: v for k, v in (("size", args.size), ("fps", args.fps)) if v is not None}
     if overrides and args.source.lower().endswith(".mcap"):
         from fusion_pf.errors import InputError

@@ -43,19 +43,15 @@ def run(args: argparse.Namespace) -> int:
 
     from drivers.mcap_record import McapRecorder
     from drivers.synth import SynthSource
-    from fusion_pf.errors import InputError
+
+    from ._paths import check_output
 
     source = SynthSource.from_options({
         "frames": args.frames, "seed": args.seed, "background_frames": args.background_frames,
         "size": args.size, "fps": args.fps,
     })
     out: Path = args.output
-    if out.is_dir():
-        raise InputError(f"output {out} is a directory; expected an .mcap file name")
-    if out.exists() and not args.force:
-        raise InputError(f"output {out} already exists; pass --force to overwrite it")
-    if not out.parent.is_dir():
-        raise InputError(f"output directory {out.parent} does not exist")
+    check_output(out, force=args.force)
     recorder = McapRecorder(
         out, compression=args.compression, color_format=args.color_format, depth_format=args.depth_format,
         jpeg_quality=args.jpeg_quality, metadata=source.metadata(),

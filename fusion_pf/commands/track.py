@@ -141,17 +141,11 @@ def config_from_args(args: argparse.Namespace):
 def _check_outputs(args: argparse.Namespace) -> None:
     from fusion_pf.errors import InputError
 
+    from ._paths import check_output
+
     outputs = [("output", args.output)] + ([("--csv", args.csv)] if args.csv is not None else [])
     for what, out in outputs:
-        if out.is_dir():
-            raise InputError(f"{what} {out} is a directory; expected a file name")
-        if out.exists() and not args.force:
-            raise InputError(f"{what} {out} already exists; pass --force to overwrite it")
-        if not out.parent.is_dir():
-            raise InputError(f"{what} directory {out.parent} does not exist")
-        for other in (Path(args.source), args.background):
-            if other is not None and out.exists() and other.exists() and other.resolve() == out.resolve():
-                raise InputError(f"{what} {out} is an input file; choose another output file")
+        check_output(out, force=args.force, what=what, inputs=(args.source, args.background))
     if args.csv is not None and args.csv.resolve() == args.output.resolve():
         raise InputError(f"--csv {args.csv} is the same file as the output MCAP")
     if args.export_ply is not None:

@@ -322,7 +322,8 @@ def read_tracker_mcap(path: str | Path) -> TrackTable:
         frame = _frame_of(path, ESTIMATE_TOPIC, msg, log_time)
         row = rows.setdefault(frame, {"timestamp_ns": msg.get("timestamp_ns", log_time)})
         row["fused"] = _xy(path, ESTIMATE_TOPIC, msg, f"frame {frame}")
-        lat = msg.get("latency_ns") or {}
+        lat = msg.get("latency_ns")
+        lat = lat if isinstance(lat, dict) else {}
         row["latency"] = {k: float(v) / 1e6 for k, v in lat.items() if isinstance(v, (int, float))}
     for log_time, msg in cues:
         frame = _frame_of(path, CUES_TOPIC, msg, log_time)

@@ -72,7 +72,7 @@ def test_rerecording_a_recording(tmp_path):
         for fa, fb in zip(a, b, strict=True):
             assert np.array_equal(fa.color, fb.color) and fa.background == fb.background
     proc = fusion_pf("record", first, first, "--force")
-    assert proc.returncode == 2 and "is the recording being read" in error_line(proc)
+    assert proc.returncode == 2 and "is an input file; choose another output file" in error_line(proc)
 
 
 def _source_that_fails_at_frame(path, n_good):

@@ -18,7 +18,7 @@ from drivers.synth import SynthSource
 from fusion_pf.cli import main
 from fusion_pf.track import extract_cues, run_filter
 
-SEED, FRAMES, BACKGROUND, SIZE = 5, 30, 5, (320, 200)  # seed 5: palm occluded in frames 5-11
+SEED, FRAMES, BACKGROUND, SIZE = 5, 30, 5, (320, 200)  # seed 5: palm occluded in the first frames
 SPEC = f"synth:seed={SEED},frames={FRAMES},background_frames={BACKGROUND},size={SIZE[0]}x{SIZE[1]}"
 SOURCES = ("colour", "depth", "skeleton")
 
@@ -69,7 +69,8 @@ def test_score_csv_against_ground_truth_end_to_end(files, capsys):
     rmse, coverage, wins = expected_from_csv(files["csv"])
     gt = ground_truth()
     assert rep["n_frames"] == FRAMES - BACKGROUND and rep["n_reference"] == len(gt)
-    assert rep["n_occluded"] == sum(p.occluded for p in gt.values()) == 7
+    n_occluded = sum(p.occluded for p in gt.values())
+    assert n_occluded > 0 and rep["n_occluded"] == n_occluded
     for s in (*SOURCES, "fused"):
         assert rep["sources"][s]["rmse_px"] == pytest.approx(rmse[s], rel=1e-9), s
         assert rep["sources"][s]["coverage"] == pytest.approx(coverage[s]), s
