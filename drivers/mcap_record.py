@@ -12,11 +12,8 @@ stopped the source -- writes the index and summary.
 from __future__ import annotations
 
 import os
-import signal
-import threading
-from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any, Iterator, Mapping
+from typing import IO, Any, Mapping
 
 import mcap
 from google.protobuf.message import Message
@@ -25,6 +22,7 @@ from mcap.writer import CompressionType, Writer
 from fusion_pf import __version__
 from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import Frame, Intrinsics
+from fusion_pf.signals import sigint_deferred
 
 from . import mcap_format as fmt
 from .base import Sink
@@ -33,26 +31,6 @@ from .base import Sink
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default uncompressed chunk size in bytes (about one raw 640x400 RGB-D frame).
 CHUNK_SIZE = 1 << 20
-
-
-@contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold back Ctrl-C while the summary is written, then re-raise it."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received: list[int] = []
-    previous = signal.getsignal(signal.SIGINT)
-    if previous is None:
-        yield
-        return
-    signal.signal(signal.SIGINT, lambda signum, _frame: received.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if received:
-        raise KeyboardInterrupt
 
 
 class McapRecorder(Sink):
@@ -175,7 +153,7 @@ class McapRecorder(Sink):
         if writer is None or fh is None:
             return
         self._writer = self._fh = None
-        with _sigint_deferred():
+        with sigint_deferred():
             try:
                 if not self._foreground:
                     self._announce_background(writer)
@@ -228,11 +206,13 @@ class McapRecorder(Sink):
         return self._channel(topic, schema_name, "jsonschema", fmt.json_schema_data(schema_name, schema), "json")
 
     def _add(self, channel_id: int, timestamp_ns: int, data: bytes, sequence: int = 0) -> None:
-        self._require_writer().add_message(
-            channel_id=channel_id, log_time=timestamp_ns, publish_time=timestamp_ns, data=data,
-            sequence=sequence & 0xFFFFFFFF,
-        )
-        self.messages_written += 1
+        # a Ctrl-C inside add_message could split a chunk from its message indexes
+        with sigint_deferred():
+            self._require_writer().add_message(
+                channel_id=channel_id, log_time=timestamp_ns, publish_time=timestamp_ns, data=data,
+                sequence=sequence & 0xFFFFFFFF,
+            )
+            self.messages_written += 1
 
     def _announce_background(self, writer: Writer) -> None:
         if self._background != self._announced:
@@ -280,16 +260,18 @@ class McapRecorder(Sink):
         if not frame.background and not self._foreground:
             self._foreground = True
             self._announce_background(writer)
-        for topic, proto, schema_name, obj in messages:
-            if proto is not None:
-                self._add(self._proto_channel(topic, proto), t, proto.SerializeToString(), frame.seq)
-            else:
-                data = fmt.encode_json(obj, f"{topic} of frame seq {frame.seq}")
-                self._add(self._json_channel(topic, schema_name, None), t, data, frame.seq)
-        self._intrinsics = frame.intrinsics
-        self._last_ns = t
-        self._background += frame.background
-        self.frames_written += 1
+        payloads = [
+            (self._proto_channel(topic, proto), proto.SerializeToString()) if proto is not None
+            else (self._json_channel(topic, schema_name, None), fmt.encode_json(obj, f"{topic} of frame seq {frame.seq}"))
+            for topic, proto, schema_name, obj in messages
+        ]
+        with sigint_deferred():
+            for channel_id, data in payloads:
+                self._add(channel_id, t, data, frame.seq)
+            self._intrinsics = frame.intrinsics
+            self._last_ns = t
+            self._background += frame.background
+            self.frames_written += 1
 
     def _check_extra_topic(self, topic: object) -> str:
         if not isinstance(topic, str) or not topic:

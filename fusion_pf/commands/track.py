@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from contextlib import contextmanager
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
@@ -178,21 +177,6 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
-@contextmanager
-def _ctrl_c_held():
-    """Hold Ctrl-C back while one frame's outputs are written, so every output ends on a whole frame."""
-    import signal
-
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-
-
 def run(args: argparse.Namespace) -> int:
     """Track SOURCE, writing OUT.mcap (and the CSV / PLY files); returns the exit status."""
     import json
@@ -206,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers import ReplaySource, open_source
     from drivers.mcap_record import McapRecorder
     from fusion_pf.geometry import write_roi_ply
+    from fusion_pf.signals import sigint_deferred
     from fusion_pf.track import TrackCsv, TrackerTopics, track
 
     config = config_from_args(args)
@@ -225,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
         )
         topics = TrackerTopics(recorder, config)
         for result in track(src, config):
-            with _ctrl_c_held():
+            with sigint_deferred():
                 t0 = time.perf_counter_ns()
                 recorder.write(result.source_frame)
                 topics.write(result)
