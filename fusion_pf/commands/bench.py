@@ -54,9 +54,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and print the Markdown report."""
+    import importlib.util
     import sys
 
     from fusion_pf.bench import run_bench, to_markdown
+    from fusion_pf.errors import FusionPFError
+
+    needed = {"stonesoup": ["stonesoup"], "resampling": ["particles", "filterpy"]}
+    missing = [m for section in args.sections for m in needed.get(section, []) if importlib.util.find_spec(m) is None]
+    if missing:
+        raise FusionPFError(
+            f"the reference libraries {', '.join(missing)} are not installed; install them with "
+            "pip install 'fusion-pf[bench]', or choose --sections without stonesoup/resampling"
+        )
 
     result = run_bench(
         args.out,

@@ -87,3 +87,19 @@ def test_bad_arguments():
         run_bench("unused", sections=("gpu",))
     with pytest.raises(SystemExit):
         main(["bench", "--sizes", "0"])
+
+
+def test_missing_reference_libraries_are_named(monkeypatch, capsys, tmp_path):
+    import importlib.util
+
+    from fusion_pf.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "stonesoup" else real(name, *a))
+    assert main(["bench", "--sections", "pf,stonesoup", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "fusion-pf: error: the reference libraries stonesoup are not installed; install them with "
+        "pip install 'fusion-pf[bench]', or choose --sections without stonesoup/resampling"
+    )
+    assert not (tmp_path / "bench.json").exists()
