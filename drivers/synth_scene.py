@@ -6,9 +6,14 @@ shelving unit, the doorway, the painting, vignetting) is rendered once into
 :class:`Background`; every frame then rasterises the person part by part inside
 small regions of interest and composites the parts with a z-buffer.
 
+The right forearm (pushed-up sleeve and bare skin) and the palm form a moving
+layer that :func:`composite` can motion-blur with a line kernel
+(:func:`motion_kernel`); :func:`illumination` gives the slow lighting drift
+applied to the whole image.
+
 This module holds no randomness of its own: the random scene parameters
-(:class:`Motion`) and the static textures are drawn by the caller from the
-seed.
+(:class:`Motion`, :class:`Appearance`) and the static textures are drawn by
+the caller from the seed.
 """
 
 from __future__ import annotations
@@ -50,6 +55,8 @@ HIP_Y = 0.35
 UPPER_ARM, FOREARM, HAND = 0.30, 0.27, 0.08
 UPPER_ARM_RADIUS, FOREARM_RADIUS = 0.052, 0.042
 PALM_HALF_WIDTH, PALM_HALF_LENGTH, PALM_THICKNESS = 0.05, 0.065, 0.02
+#: Radius (metres) of the bare right forearm below the pushed-up sleeve.
+BARE_FOREARM_RADIUS = 0.034
 
 
 @dataclass(frozen=True)
@@ -100,6 +107,32 @@ class Motion:
     left_arm_phase: float
     bias_period: float
     bias_phase: float
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """Random appearance and lighting parameters, drawn once per seed.
+
+    Attributes
+    ----------
+    sleeve_fraction : float
+        Where the pushed-up right sleeve ends, as a fraction of the forearm's
+        length measured from the wrist (the forearm is bare up to there).
+    drift_amps, drift_periods, drift_phases : tuple of float
+        Global illumination drift ``sum amp * sin(2 pi i / period + phase)``
+        over the frame index ``i`` (relative gain).
+    gradient_amp, gradient_period, gradient_phase : float
+        Drift of a horizontal illumination gradient (relative gain per
+        normalised image unit ``x = (u - cx) / fx``).
+    """
+
+    sleeve_fraction: float
+    drift_amps: tuple[float, ...]
+    drift_periods: tuple[float, ...]
+    drift_phases: tuple[float, ...]
+    gradient_amp: float
+    gradient_period: float
+    gradient_phase: float
 
 
 @dataclass(frozen=True)
@@ -222,6 +255,70 @@ def motion_parameters(rng: np.random.Generator) -> Motion:
     )
 
 
+def appearance_parameters(rng: np.random.Generator) -> Appearance:
+    """Draw the sleeve position and the illumination drift (seed-dependent)."""
+    u = rng.uniform
+    return Appearance(
+        sleeve_fraction=float(u(0.3, 0.7)),
+        drift_amps=(float(u(0.02, 0.035)), float(u(0.025, 0.045))),
+        drift_periods=(float(u(50.0, 110.0)), float(u(160.0, 320.0))),
+        drift_phases=(float(u(0, 2 * math.pi)), float(u(0, 2 * math.pi))),
+        gradient_amp=float(u(0.01, 0.025)),
+        gradient_period=float(u(120.0, 260.0)),
+        gradient_phase=float(u(0, 2 * math.pi)),
+    )
+
+
+def illumination(a: Appearance, index: int, xn: np.ndarray) -> np.ndarray:
+    """Relative illumination gain of frame ``index`` at normalised columns ``xn``.
+
+    Parameters
+    ----------
+    a : Appearance
+        Drift parameters.
+    index : int
+        Frame index (the drift runs through the background frames too).
+    xn : ndarray, shape (1, W)
+        Normalised image column coordinates ``(u - cx) / fx``.
+
+    Returns
+    -------
+    ndarray, shape (1, W), float32
+        ``1 + global drift + gradient drift * xn``.
+    """
+    two_pi = 2.0 * math.pi
+    drift = sum(amp * math.sin(two_pi * index / period + phase)
+                for amp, period, phase in zip(a.drift_amps, a.drift_periods, a.drift_phases))
+    slope = a.gradient_amp * math.sin(two_pi * index / a.gradient_period + a.gradient_phase)
+    return (1.0 + drift + slope * xn).astype(np.float32)
+
+
+def motion_kernel(du: float, dv: float) -> np.ndarray:
+    """Normalised line kernel of a blur by ``(du, dv)`` pixels, centred on the kernel's middle.
+
+    The segment from ``-(du, dv) / 2`` to ``+(du, dv) / 2`` is sampled every
+    1/4 px and splatted bilinearly, so the kernel has no net shift.
+
+    Returns
+    -------
+    ndarray, shape (k, k), float32
+        Sums to 1; ``k`` odd.
+    """
+    length = math.hypot(du, dv)
+    half = math.ceil(length / 2.0) + 1
+    k = 2 * half + 1
+    n = max(2, math.ceil(4.0 * length) + 1)
+    t = np.linspace(-0.5, 0.5, n)
+    x, y = half + t * du, half + t * dv
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    kernel = np.zeros((k, k), np.float64)
+    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                        (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        np.add.at(kernel, (y0 + dy, x0 + dx), wgt)
+    return (kernel / kernel.sum()).astype(np.float32)
+
+
 def _elbow(shoulder: np.ndarray, wrist: np.ndarray, pole: np.ndarray) -> np.ndarray:
     """Two-link inverse kinematics: the elbow bends toward ``pole``."""
     d_vec = wrist - shoulder
@@ -287,7 +384,8 @@ class Part:
     """One rasterised body part inside its region of interest.
 
     ``rows``/``cols`` slice the image; ``mask``, ``depth`` (metres) and ``shade``
-    (a brightness factor) have the shape of that slice.
+    (a brightness factor) have the shape of that slice. ``moving`` parts (the
+    right forearm and palm) form the layer that :func:`composite` motion-blurs.
     """
 
     rows: slice
@@ -298,6 +396,7 @@ class Part:
     rgb: tuple[float, float, float]
     label: int
     on_top: bool = False
+    moving: bool = False
 
 
 def _grid(intr: Intrinsics, u0: float, u1: float, v0: float, v1: float, clip: bool = True):
@@ -353,8 +452,12 @@ def _ellipse_part(intr, centre, half_w, half_h, angle, thickness, rgb, label, on
     return Part(rows, cols, mask, depth, shade, rgb, label, on_top)
 
 
-def _capsule_part(intr, a3, b3, radius, rgb, label):
-    """A cylinder with round ends (a sleeve) from ``a3`` to ``b3``, ``radius`` metres thick."""
+def _capsule_part(intr, a3, b3, radius, rgb, label, round_start=True):
+    """A cylinder with round ends (a sleeve) from ``a3`` to ``b3``, ``radius`` metres thick.
+
+    With ``round_start`` False the end at ``a3`` is cut flat (where a bare
+    forearm leaves its sleeve).
+    """
     ua, va = project(intr, a3)
     ub, vb = project(intr, b3)
     ra, rb = radius * intr.fx / a3[2], radius * intr.fx / b3[2]
@@ -365,10 +468,13 @@ def _capsule_part(intr, a3, b3, radius, rgb, label):
     rows, cols, uu, vv = g
     eu, ev = ub - ua, vb - va
     length2 = max(eu * eu + ev * ev, 1e-9)
-    t = np.clip(((uu - ua) * eu + (vv - va) * ev) / length2, 0.0, 1.0)
+    along = ((uu - ua) * eu + (vv - va) * ev) / length2
+    t = np.clip(along, 0.0, 1.0)
     dist = np.hypot(uu - (ua + t * eu), vv - (va + t * ev))
     rad = ra + t * (rb - ra)
     mask = dist <= rad
+    if not round_start:
+        mask &= along >= 0.0
     height = np.sqrt(np.maximum(1.0 - (dist / rad) ** 2, 0.0))
     depth = (a3[2] + t * (b3[2] - a3[2]) - radius * height).astype(np.float32)
     shade = 0.70 + 0.35 * height
@@ -456,8 +562,13 @@ def palm_overlap(intr: Intrinsics, pose: Pose) -> float:
     return float((mask & body_region(intr, pose, rows, cols)).sum()) / area
 
 
-def person_parts(intr: Intrinsics, pose: Pose) -> list[Part]:
-    """Every body part of ``pose``, rasterised (parts outside the image omitted)."""
+def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Part]:
+    """Every body part of ``pose``, rasterised (parts outside the image omitted).
+
+    The right sleeve is pushed up: the forearm is bare skin from the wrist to
+    ``sleeve_fraction`` of its length toward the elbow. The right forearm
+    (sleeve and skin) and palm are the ``moving`` parts, last in the list.
+    """
     x, z = pose.torso[0], pose.torso[2]
     parts = []
     for side in (-1.0, 1.0):
@@ -476,17 +587,58 @@ def person_parts(intr: Intrinsics, pose: Pose) -> list[Part]:
                                _hand_angle(intr, pose.left_wrist, pose.left_hand),
                                PALM_THICKNESS, SKIN_RGB, LABEL_SKIN))
     parts.append(_capsule_part(intr, pose.right_shoulder, pose.right_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_capsule_part(intr, pose.right_elbow, pose.right_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_ellipse_part(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH,
-                               _hand_angle(intr, pose.right_wrist, pose.right_hand),
-                               PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True))
-    return [p for p in parts if p is not None]
+    sleeve_edge = pose.right_wrist + sleeve_fraction * (pose.right_elbow - pose.right_wrist)
+    arm = [
+        _capsule_part(intr, pose.right_elbow, sleeve_edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+        _capsule_part(intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN,
+                      round_start=False),
+        _ellipse_part(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH,
+                      _hand_angle(intr, pose.right_wrist, pose.right_hand),
+                      PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True),
+    ]
+    for p in arm:
+        if p is not None:
+            p.moving = True
+    return [p for p in parts + arm if p is not None]
+
+
+def _draw(color: np.ndarray, depth: np.ndarray, labels: np.ndarray, vignette: np.ndarray,
+          parts: list[Part], r0: int = 0, c0: int = 0) -> np.ndarray:
+    """Z-buffer ``parts`` into the arrays (whose pixel ``(0, 0)`` is image pixel ``(r0, c0)``).
+
+    Returns the boolean coverage of the drawn parts.
+    """
+    drawn = np.zeros(depth.shape, bool)
+    for p in parts:
+        rows = slice(p.rows.start - r0, p.rows.stop - r0)
+        cols = slice(p.cols.start - c0, p.cols.stop - c0)
+        zroi = depth[rows, cols]
+        sel = p.mask if p.on_top else p.mask & (p.depth < zroi)
+        zroi[sel] = p.depth[sel]
+        rgb = np.asarray(p.rgb, np.float32)
+        croi = color[rows, cols]
+        croi[sel] = rgb * (p.shade[sel] * vignette[rows, cols][sel, 0])[:, None]
+        labels[rows, cols][sel] = p.label
+        drawn[rows, cols] |= sel
+    return drawn
 
 
 def composite(
-    bg: Background, parts: list[Part]
+    bg: Background, parts: list[Part], blur: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Z-buffer the parts over the background.
+    """Z-buffer the parts over the background, motion-blurring the moving layer.
+
+    Parameters
+    ----------
+    bg : Background
+        The static scene.
+    parts : list of Part
+        Static parts first, then the ``moving`` ones.
+    blur : ndarray (k, k) float32, optional
+        Line kernel (:func:`motion_kernel`) of the moving layer's blur during
+        the exposure; None = no blur. The layer's colour (premultiplied by its
+        coverage) and its coverage are blurred and composited over the rest;
+        depth and labels stay sharp (they are the true, instantaneous scene).
 
     Returns
     -------
@@ -497,12 +649,22 @@ def composite(
     color = bg.color.copy()
     depth = bg.depth_m.copy()
     labels = np.zeros(depth.shape, np.uint8)
-    for p in parts:
-        zroi = depth[p.rows, p.cols]
-        sel = p.mask if p.on_top else p.mask & (p.depth < zroi)
-        zroi[sel] = p.depth[sel]
-        rgb = np.asarray(p.rgb, np.float32)
-        croi = color[p.rows, p.cols]
-        croi[sel] = rgb * (p.shade[sel] * bg.vignette[p.rows, p.cols][sel, 0])[:, None]
-        labels[p.rows, p.cols][sel] = p.label
+    moving = [p for p in parts if p.moving]
+    _draw(color, depth, labels, bg.vignette, [p for p in parts if not p.moving])
+    if blur is None or not moving:
+        _draw(color, depth, labels, bg.vignette, moving)
+        return color, depth, labels
+    pad = blur.shape[0] // 2 + 1
+    h, w = depth.shape
+    r0 = max(min(p.rows.start for p in moving) - pad, 0)
+    r1 = min(max(p.rows.stop for p in moving) + pad, h)
+    c0 = max(min(p.cols.start for p in moving) - pad, 0)
+    c1 = min(max(p.cols.stop for p in moving) + pad, w)
+    base = color[r0:r1, c0:c1].copy()
+    layer = np.zeros_like(base)
+    alpha = _draw(layer, depth[r0:r1, c0:c1], labels[r0:r1, c0:c1], bg.vignette[r0:r1, c0:c1],
+                  moving, r0, c0).astype(np.float32)
+    layer = cv2.filter2D(layer, -1, blur, borderType=cv2.BORDER_REPLICATE)
+    alpha = cv2.filter2D(alpha, -1, blur, borderType=cv2.BORDER_REPLICATE)
+    color[r0:r1, c0:c1] = layer + (1.0 - alpha)[..., None] * base
     return color, depth, labels

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from drivers import open_source
+from drivers import synth_scene as sc
 from drivers.mcap_replay import McapReplay
 from drivers.synth import DEPTH_NOISE_C, SPECKLE_FRACTION, SynthSource
 from fusion_pf.cli import main
@@ -190,7 +191,76 @@ def test_colour_difference_bands(scene):
     skin, cloth, bg = (np.concatenate(values[k]) for k in ("skin", "cloth", "background"))
     assert 15 <= np.percentile(skin, 1) and np.percentile(skin, 99) <= 60
     assert np.percentile(cloth, 1) > 70
-    assert np.percentile(bg, 99) < 12
+    # the illumination drift leaves background residuals (measured median 9, 99th percentile 25)
+    # that reach into the skin band, but most of the background stays below it
+    assert np.percentile(bg, 50) < np.percentile(skin, 1)
+    assert 12 < np.percentile(bg, 99) < 32
+
+
+def test_bare_forearm_pulls_the_skin_region_toward_the_elbow(scene):
+    """The sleeve is pushed up: the skin blob holding the palm extends along the forearm."""
+    src, _, person = scene
+    shifts, along, bare = [], [], []
+    for frame, masks in person:
+        g = frame.ground_truth
+        _, labels = cv2.connectedComponents(masks["skin"].astype(np.uint8), connectivity=8)
+        blob = labels == labels[round(g.v), round(g.u)]
+        bare.append((blob & ~masks["palm"]).sum() / masks["palm"].sum())
+        vs, us = np.nonzero(blob)
+        shift = np.array([us.mean() - g.u, vs.mean() - g.v])
+        elbow = sc.project(src.intrinsics, src.pose(frame.seq).right_elbow)
+        to_elbow = np.array([elbow[0] - g.u, elbow[1] - g.v])
+        shifts.append(np.hypot(*shift))
+        along.append(shift @ to_elbow / (np.hypot(*shift) * np.hypot(*to_elbow)))
+    shifts, along, bare = np.array(shifts), np.array(along), np.array(bare)
+    # measured: bare skin 0-60 % of the palm's area (foreshortening), centroid shift median 4.5 px,
+    # max 15 px, shift-weighted cosine with the direction to the elbow 0.85
+    assert 0.1 < np.median(bare) and np.max(bare) > 0.4
+    assert 2.0 < np.median(shifts) < 10.0 and 10.0 < np.max(shifts) < 25.0
+    assert (shifts * along).sum() > 0.75 * shifts.sum()
+
+
+def test_motion_blur_smears_only_the_moving_arm_along_the_palm_velocity():
+    src = SynthSource(frames=60, seed=0)
+    speeds = [math.hypot(*np.subtract(sc.project(src.intrinsics, src.pose(i + 1).right_hand),
+                                      sc.project(src.intrinsics, src.pose(i).right_hand))) for i in range(59)]
+    fast = int(np.argmax(speeds))
+    kernel = src.blur_kernel(fast)
+    assert kernel is not None and kernel.shape[0] % 2 == 1 and abs(kernel.sum() - 1.0) < 1e-5
+    half = kernel.shape[0] // 2
+    ys, xs = np.mgrid[-half:half + 1, -half:half + 1]
+    assert abs((kernel * xs).sum()) < 1e-4 and abs((kernel * ys).sum()) < 1e-4  # no net shift
+    (u0, v0), (u1, v1) = (sc.project(src.intrinsics, sc.pose_at(src._motion, fast + d).right_hand)
+                          for d in (-0.25, 0.25))
+    direction = np.array([u1 - u0, v1 - v0]) / math.hypot(u1 - u0, v1 - v0)
+    along = (kernel * (xs * direction[0] + ys * direction[1]) ** 2).sum()
+    across = (kernel * (xs * direction[1] - ys * direction[0]) ** 2).sum()
+    assert abs(math.sqrt(12 * along) - speeds[fast] / 2) < 1.0 and across < 0.2 * along
+    slow = [i for i in range(1, 58) if max(speeds[i - 1], speeds[i]) < 0.9]
+    assert slow and all(src.blur_kernel(i) is None for i in slow)
+
+    pose = src.pose(fast)
+    parts = sc.person_parts(src.intrinsics, pose, 0.5)
+    sharp = sc.composite(src._background, parts)
+    blurred = sc.composite(src._background, parts, kernel)
+    assert np.array_equal(sharp[1], blurred[1]) and np.array_equal(sharp[2], blurred[2])
+    changed = np.abs(blurred[0] - sharp[0]).max(axis=2) > 1.0
+    moving = np.zeros(changed.shape, np.uint8)
+    for p in parts:
+        if p.moving:
+            moving[p.rows, p.cols] |= p.mask
+    near = cv2.dilate(moving, np.ones((2 * half + 1, 2 * half + 1), np.uint8)).astype(bool)
+    assert changed.sum() > 50 and not (changed & ~near).any()
+
+
+def test_illumination_drifts_slowly_through_the_empty_scene():
+    src = SynthSource(frames=300, seed=5, size=(64, 40), background_frames=300)
+    level = np.array([src.render(i)[0].color.mean() for i in range(300)])
+    gain = level / level.mean()
+    smooth = np.convolve(gain, np.ones(9) / 9, mode="valid")
+    assert 0.05 < np.ptp(smooth) < 0.25, np.ptp(smooth)
+    assert np.abs(np.diff(smooth)).max() < 0.01  # slow: under 1 % per frame after removing the flicker
+    assert 0.005 < np.std(gain[4:-4] - smooth) < 0.02  # the per-frame flicker remains
 
 
 # -- depth ------------------------------------------------------------------------------------
