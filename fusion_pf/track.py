@@ -154,8 +154,7 @@ class TrackConfig:
     cue_noise_px : mapping of str to float
         Gaussian noise (px, per axis) added to a source's measurements before
         fusion, as paper 003 §4.2-4.3 does to its colour and depth cues "to
-        show the effectiveness of the filter" (on synthetic scenes, where the
-        colour cue is otherwise nearly exact); empty = none. Drawn from
+        show the effectiveness of the filter"; empty = none. Drawn from
         ``SeedSequence(seed, spawn_key=(1,))``, two normals per source per
         tracked frame, so the noisy cues depend only on the seed.
     roi_prior : {"auto", "filter", "skeleton"} or None

@@ -49,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--joint", default="right_hand", help="skeleton joint used as prior and skeleton cue")
     p.add_argument("--half-size", type=int, default=None, metavar="PX", help="fixed ROI half-size (default: depth-scaled)")
     p.add_argument("--extent-mm", type=float, default=250.0, metavar="MM", help="ROI half-size in mm at the prior's depth")
-    p.add_argument("--colour-thresholds", type=_pair(int), default=(12, 66), metavar="LO,HI",
+    p.add_argument("--colour-thresholds", type=_pair(int), default=(16, 66), metavar="LO,HI",
                    help="colour: lower,upper grayscale-difference thresholds (I_C4A, I_C4B)")
     p.add_argument("--depth-range", type=_pair(int), default=(0, 2550), metavar="LO,HI",
                    help="depth: difference range in mm quantised to 0-255 (I_d3)")
