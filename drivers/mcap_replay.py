@@ -273,8 +273,11 @@ class McapReplay(ReplaySource):
 
     Notes
     -----
-    ``Frame.seq`` is the frame's index in the whole file, and the first
-    ``background_frames`` frames of the file have ``background=True``.
+    ``Frame.seq`` is the source's sequence number kept by our recorder (the
+    colour message's MCAP ``sequence``, so a live source's dropped frames show
+    as gaps) in recordings written by fusion-pf, and the frame's index in the
+    whole file for other writers; the first ``background_frames`` frames of
+    the file have ``background=True``.
     """
 
     def __init__(self, path: str | Path, *, start_ns: int | None = None, end_ns: int | None = None) -> None:
@@ -307,9 +310,10 @@ class McapReplay(ReplaySource):
         self._all = np.zeros(0, np.int64)
         self._cal_times = np.zeros(0, np.int64)
         self._cal_cache: dict[int, Intrinsics] = {}
-        self._block_cache: OrderedDict[int, list[tuple[int, int, memoryview]]] = OrderedDict()
+        self._block_cache: OrderedDict[int, list[tuple[int, int, memoryview, int]]] = OrderedDict()
         self._sel = (0, 0)
         self._background = 0
+        self._own_sequences = False
         self._formats: tuple[str | None, str | None] = (None, None)
         self._corrupt: set[int] = set()
 
@@ -581,6 +585,7 @@ class McapReplay(ReplaySource):
                 f"non-negative integer, got {text!r}"
             )
         self._background = min(int(text), len(self._all))
+        self._own_sequences = self._metadata.get("writer", "").startswith("fusion-pf")
         start_ns, end_ns = self._window
         lo = 0 if start_ns is None else int(np.searchsorted(self._all, start_ns, "left"))
         hi = len(self._all) if end_ns is None else int(np.searchsorted(self._all, end_ns, "left"))
@@ -595,7 +600,7 @@ class McapReplay(ReplaySource):
         except _Corrupt:
             return  # noted by _corrupt_block; replay skips the block
         self._formats = tuple(  # type: ignore[assignment]
-            self._format_of(*parts[kind]) if kind in parts else None for kind in ("color", "depth")
+            self._format_of(*parts[kind][:2]) if kind in parts else None for kind in ("color", "depth")
         )
 
     def _format_of(self, cid: int, data: memoryview) -> str:
@@ -605,24 +610,24 @@ class McapReplay(ReplaySource):
 
     # ------------------------------------------------------------------ reading
 
-    def _block_records(self, block: _Block) -> list[tuple[int, int, memoryview]]:
-        """``(channel_id, log_time, data)`` of the messages of a block (cached, CRC-checked)."""
+    def _block_records(self, block: _Block) -> list[tuple[int, int, memoryview, int]]:
+        """``(channel_id, log_time, data, sequence)`` of the messages of a block (cached, CRC-checked)."""
         with self._lock:
             cached = self._block_cache.get(block.offset)
             if cached is not None:
                 self._block_cache.move_to_end(block.offset)
                 return cached
         body = memoryview(self._pread(block.offset, block.length))[9:]
-        out: list[tuple[int, int, memoryview]] = []
+        out: list[tuple[int, int, memoryview, int]] = []
         try:
             if block.is_chunk:
                 for opcode, rec in _records(_decompress_chunk(body), "chunk"):
                     if opcode == _OP_MESSAGE:
-                        cid, _seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(rec)
-                        out.append((cid, log_time, rec[_MESSAGE_HEADER.size :]))
+                        cid, seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(rec)
+                        out.append((cid, log_time, rec[_MESSAGE_HEADER.size :], seq))
             else:
-                cid, _seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(body)
-                out.append((cid, log_time, body[_MESSAGE_HEADER.size :]))
+                cid, seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(body)
+                out.append((cid, log_time, body[_MESSAGE_HEADER.size :], seq))
         except struct.error as exc:
             raise _Corrupt(f"message record too short ({exc})") from None
         with self._lock:
@@ -647,17 +652,17 @@ class McapReplay(ReplaySource):
                 self.stats.notes.append(text + "; skipped it")
         return _Corrupt(text)
 
-    def _parts_at(self, t: int) -> dict[str, tuple[int, memoryview]]:
-        parts: dict[str, tuple[int, memoryview]] = {}
+    def _parts_at(self, t: int) -> dict[str, tuple[int, memoryview, int]]:
+        parts: dict[str, tuple[int, memoryview, int]] = {}
         for block in self._blocks_between(t, t, ("color", "depth", "skeleton", "truth")):
             try:
                 records = self._block_records(block)
             except _Corrupt as exc:
                 raise self._corrupt_block(block, exc) from None
-            for cid, log_time, data in records:
+            for cid, log_time, data, seq in records:
                 kind = self._kind.get(cid)
                 if log_time == t and kind is not None and kind != "calibration":
-                    parts[kind] = (cid, data)
+                    parts[kind] = (cid, data, seq)
         return parts
 
     def _calibration_at(self, t: int) -> Intrinsics:
@@ -672,7 +677,7 @@ class McapReplay(ReplaySource):
                 records = self._block_records(block)
             except _Corrupt as exc:
                 raise self._corrupt_block(block, exc) from None
-            for cid, log_time, data in records:
+            for cid, log_time, data, _seq in records:
                 if log_time == c and self._kind.get(cid) == "calibration":
                     intrinsics = fmt.decode_calibration(data, f"{fmt.CALIBRATION_TOPIC} at t={c} ns")
                     with self._lock:
@@ -682,16 +687,16 @@ class McapReplay(ReplaySource):
                     return intrinsics
         raise _Corrupt(f"the {fmt.CALIBRATION_TOPIC} message at t={c} ns cannot be found")
 
-    def _build(self, index: int, t: int, parts: dict[str, tuple[int, memoryview]]) -> Frame:
+    def _build(self, index: int, t: int, parts: dict[str, tuple[int, memoryview, int]]) -> Frame:
         """Decode the parts of the frame with file index ``index`` at time ``t``."""
         where = f"frame {index} (t={t} ns)"
         if "color" not in parts:
             raise _Corrupt(f"{where} has no {fmt.COLOR_TOPIC} message")
-        cid, data = parts["color"]
+        cid, data, seq = parts["color"]
         color = fmt.decode_color(self._channels[cid].schema_name, data, f"{fmt.COLOR_TOPIC} of {where}")
         depth = None
         if "depth" in parts:
-            cid, data = parts["depth"]
+            cid, data, _seq = parts["depth"]
             depth = fmt.decode_depth(self._channels[cid].schema_name, data, f"{fmt.DEPTH_TOPIC} of {where}")
         joints = None
         if "skeleton" in parts:
@@ -713,7 +718,8 @@ class McapReplay(ReplaySource):
                 f"{self.path}: {fmt.CALIBRATION_TOPIC} is for {intrinsics.width}x{intrinsics.height} images but "
                 f"{fmt.COLOR_TOPIC} is {w}x{h} in {where}"
             )
-        return Frame(t, index, color, depth, intrinsics, joints, truth, background=index < self._background)
+        seq = seq if self._own_sequences else index
+        return Frame(t, seq, color, depth, intrinsics, joints, truth, background=index < self._background)
 
     # ------------------------------------------------------------------ public API
 
@@ -803,7 +809,7 @@ class McapReplay(ReplaySource):
             return i < n and times[i] == log_time
 
         blocks = self._blocks_between(int(times[0]), int(times[-1]), ("color", "depth", "skeleton", "truth"))
-        pending: dict[int, dict[str, tuple[int, memoryview]]] = {}
+        pending: dict[int, dict[str, tuple[int, memoryview, int]]] = {}
         next_block = 0
         for k in range(n):
             t = int(times[k])
@@ -815,10 +821,10 @@ class McapReplay(ReplaySource):
                 except _Corrupt as exc:
                     self._corrupt_block(block, exc)
                     continue
-                for cid, log_time, data in records:
+                for cid, log_time, data, seq in records:
                     kind = self._kind.get(cid)
                     if kind is not None and kind != "calibration" and wanted(log_time):
-                        pending.setdefault(log_time, {})[kind] = (cid, data)
+                        pending.setdefault(log_time, {})[kind] = (cid, data, seq)
             parts = pending.pop(t, {})
             if "color" not in parts:
                 self.stats.dropped += 1

@@ -318,3 +318,16 @@ def test_any_chunking_replays_exactly(tmp_path, make_frames, record, same_frames
         same_frames(frames[i:j], list(replay.frames(i, j)))
         same_frames([frames[i]], [replay.frame(i)])
         assert replay.info().missing_depth == len([k for k in gaps if k < n])
+
+
+def test_source_sequence_numbers_survive_a_recording(tmp_path, make_frames, record):
+    """A live source's gaps (dropped frames) stay visible after replay, by index and in a window."""
+    import dataclasses
+
+    seqs = [10, 11, 12, 15, 16, 20]
+    frames = [dataclasses.replace(f, seq=s) for f, s in zip(make_frames(len(seqs)), seqs)]
+    path = record(tmp_path / "gaps.mcap", frames)
+    with McapReplay(path) as replay:
+        assert [f.seq for f in replay] == seqs
+        assert [f.seq for f in replay.frames(2, 5)] == seqs[2:5]
+        assert replay.frame(3).seq == 15
