@@ -45,6 +45,10 @@ class Measurement:
     def __post_init__(self) -> None:
         object.__setattr__(self, "extras", MappingProxyType(dict(self.extras)))
 
+    def __reduce__(self):
+        # a mappingproxy cannot be pickled; rebuild from a plain dict (process pools)
+        return (Measurement, (self.source, self.u, self.v, self.quality, dict(self.extras)))
+
     @property
     def z(self) -> np.ndarray:
         """The measurement as a ``(2,)`` float64 array ``[u, v]``."""
