@@ -521,12 +521,17 @@ def _background_row(index: int, frame: Frame, decode_ns: int) -> CueRow:
 
 
 def make_tracker(config: TrackConfig, rng: np.random.Generator | int | None = None) -> Tracker:
-    """The filter ``config`` describes: the particle filter (seeded by ``rng``, else ``config.seed``) or Kalman."""
+    """The filter ``config`` describes: the particle filter (seeded by ``rng``, else ``config.seed``) or Kalman.
+
+    Both learn the frame period from the timestamps (``frame_period_ns="auto"``):
+    a steady source steps by one frame as in the paper, and a gap left by
+    dropped frames is bridged by as many motion steps.
+    """
     if config.filter == "kf":
-        return KalmanFilter(process_noise=config.process_noise, noise_px=config.noise_px)
+        return KalmanFilter(process_noise=config.process_noise, noise_px=config.noise_px, frame_period_ns="auto")
     return ParticleFilter(
         n_particles=config.particles, process_noise=config.process_noise, noise_px=config.noise_px,
-        likelihood=config.likelihood, resampler="residual", estimator="robust_mean",
+        likelihood=config.likelihood, resampler="residual", estimator="robust_mean", frame_period_ns="auto",
         rng=as_rng(config.seed if rng is None else rng),
     )
 

@@ -20,8 +20,8 @@ from fusion_pf.errors import InputError
 
 from .base import Estimate, Tracker
 from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
-from .motion import check_process_noise, process_covariance, transition_matrix
-from .pf import check_prior, check_timestamp, fused_position, step_length
+from .motion import FrameClock, check_process_noise, process_covariance, transition_matrix
+from .pf import check_prior, check_timestamp, fused_position
 
 __all__ = ["KalmanFilter"]
 
@@ -42,7 +42,7 @@ class KalmanFilter(Tracker):
     prior : (u, v) or (u, v, du, dv), optional
         State at the first step (which therefore does not predict); without it
         the filter waits for the first measurement.
-    frame_period_ns : float, optional
+    frame_period_ns : float, "auto" or None
         As for the particle filter: ``dt`` per step is 1 unless given.
 
     Attributes
@@ -61,20 +61,19 @@ class KalmanFilter(Tracker):
         init_spread_px: float = 20.0,
         init_velocity_px: float = 2.0,
         prior=None,
-        frame_period_ns: float | None = None,
+        frame_period_ns: float | str | None = None,
     ) -> None:
         for name, value in (("init_spread_px", init_spread_px), ("init_velocity_px", init_velocity_px)):
             if not (math.isfinite(float(value)) and float(value) >= 0.0):
                 raise InputError(f"{name} must be a finite number >= 0, got {value}")
-        if frame_period_ns is not None and not (math.isfinite(frame_period_ns) and frame_period_ns > 0):
-            raise InputError(f"frame_period_ns must be a number > 0 or None, got {frame_period_ns}")
         self.process_noise = check_process_noise(process_noise)
         self._like = JointLikelihood(noise_px)
         self.noise_px = self._like.noise_px
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
         self.prior = check_prior(prior)
-        self.frame_period_ns = None if frame_period_ns is None else float(frame_period_ns)
+        self._clock = FrameClock(frame_period_ns)
+        self.frame_period_ns = self._clock.frame_period_ns
         self.reset()
 
     def reset(self) -> None:
@@ -134,7 +133,7 @@ class KalmanFilter(Tracker):
             sigma = {m.source: self.noise_px[m.source] for m in ms}
             self._initialise(np.concatenate([fused_position(ms, sigma), [0.0, 0.0]]))
         elif self._last_ns is not None:
-            self.predict(step_length(t, self._last_ns, self.frame_period_ns))
+            self.predict(self._clock.steps(t, self._last_ns))
         self._last_ns = t
         for m in ms:
             self.update(m)

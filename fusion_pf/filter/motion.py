@@ -7,7 +7,9 @@ default every :meth:`~fusion_pf.filter.pf.ParticleFilter.step` is one step
 (``dt = 1``), whatever the timestamps. With a frame period the step becomes
 ``dt = (t_k - t_(k-1)) / period`` so dropped frames are bridged; ``M`` then has
 ``dt I2`` in its upper-right block and the noise standard deviations grow with
-``sqrt(dt)`` (a random walk over ``dt`` unit steps).
+``sqrt(dt)`` (a random walk over ``dt`` unit steps). With ``"auto"`` the period is
+learnt from the stream (:class:`FrameClock`): a steady source steps by exactly 1,
+a gap of k periods by k.
 
 The noise ``gamma (x) sigma_x`` of eq. 4 is an independent zero-mean Gaussian
 per state component with standard deviations ``(pos, pos, vel, vel)`` px
@@ -23,7 +25,7 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-__all__ = ["check_process_noise", "noise_std", "predict", "process_covariance", "transition_matrix"]
+__all__ = ["FrameClock", "check_process_noise", "noise_std", "predict", "process_covariance", "transition_matrix"]
 
 
 def check_process_noise(process_noise) -> tuple[float, float]:
@@ -133,3 +135,41 @@ def predict(
     # x <- M x + gamma (x) sigma_x,  sigma_x ~ N(0, I)
     noise *= std[lo:hi, None]
     state_t[lo:hi] += noise
+
+
+class FrameClock:
+    """Turns frame timestamps into eq. 4 step lengths ``dt`` (in frame steps).
+
+    Parameters
+    ----------
+    frame_period_ns : float, "auto" or None
+        None: every step is one frame step, whatever the timestamps (paper
+        003). A number: ``dt = (t_k - t_(k-1)) / frame_period_ns``. ``"auto"``:
+        the period is the shortest interval seen so far and ``dt`` is the
+        interval in whole periods, at least 1, so a steady source gives
+        ``dt = 1`` exactly (timing jitter below half a period is ignored) and a
+        gap of k frame periods (k - 1 dropped frames) gives ``dt = k``.
+    """
+
+    def __init__(self, frame_period_ns: float | str | None = None) -> None:
+        if frame_period_ns is not None and frame_period_ns != "auto":
+            if isinstance(frame_period_ns, (str, bool)) or not (
+                isinstance(frame_period_ns, (int, float, np.integer, np.floating))
+                and math.isfinite(frame_period_ns) and frame_period_ns > 0
+            ):
+                raise InputError(f"frame_period_ns must be a number > 0, 'auto' or None, got {frame_period_ns!r}")
+            frame_period_ns = float(frame_period_ns)
+        self.frame_period_ns = frame_period_ns
+        self._shortest: int | None = None
+
+    def steps(self, t: int, last_ns: int | None) -> float:
+        """``dt`` from the previous step at ``last_ns`` to ``t`` (1 for the first step)."""
+        if self.frame_period_ns is None or last_ns is None:
+            return 1.0
+        gap = t - last_ns
+        if self.frame_period_ns != "auto":
+            # dt = (t_k - t_(k-1)) / period
+            return gap / self.frame_period_ns
+        self._shortest = gap if self._shortest is None else min(self._shortest, gap)
+        # dt = round((t_k - t_(k-1)) / shortest interval), at least one step
+        return float(max(1, round(gap / self._shortest)))

@@ -38,7 +38,7 @@ from fusion_pf.rng import as_rng
 from .base import Estimate, Tracker
 from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, JointLikelihood
-from .motion import check_process_noise, noise_std, predict
+from .motion import FrameClock, check_process_noise, noise_std, predict
 from .resample import RESAMPLERS
 
 __all__ = ["ParticleFilter", "check_prior", "fused_position"]
@@ -75,13 +75,6 @@ def check_timestamp(timestamp_ns, last_ns: int | None) -> int:
     if last_ns is not None and t <= last_ns:
         raise InputError(f"timestamp_ns must increase, got {t} after {last_ns}")
     return t
-
-
-def step_length(t: int, last_ns: int | None, frame_period_ns: float | None) -> float:
-    """``dt`` in frame steps: 1 per call, or elapsed time / frame period."""
-    if frame_period_ns is None or last_ns is None:
-        return 1.0
-    return (t - last_ns) / frame_period_ns
 
 
 class ParticleFilter(Tracker):
@@ -123,10 +116,11 @@ class ParticleFilter(Tracker):
     prior : (u, v) or (u, v, du, dv), optional
         State at the first step (which therefore does not predict); without it
         the filter waits for the first measurement.
-    frame_period_ns : float, optional
-        If given, a step spans ``(t_k - t_(k-1)) / frame_period_ns`` frame steps
-        (dropped frames are bridged); default: every step is one frame step, as
-        in the paper.
+    frame_period_ns : float, "auto" or None
+        None (default, as in the paper): every step is one frame step. A
+        number: a step spans ``(t_k - t_(k-1)) / frame_period_ns`` frame steps.
+        ``"auto"``: the period is learnt from the timestamps and dropped frames
+        are bridged in whole steps (:class:`~fusion_pf.filter.motion.FrameClock`).
     keep_particles : bool
         Copy the particle positions into each :class:`Estimate` (``particles``:
         the set after this step, i.e. after resampling if it happened, matching
@@ -174,7 +168,7 @@ class ParticleFilter(Tracker):
         init_spread_px: float = 20.0,
         init_velocity_px: float = 2.0,
         prior=None,
-        frame_period_ns: float | None = None,
+        frame_period_ns: float | str | None = None,
         keep_particles: bool = True,
         rng: np.random.Generator | int | None = None,
     ) -> None:
@@ -191,8 +185,6 @@ class ParticleFilter(Tracker):
         for name, value in (("init_spread_px", init_spread_px), ("init_velocity_px", init_velocity_px)):
             if not (math.isfinite(float(value)) and float(value) >= 0.0):
                 raise InputError(f"{name} must be a finite number >= 0, got {value}")
-        if frame_period_ns is not None and not (math.isfinite(frame_period_ns) and frame_period_ns > 0):
-            raise InputError(f"frame_period_ns must be a number > 0 or None, got {frame_period_ns}")
         self.n_particles = int(n_particles)
         self.process_noise = check_process_noise(process_noise)
         self._like = JointLikelihood(
@@ -214,7 +206,8 @@ class ParticleFilter(Tracker):
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
         self.prior = check_prior(prior)
-        self.frame_period_ns = None if frame_period_ns is None else float(frame_period_ns)
+        self._clock = FrameClock(frame_period_ns)
+        self.frame_period_ns = self._clock.frame_period_ns
         self.keep_particles = bool(keep_particles)
         self.rng = as_rng(rng)
         n = self.n_particles
@@ -310,7 +303,7 @@ class ParticleFilter(Tracker):
                 return None
             self._initialise(self._centre_of(ms))
         elif self._last_ns is not None:
-            dt = step_length(t, self._last_ns, self.frame_period_ns)
+            dt = self._clock.steps(t, self._last_ns)
             std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
             # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
             predict(self._x, std, self.rng, dt=dt, scratch=self._noise)

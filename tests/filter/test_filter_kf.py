@@ -75,3 +75,29 @@ def test_bad_input():
     kf.step(5, [Measurement("colour", 1.0, 2.0)])
     with pytest.raises(InputError, match="must increase"):
         kf.step(5, [])
+
+
+def test_auto_frame_period_bridges_dropped_frames_in_whole_steps():
+    from fusion_pf.filter.motion import FrameClock
+
+    clock = FrameClock("auto")
+    period = 33_333_333
+    times = [0, period, 2 * period + 400_000, 5 * period, 6 * period - 300_000]
+    steps = [clock.steps(t, last) for last, t in zip([None, *times], times)]
+    assert steps == [1.0, 1.0, 1.0, 3.0, 1.0]
+    with pytest.raises(InputError, match="frame_period_ns must be a number > 0, 'auto' or None, got 'fast'"):
+        FrameClock("fast")
+    # a Kalman filter that learns the period predicts across a gap like one told the period
+    ms = [Measurement("colour", 10.0 + 3 * k, 20.0 - k) for k in range(4)]
+    stamps = [0, period, 2 * period, 5 * period]
+    told = KalmanFilter(frame_period_ns=period)
+    learnt = KalmanFilter(frame_period_ns="auto")
+    for t, m in zip(stamps, ms):
+        told.step(t, [m])
+        learnt.step(t, [m])
+    np.testing.assert_allclose(learnt.x, told.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(learnt.P, told.P, rtol=0, atol=1e-9)
+    paper = KalmanFilter()
+    for t, m in zip(stamps, ms):
+        paper.step(t, [m])
+    assert not np.allclose(paper.P, told.P)
