@@ -82,7 +82,6 @@ from .errors import InputError
 from .filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from .frame import Frame, Intrinsics, PalmPoint
 from .geometry import DEFAULT_DEPTH_RADIUS, backproject, depth_at
-from .rng import as_rng
 
 __all__ = [
     "CSV_COLUMNS",
@@ -532,7 +531,7 @@ def make_tracker(config: TrackConfig, rng: np.random.Generator | int | None = No
     return ParticleFilter(
         n_particles=config.particles, process_noise=config.process_noise, noise_px=config.noise_px,
         likelihood=config.likelihood, resampler="residual", estimator="robust_mean", frame_period_ns="auto",
-        rng=as_rng(config.seed if rng is None else rng),
+        rng=config.seed if rng is None else rng,
     )
 
 

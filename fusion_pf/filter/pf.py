@@ -126,7 +126,9 @@ class ParticleFilter(Tracker):
         the set after this step, i.e. after resampling if it happened, matching
         :attr:`log_weights`); False saves that copy (benchmarks, sweeps).
     rng : numpy.random.Generator, int or None
-        Random source (see :func:`fusion_pf.rng.as_rng`).
+        Random source (see :func:`fusion_pf.rng.as_rng`); an int seed or None
+        makes an SFC64 Generator, whose normals are about 20 % faster than
+        PCG64's. A Generator is used as given.
 
     Attributes
     ----------
@@ -209,7 +211,8 @@ class ParticleFilter(Tracker):
         self._clock = FrameClock(frame_period_ns)
         self.frame_period_ns = self._clock.frame_period_ns
         self.keep_particles = bool(keep_particles)
-        self.rng = as_rng(rng)
+        # eq. 4 draws 4 N normals per step, about half the step: an int seed gets SFC64
+        self.rng = as_rng(rng, bit_generator=np.random.SFC64)
         n = self.n_particles
         # particles stored transposed (4, N): each component is one contiguous row
         self._x = np.empty((4, n))
