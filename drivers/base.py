@@ -28,8 +28,8 @@ finalised on close, so a file is valid whatever stopped the source.
 from __future__ import annotations
 
 import abc
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Iterator
 
 from fusion_pf.frame import Frame
 

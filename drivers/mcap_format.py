@@ -17,7 +17,8 @@ Decoders raise :class:`~fusion_pf.errors.RecordingError` naming the message
 from __future__ import annotations
 
 import json
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import cv2
 import numpy as np

@@ -12,8 +12,9 @@ stopped the source -- writes the index and summary.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any, Mapping
+from typing import IO, Any
 
 import mcap
 from google.protobuf.message import Message

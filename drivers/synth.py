@@ -142,7 +142,7 @@ delays the same motion; the illumination drift is a function of ``i``.
 from __future__ import annotations
 
 import math
-from typing import Iterator, Mapping
+from collections.abc import Iterator, Mapping
 
 import cv2
 import numpy as np

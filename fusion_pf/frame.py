@@ -1,4 +1,5 @@
-"""The synchronised RGB-D frame every driver yields and every stage consumes.
+"""The shared types: the RGB-D :class:`Frame` every driver yields, the cues' :class:`Measurement`
+and the filter's :class:`Estimate` (this module imports only numpy).
 
 Data flows one way: driver -> :class:`Frame` -> cues -> filter -> estimate -> sinks.
 A frame is immutable: its arrays are made read-only at construction and its
@@ -19,9 +20,9 @@ Conventions
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from types import MappingProxyType
-from typing import Mapping
 
 import numpy as np
 
@@ -281,6 +282,12 @@ class Frame:
                 f"ground_truth must be a PalmPoint or None, got {type(self.ground_truth).__name__}"
             )
 
+    def __reduce__(self):
+        # a mappingproxy cannot be pickled: rebuild from the fields (process pools, Dask workers)
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values = {k: dict(v) if isinstance(v, MappingProxyType) else v for k, v in values.items()}
+        return (_frame_from_fields, (values,))
+
     @property
     def size(self) -> tuple[int, int]:
         """``(width, height)`` in pixels."""
@@ -291,3 +298,80 @@ class Frame:
         if self.joints is None:
             return None
         return self.joints.get(name)
+
+
+#: The paper's source names (colour cue, depth cue, skeleton joint): the default
+#: cues, and CSV columns, JSON keys and likelihood terms of those sources.
+SOURCES = ("colour", "depth", "skeleton")
+
+
+def _frame_from_fields(values: dict) -> Frame:
+    return Frame(**values)
+
+
+@dataclass(frozen=True, slots=True)
+class Measurement:
+    """A palm-centre measurement from one source.
+
+    Parameters
+    ----------
+    source : str
+        Name of the source, e.g. ``"colour"``, ``"depth"``, ``"skeleton"``, ``"skin_rg"``.
+    u, v : float
+        Palm centre in full-frame colour pixels.
+    quality : float
+        How much the cue trusts itself, in [0, 1] (region compactness, joint
+        confidence, ...); robust fusion may weight by it.
+    extras : mapping
+        Cue-specific values (area in px, ROI, ...), JSON-serialisable.
+    """
+
+    source: str
+    u: float
+    v: float
+    quality: float = 1.0
+    extras: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "extras", MappingProxyType(dict(self.extras)))
+
+    def __reduce__(self):
+        # a mappingproxy cannot be pickled; rebuild from a plain dict (process pools)
+        return (Measurement, (self.source, self.u, self.v, self.quality, dict(self.extras)))
+
+    @property
+    def z(self) -> np.ndarray:
+        """The measurement as a ``(2,)`` float64 array ``[u, v]``."""
+        return np.array([self.u, self.v])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Estimate:
+    """The filter's palm estimate for one frame.
+
+    Parameters
+    ----------
+    timestamp_ns : int
+        Time of the frame the estimate is for.
+    u, v : float
+        Estimated palm centre in colour pixels.
+    ess : float
+        Effective sample size ``1 / sum(w^2)`` before resampling (N/A -> nan for KF).
+    resampled : bool
+        Whether the particles were resampled in this step.
+    n_particles : int
+        Particle count (0 for the Kalman filter).
+    cov : ndarray, shape (2, 2)
+        Position covariance of the posterior (px^2).
+    particles : ndarray, shape (N, 2), or None
+        Particle positions after the update (None for the Kalman filter).
+    """
+
+    timestamp_ns: int
+    u: float
+    v: float
+    ess: float
+    resampled: bool
+    n_particles: int
+    cov: np.ndarray
+    particles: np.ndarray | None = None

@@ -20,7 +20,7 @@ def test_help_lists_every_subcommand():
     sub = build_parser()._subparsers._group_actions[0].choices
     for name in sub:
         assert name in p.stdout
-    assert {"info", "record", "synth", "track", "score", "demo", "annotate", "cues", "bench"} <= set(sub)
+    assert {"info", "record", "synth", "track", "score", "demo", "annotate", "cues"} <= set(sub)
 
 
 @pytest.mark.parametrize("name", sorted(build_parser()._subparsers._group_actions[0].choices))

@@ -8,97 +8,80 @@ from pathlib import Path
 NAME = "cues"
 HELP = "run the colour, depth, skin and skeleton cues on one frame; write stage contact sheets"
 DESCRIPTION = (
-    "Run the cue extractors of paper 003 (colour Fig. 3, depth Fig. 4) and the skin models "
-    "(rg-chromaticity, explicit RGB, CIE-Lab GMM with --skin-model) on frame K of REC.mcap and "
-    "print each measurement (full-frame pixels), quality, area and latency, and the error "
-    "against the ground truth when the recording has one. With --stages DIR, one PNG contact "
-    "sheet per cue is written (DIR/frameK_<cue>.png), every stage image labelled with its paper "
-    "name, shape and dtype, like the paper's Figures 6-7. Background: the median of the frames "
-    "of --background EMPTY.mcap; else the recording's own empty-scene frames (metadata "
-    "background_frames); else the median of its first --background-frames frames. The depth "
-    "cue first runs on frame K-1 so its temporal difference (I_d6) is that of frame K."
+    "Run the cues (the registry's: colour Fig. 3, depth Fig. 4 of paper 003, the skin models, the "
+    "skeleton joint; skin_lab with --skin-model) on frame K of REC.mcap with the same options, window "
+    "and background as 'fusion-pf track', and print each measurement (full-frame pixels), quality, "
+    "area and latency, and the error against the ground truth when the recording has one. With "
+    "--stages DIR, one PNG contact sheet per cue is written (DIR/frameK_<cue>.png), every stage image "
+    "labelled with its paper name, shape and dtype, like the paper's Figures 6-7. Background: the "
+    "median of --background EMPTY.mcap; else the recording's own empty-scene frames (metadata "
+    "background_frames); else the median of its first --background-k frames. The depth cue first "
+    "runs on frame K-1 so its temporal difference (I_d6) is that of frame K."
 )
 
+#: TrackConfig fields that place the window and build the background (shared with ``track``).
+WINDOW_OPTIONS = ("joint", "roi_half_size", "roi_extent_mm", "depth_radius", "background", "background_k")
 
-def _pair(kind: type):
-    def parse(text: str):
-        parts = text.replace(" ", "").split(",")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            return tuple(kind(p) for p in parts)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected two comma-separated numbers A,B, got {text!r}") from None
 
-    return parse
+def _pair(text: str):
+    parts = text.replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return tuple(float(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two comma-separated numbers U,V, got {text!r}") from None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Register the options of ``fusion-pf cues``."""
+    """Register the options of ``fusion-pf cues``: its own, the window's (as ``track``) and the cues'."""
+    import dataclasses
+
+    from fusion_pf.cues.registry import CueOptions
+    from fusion_pf.options import add_options
+    from fusion_pf.pipeline import TrackConfig
+
     p.add_argument("file", type=Path, metavar="REC.mcap", help="recording to read")
     p.add_argument("--frame", type=int, default=None, metavar="K",
                    help="frame index (default: the first frame after the empty-scene frames)")
-    p.add_argument("--stages", type=Path, default=None, metavar="DIR", help="write one PNG contact sheet per cue here")
-    p.add_argument("--background", type=Path, default=None, metavar="EMPTY.mcap",
-                   help="recording of the empty scene (median of all its frames)")
-    p.add_argument("--background-frames", type=int, default=10, metavar="N",
-                   help="without empty-scene frames: median of the first N frames")
+    p.add_argument("--stages", type=Path, default=None, metavar="DIR",
+                   help="write one PNG contact sheet per cue here (created if missing)")
     p.add_argument("--prior", choices=("joint", "truth", "full"), default="joint",
-                   help="ROI centre: the skeleton joint, the ground truth (synthetic), or no ROI")
-    p.add_argument("--at", type=_pair(float), default=None, metavar="U,V", help="ROI centre in pixels (overrides --prior)")
-    p.add_argument("--joint", default="right_hand", help="skeleton joint used as prior and skeleton cue")
-    p.add_argument("--half-size", type=int, default=None, metavar="PX", help="fixed ROI half-size (default: depth-scaled)")
-    p.add_argument("--extent-mm", type=float, default=250.0, metavar="MM", help="ROI half-size in mm at the prior's depth")
-    p.add_argument("--colour-thresholds", type=_pair(int), default=(16, 66), metavar="LO,HI",
-                   help="colour: lower,upper grayscale-difference thresholds (I_C4A, I_C4B)")
-    p.add_argument("--depth-range", type=_pair(int), default=(0, 2550), metavar="LO,HI",
-                   help="depth: difference range in mm quantised to 0-255 (I_d3)")
-    p.add_argument("--depth-thresholds", type=_pair(int), default=(15, 255), metavar="LO,HI",
-                   help="depth: lower,upper thresholds on I_d3 (I_d4A, I_d4B)")
-    p.add_argument("--nearest-mm", type=int, default=50, metavar="MM",
-                   help="depth: keep the slab this deep behind the nearest surface; 0 = the paper's band only")
-    p.add_argument("--min-area", type=int, default=40, metavar="PX", help="smallest region kept (all cues)")
-    p.add_argument("--skin-model", type=Path, default=None, metavar="MODEL.npz",
-                   help="CIE-Lab GMM skin model saved by LabGmmSkin.save (adds the skin_lab cue)")
+                   help="window centre: the skeleton joint, the ground truth (synthetic), or no window")
+    p.add_argument("--at", type=_pair, default=None, metavar="U,V", help="window centre in pixels (overrides --prior)")
+    p.add_argument("--cues", default=None, metavar="CUE,...",
+                   help="cues to run (default: every registered cue the frame can feed; skin_lab with --skin-model)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
+    skip = [f.name for f in dataclasses.fields(TrackConfig) if f.name not in WINDOW_OPTIONS]
+    add_options(p, TrackConfig, exclude=skip, title="window and background (as fusion-pf track)")
+    add_options(p, CueOptions, title="cues")
 
 
-def _background(args: argparse.Namespace, src, n: int):
-    from drivers.mcap_replay import McapReplay
-    from fusion_pf.cues import BackgroundModel
+def _background(config, src, n: int):
+    from fusion_pf.cues.background import BackgroundModel
     from fusion_pf.errors import InputError
 
-    if args.background is not None:
-        with McapReplay(args.background) as empty:
-            return BackgroundModel.from_frames(empty.frames()), f"{args.background} ({len(empty)} frames)"
+    from .track import load_background
+
+    if config.background is not None:
+        return load_background(config.background), f"{config.background}"
     k = src.info().background_frames
     if k:
         return BackgroundModel.from_frames(src.frames(0, k)), f"{k} empty-scene frames of the recording"
-    if not 1 <= args.background_frames <= n:
-        raise InputError(f"--background-frames must be in [1, {n}], got {args.background_frames}")
-    model = BackgroundModel.running(args.background_frames)
-    for frame in src.frames(0, args.background_frames):
-        model.update(frame)
-    return model, f"median of the first {args.background_frames} frames"
+    if config.background_k > n:
+        raise InputError(f"--background-k must be in [1, {n}] (frames of the recording), got {config.background_k}")
+    return BackgroundModel.from_frames(src.frames(0, config.background_k)), f"median of the first {config.background_k} frames"
 
 
-def _roi(args: argparse.Namespace, frame):
-    from fusion_pf.cues import make_roi
-
-    if args.prior == "full" and args.at is None:
-        return None
-    joint = frame.joint(args.joint)
-    depth = joint.depth_mm if joint is not None else None
+def _prior(args: argparse.Namespace, config, frame):
     if args.at is not None:
-        u, v = args.at
-    elif args.prior == "truth" and frame.ground_truth is not None:
-        u, v = frame.ground_truth.u, frame.ground_truth.v
-    elif joint is not None:
-        u, v = joint.u, joint.v
-    else:
+        return args.at
+    if args.prior == "full":
         return None
-    return make_roi(u, v, frame.size, depth_mm=depth, fx=frame.intrinsics.fx,
-                    half_size=args.half_size, extent_mm=args.extent_mm)
+    if args.prior == "truth" and frame.ground_truth is not None:
+        return frame.ground_truth.u, frame.ground_truth.v
+    joint = frame.joint(config.joint)
+    return None if joint is None else (joint.u, joint.v)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,28 +92,19 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     from drivers.mcap_replay import McapReplay
-    from fusion_pf.cues import (
-        ColourCue,
-        DepthCue,
-        LabGmmSkin,
-        RgbRuleSkin,
-        RgChromaSkin,
-        SkinCue,
-        contact_sheet,
-        skeleton_cue,
-    )
+    from fusion_pf.cues import contact_sheet
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.registry import CUES, CueOptions, build_cues
     from fusion_pf.errors import InputError
+    from fusion_pf.options import from_args
+    from fusion_pf.pipeline import TrackConfig, cue_window
 
-    lo, hi = args.colour_thresholds
-    colour = ColourCue(lower=lo, upper=hi, min_area=args.min_area)
-    dlo, dhi = args.depth_thresholds
-    depth = DepthCue(range_mm=args.depth_range, lower=dlo, upper=dhi, min_area=args.min_area,
-                     nearest_mm=args.nearest_mm or None)
-    skins = [SkinCue(RgChromaSkin(), min_area=args.min_area), SkinCue(RgbRuleSkin(), min_area=args.min_area)]
-    if args.skin_model is not None:
-        skins.append(SkinCue(LabGmmSkin.load(args.skin_model), min_area=args.min_area))
-    if args.stages is not None and not args.stages.is_dir():
-        raise InputError(f"--stages {args.stages} is not a directory")
+    options = from_args(CueOptions, args)
+    config = from_args(TrackConfig, args, cue_options=options)
+    if args.stages is not None:
+        if args.stages.exists() and not args.stages.is_dir():
+            raise InputError(f"--stages {args.stages} is a file; expected a directory")
+        args.stages.mkdir(parents=True, exist_ok=True)
 
     with McapReplay(args.file) as src:
         n = len(src)
@@ -139,21 +113,23 @@ def run(args: argparse.Namespace) -> int:
         k = args.frame if args.frame is not None else min(src.info().background_frames, n - 1)
         if not 0 <= k < n:
             raise InputError(f"--frame must be in [0, {n - 1}], got {k}")
-        background, bg_note = _background(args, src, n)
         frame = src.frame(k)
+        parts = {"color", "background"} | ({"depth"} if frame.depth is not None else set()) \
+            | ({"skeleton"} if frame.joints is not None else set())
+        if args.cues is not None:
+            names = tuple(s.strip() for s in args.cues.split(",") if s.strip())
+        else:
+            names = tuple(c for c, info in CUES.items() if info.needs <= parts and (c != "skin_lab" or options.skin_model))
+        cues = build_cues(names, options)
+        background, bg_note = _background(config, src, n)
         if background.color is None or background.color.shape != frame.color.shape:
             raise InputError(f"background size does not match the recording's {frame.size[0]}x{frame.size[1]}")
-        roi = _roi(args, frame)
-        results = {"colour": colour(frame.color, background.color, roi=roi, stages=True)}
-        if frame.depth is not None:
-            if k > 0:
-                prev = src.frame(k - 1)
-                if prev.depth is not None:
-                    depth(prev.depth, background.depth, roi=_roi(args, prev))
-            results["depth"] = depth(frame.depth, background.depth, roi=roi, stages=True)
-        for cue in skins:
-            results[cue.source] = cue(frame.color, roi=roi, stages=True)
-        results["skeleton"] = skeleton_cue(frame, args.joint)
+        roi = cue_window(frame, _prior(args, config, frame), config)
+        if k > 0 and "depth" in cues:
+            prev = src.frame(k - 1)
+            cues["depth"].measure(prev, CueContext(cue_window(prev, _prior(args, config, prev), config), background))
+        ctx = CueContext(roi=roi, background=background, joint=config.joint, stages=True)
+        results = {name: cue.measure(frame, ctx) for name, cue in cues.items()}
 
     truth = frame.ground_truth
     rows = {}

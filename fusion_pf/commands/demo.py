@@ -11,9 +11,9 @@ DESCRIPTION = (
     "Track the shipped synthetic sample recording, score it against its ground truth and sweep the "
     "particle count with multi-execution (paper 003 §4.4-4.6). The tracked output (OUT/tracked.csv) "
     "is what 'fusion-pf track' gives with the default settings (cue window on the filter's "
-    "prediction). For the sweep the cues are computed once more with the cue window on the skeleton "
-    "joint (paper §3.1), so they do not depend on the filter; the filter then runs for every "
-    "particle count and run, in parallel over the machine's cores. Writes to OUT: tracked.csv, "
+    "prediction). The sweep tracks the recording again with the same settings for every particle "
+    "count and run (job (N, r) is exactly 'fusion-pf track --particles N --seed job_seed'), as Dask "
+    "tasks over the machine's cores. Writes to OUT: tracked.csv, "
     "errors_per_frame.png, "
     "latency_per_frame.png (Fig. 10), bestmax_vs_n.png (Fig. 8), multiexec_bestmax.png (Fig. 9), "
     "score.md and score.json; prints the Markdown report and where the files are."
@@ -36,7 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cue-noise", default=None, metavar="SRC=PX,...",
                    help="Gaussian noise (px per axis) added to cue positions, as paper 003 §4.2-4.3 does, "
                         "e.g. colour=4,depth=4; not given: none")
-    p.add_argument("--workers", type=int, default=None, help="worker processes of the sweep; not given: one per core")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes of the sweep's local Dask cluster; not given: one per core; 1: in this process")
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
 
 
@@ -59,21 +60,6 @@ def find_sample(recording: Path | None) -> Path:
     )
 
 
-def _cue_noise(text: str | None) -> dict[str, float]:
-    from fusion_pf.errors import InputError
-
-    out: dict[str, float] = {}
-    for item in filter(None, (text or "").split(",")):
-        key, sep, value = item.partition("=")
-        try:
-            out[key.strip()] = float(value)
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise InputError(f"--cue-noise must look like colour=PX,depth=PX, got {text!r}")
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit status."""
     import sys
@@ -83,11 +69,13 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from drivers import open_source
+    from drivers.tracker_topics import read_topic
     from fusion_pf.errors import InputError
+    from fusion_pf.experiments import parse_counts, run_sweep
+    from fusion_pf.options import parse_pairs
+    from fusion_pf.pipeline import TrackConfig, TrackCsv, cue_names, track
     from fusion_pf.score.evaluate import evaluate, markdown, write_report
     from fusion_pf.score.inputs import align, read_ground_truth
-    from fusion_pf.score.sweep import parse_counts, run_sweep, sweep_config
-    from fusion_pf.track import TrackConfig, TrackCsv, extract_cues, track
 
     t_start = time.perf_counter()
     counts = parse_counts(args.sweep)
@@ -99,30 +87,28 @@ def run(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out} is a file; expected a directory")
     recording = find_sample(args.recording)
-    settings = {"particles": args.particles, "seed": args.seed, "cue_noise_px": _cue_noise(args.cue_noise)}
-    config = TrackConfig(**settings)
-    reference = read_ground_truth(recording)
+    cue_noise = parse_pairs(args.cue_noise) if args.cue_noise else {}
+    config = TrackConfig(particles=args.particles, seed=args.seed, cue_noise_px=cue_noise)
+    reference = read_ground_truth(recording, read_topic)
     args.out.mkdir(parents=True, exist_ok=True)
 
     log = sys.stderr
     bar = {"unit": "frame", "disable": True if args.no_progress else None, "file": log}
     tracked = args.out / "tracked.csv"
     print(f"demo: tracking {recording} -> {tracked}", file=log)
-    with open_source(str(recording)) as src, TrackCsv(tracked, latency=True) as table:
-        for result in track(tqdm(src, total=len(src), desc="track", **bar), config):
+    with open_source(str(recording)) as src:
+        frames = list(tqdm(src, total=len(src), desc="decode", **bar))
+    with TrackCsv(tracked, latency=True, sources=cue_names(config)) as table:
+        for result in track(tqdm(frames, desc="track", **bar), config):
             table.write(result)
     ev = evaluate(tracked, reference)
     t_track = time.perf_counter() - t_start
 
-    print(f"demo: computing the cues for the sweep once, then N = {', '.join(map(str, counts))} "
-          f"with {args.runs} runs each", file=log)
-    config = sweep_config(settings)
-    with open_source(str(recording)) as src:
-        rows = extract_cues(tqdm(src, total=len(src), desc="cues", **bar), config)
-    frame = np.array([r.frame for r in rows], dtype=np.int64)
-    ts = np.array([r.timestamp_ns for r in rows], dtype=np.int64)
-    uv, _ = align(frame, ts, reference, name=str(recording))
-    sweep = run_sweep(rows, config, uv, counts, args.runs, seed=args.seed, workers=args.workers,
+    print(f"demo: tracking again for N = {', '.join(map(str, counts))} with {args.runs} runs each", file=log)
+    person = [(i, f) for i, f in enumerate(frames) if not f.background]
+    uv, _ = align(np.array([i for i, _ in person], dtype=np.int64),
+                  np.array([f.timestamp_ns for _, f in person], dtype=np.int64), reference, name=str(recording))
+    sweep = run_sweep(frames, config, uv, counts, args.runs, seed=args.seed, workers=args.workers,
                       progress=not args.no_progress)
     files = write_report(ev, args.out, sweep)
     figures = [str(p) for name, p in files.items() if name.endswith(".png")]

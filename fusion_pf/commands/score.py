@@ -14,9 +14,9 @@ DESCRIPTION = (
     "ground truth of a synthetic recording (--ground-truth REC.mcap). Per source (colour, depth, "
     "skeleton, fused estimate): RMSE, mean, p95 and max error in pixels, coverage, and BestMax "
     "(paper 003 §4.4: per frame the source closest to the reference scores a point; tied sources "
-    "each score; missing sources and frames without a reference cannot). With --sweep the filter is "
-    "re-run on the recording's cues for every particle count and --runs seeds (multi-execution, "
-    "§4.5) in parallel. With --plots DIR the figures (errors per frame, latency per frame, BestMax "
+    "each score; missing sources and frames without a reference cannot). With --sweep the recording "
+    "is tracked again, with the tracker settings stored in TRACKED.mcap, for every particle count and "
+    "--runs seeds (multi-execution, §4.5), as Dask tasks on a local cluster or on --scheduler. With --plots DIR the figures (errors per frame, latency per frame, BestMax "
     "vs N, multi-execution BestMax) and score.md / score.json are written to DIR. Prints the "
     "Markdown report (or JSON with --json) on stdout."
 )
@@ -39,21 +39,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--runs", type=int, default=20, help="runs (seeds) per particle count")
     s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
     s.add_argument("--workers", type=int, default=None,
-                   help="worker processes; not given: one per core")
+                   help="worker processes of the local Dask cluster; not given: one per core; 1: in this process")
+    s.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run the sweep on this existing Dask scheduler instead of a local cluster")
     s.add_argument("--recording", metavar="SOURCE",
-                   help="recording to re-track for the sweep; not given: TRACKED if it is an MCAP, "
-                        "else the --ground-truth recording. The sweep uses the tracker settings stored "
-                        "in TRACKED.mcap (defaults for a CSV) with the cue window on the skeleton joint, "
-                        "so the cues are computed once and every run fuses the same cues")
+                   help="recording to re-track for the sweep; not given: the input named in TRACKED.mcap's "
+                        "metadata (key 'source'), else the --ground-truth recording. The sweep uses the tracker "
+                        "settings stored in TRACKED.mcap (defaults for a CSV)")
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def sweep_recording(recording: str, reference, config, counts, args):
+    """Decode ``recording``, align the reference to its tracked frames and run the sweep."""
+    import numpy as np
+
+    from drivers import open_source
+    from fusion_pf.experiments import job_config, run_sweep
+    from fusion_pf.score.inputs import align
+
+    from .track import load_background
+
+    for n in counts:
+        job_config(config, args.seed, n, 0)
+    with open_source(str(recording)) as src:
+        frames = list(src)
+    person = [(i, f) for i, f in enumerate(frames) if not f.background]
+    frame = np.array([i for i, _ in person], dtype=np.int64)
+    ts = np.array([f.timestamp_ns for _, f in person], dtype=np.int64)
+    uv, _ = align(frame, ts, reference, name=f"{recording} (re-tracked for the sweep)")
+    background = None if config.background is None else load_background(config.background)
+    return run_sweep(
+        frames, config, uv, counts, args.runs, seed=args.seed, background=background, workers=args.workers,
+        scheduler=args.scheduler, progress=not args.no_progress, tie_tol=args.tie_tol,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Score, optionally sweep, write and print the report; returns the exit status."""
+    from drivers.tracker_topics import read_topic, recording_metadata
     from fusion_pf.errors import InputError
+    from fusion_pf.experiments import parse_counts
+    from fusion_pf.pipeline import TrackConfig
     from fusion_pf.score.evaluate import as_json, evaluate, markdown, read_reference, write_report
     from fusion_pf.score.inputs import file_kind
-    from fusion_pf.score.sweep import parse_counts, sweep_config, sweep_recording, tracker_settings
 
     counts = parse_counts(args.sweep) if args.sweep is not None else None
     if args.runs < 1:
@@ -62,23 +90,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
-    reference = read_reference(args.reference, args.ground_truth)
-    ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol)
+    if args.scheduler is not None and args.workers is not None:
+        raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+    reference = read_reference(args.reference, args.ground_truth, read_topic)
+    ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol, read_topic=read_topic)
     sweep = None
     if counts is not None:
-        recording = args.recording
+        meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}
+        recording = args.recording or meta.get("source") or args.ground_truth
         if recording is None:
-            if file_kind(args.tracked) == "mcap":
-                recording = args.tracked
-            elif args.ground_truth is not None:
-                recording = args.ground_truth
-            else:
-                raise InputError("--sweep with a tracker CSV and --reference needs --recording SOURCE to re-track")
-        settings = tracker_settings(args.tracked) if file_kind(args.tracked) == "mcap" else None
-        sweep = sweep_recording(
-            recording, reference, sweep_config(settings), counts, args.runs,
-            seed=args.seed, workers=args.workers, progress=not args.no_progress, tie_tol=args.tie_tol,
-        )
+            raise InputError("--sweep with a tracker CSV and --reference needs --recording SOURCE to re-track")
+        try:
+            settings = json.loads(meta.get("tracker", "{}"))
+        except ValueError:
+            raise InputError(f"{args.tracked}: its tracker settings are not valid JSON") from None
+        config = TrackConfig.from_settings(settings if isinstance(settings, dict) else {})
+        sweep = sweep_recording(recording, reference, config, counts, args)
     figures: list[str] = []
     if args.plots is not None:
         files = write_report(ev, args.plots, sweep)

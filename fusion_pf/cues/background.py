@@ -18,7 +18,7 @@ median of its valid samples, 0 when it never had one.
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 

@@ -1,58 +1,28 @@
-"""The cue contract: a frame (or its arrays) in, one palm measurement (or None) out.
+"""The cue contract: a frame in, one palm measurement (or None) out.
 
-A cue extractor is a pure function or a small class with a ``__call__``. It
-takes arrays and keyword-only options, never a device or a file, and returns a
-:class:`CueResult`: the measurement (None when nothing qualifies, never NaN or
+Every cue the pipeline can run is a :class:`Cue` (``name``, ``needs``,
+``measure(frame, ctx)``, ``reset()``) registered in :mod:`fusion_pf.cues.registry`.
+The extractors underneath take arrays and keyword-only options, never a device
+or a file, and return a :class:`CueResult`: the measurement (None when nothing qualifies, never NaN or
 an exception on degenerate input) plus, on request, its stage images named as
 in paper 003 Figures 3-4 (``I_C2`` ... ``I_C9``, ``I_d2`` ... ``I_d10``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
-from typing import Mapping
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-#: Source names used everywhere (CSV columns, JSON keys, likelihood terms).
-SOURCES = ("colour", "depth", "skeleton")
+from ..frame import SOURCES, Measurement
 
+if TYPE_CHECKING:
+    from ..frame import Frame
 
-@dataclass(frozen=True, slots=True)
-class Measurement:
-    """A palm-centre measurement from one source.
+__all__ = ["NEEDS", "SOURCES", "Cue", "CueContext", "CueResult", "Measurement"]
 
-    Parameters
-    ----------
-    source : str
-        Name of the source, e.g. ``"colour"``, ``"depth"``, ``"skeleton"``, ``"skin_rg"``.
-    u, v : float
-        Palm centre in full-frame colour pixels.
-    quality : float
-        How much the cue trusts itself, in [0, 1] (region compactness, joint
-        confidence, ...); robust fusion may weight by it.
-    extras : mapping
-        Cue-specific values (area in px, ROI, ...), JSON-serialisable.
-    """
-
-    source: str
-    u: float
-    v: float
-    quality: float = 1.0
-    extras: Mapping[str, object] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "extras", MappingProxyType(dict(self.extras)))
-
-    def __reduce__(self):
-        # a mappingproxy cannot be pickled; rebuild from a plain dict (process pools)
-        return (Measurement, (self.source, self.u, self.v, self.quality, dict(self.extras)))
-
-    @property
-    def z(self) -> np.ndarray:
-        """The measurement as a ``(2,)`` float64 array ``[u, v]``."""
-        return np.array([self.u, self.v])
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,3 +42,48 @@ class CueResult:
     measurement: Measurement | None
     stages: Mapping[str, np.ndarray] = field(default_factory=dict)
     latency_ns: int = 0
+
+
+#: What a cue may need from a frame: the colour image, aligned depth, the
+#: skeleton joints, and a background model (of colour, or of depth with "depth").
+NEEDS = ("color", "depth", "skeleton", "background")
+
+
+@dataclass(frozen=True, slots=True)
+class CueContext:
+    """What the pipeline gives a cue besides the frame, for one frame.
+
+    Parameters
+    ----------
+    roi : Roi or None
+        Window to search (None: the whole frame).
+    background : BackgroundModel or None
+        Empty-scene model for the background-subtraction cues.
+    joint : str
+        Skeleton joint the skeleton cue reads.
+    stages : bool
+        Return the stage images too.
+    """
+
+    roi: object | None = None
+    background: object | None = None
+    joint: str = "right_hand"
+    stages: bool = False
+
+
+@runtime_checkable
+class Cue(Protocol):
+    """A palm cue: one frame in, one measurement (or None) out.
+
+    ``name`` is the source name (CSV columns, JSON keys, likelihood terms);
+    ``needs`` the frame parts it reads (a subset of :data:`NEEDS`); ``measure``
+    never raises on degenerate input (no region -> measurement None);
+    ``reset`` forgets per-stream state (e.g. the depth cue's previous frame).
+    """
+
+    name: str
+    needs: frozenset[str]
+
+    def measure(self, frame: "Frame", ctx: CueContext) -> CueResult: ...
+
+    def reset(self) -> None: ...

@@ -42,8 +42,10 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .base import CueResult
+from ..frame import Frame
+from .base import CueContext, CueResult
 from .regions import (
+    MIN_AREA_PX,
     check_int,
     clear_border,
     dilate,
@@ -96,7 +98,7 @@ class ColourCue:
         *,
         lower: int = 16,
         upper: int = 66,
-        min_area: int = 40,
+        min_area: int = MIN_AREA_PX,
         open_radius: int = 1,
         dilate: int = 2,
         clear_border: bool = True,
@@ -109,6 +111,22 @@ class ColourCue:
         self.dilate = check_int("colour dilate radius", dilate, 0, 50)
         self.clear_border = bool(clear_border)
         self.source = str(source)
+
+    #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
+    needs = frozenset({"color", "background"})
+
+    @property
+    def name(self) -> str:
+        """Source name of the measurements."""
+        return self.source
+
+    def reset(self) -> None:
+        """Nothing to forget: the colour cue has no state."""
+
+    def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
+        """The :class:`~fusion_pf.cues.base.Cue` form: ``frame``'s colour against ``ctx.background``."""
+        background = None if ctx.background is None else ctx.background.color
+        return self(frame.color, background, roi=ctx.roi, stages=ctx.stages)
 
     def __call__(
         self,

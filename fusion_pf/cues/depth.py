@@ -67,8 +67,10 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .base import CueResult
+from ..frame import Frame
+from .base import CueContext, CueResult
 from .regions import (
+    MIN_AREA_PX,
     check_int,
     clear_border,
     dilate,
@@ -121,7 +123,7 @@ class DepthCue:
         range_mm: tuple[int, int] = (0, 2550),
         lower: int = 15,
         upper: int = 255,
-        min_area: int = 40,
+        min_area: int = MIN_AREA_PX,
         dilate: int = 4,
         nearest_mm: int | None = 50,
         open_radius: int = 2,
@@ -164,6 +166,21 @@ class DepthCue:
         if x1 > x0 and y1 > y0:
             out[y0 - roi.y0:y1 - roi.y0, x0 - roi.x0:x1 - roi.x0] = mask[y0 - proi.y0:y1 - proi.y0, x0 - proi.x0:x1 - proi.x0]
         return out
+
+    #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
+    needs = frozenset({"depth", "background"})
+
+    @property
+    def name(self) -> str:
+        """Source name of the measurements."""
+        return self.source
+
+    def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
+        """The :class:`~fusion_pf.cues.base.Cue` form: ``frame``'s depth against ``ctx.background``."""
+        background = None if ctx.background is None else ctx.background.depth
+        if frame.depth is None:
+            return CueResult(None)
+        return self(frame.depth, background, roi=ctx.roi, stages=ctx.stages)
 
     def __call__(
         self,

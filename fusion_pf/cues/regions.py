@@ -20,6 +20,8 @@ from ..errors import InputError
 #: Expected palm area in pixels when no depth-derived value is known
 #: (a ~30 px-diameter palm: 90 mm at ~1.2 m with fx ~ 400 px).
 DEFAULT_PALM_AREA = 700.0
+#: Smallest region (px) the cues keep by default (colour, depth and skin).
+MIN_AREA_PX = 40
 
 
 def check_int(name: str, value: object, lo: int, hi: int) -> int:

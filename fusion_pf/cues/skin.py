@@ -36,9 +36,11 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..frame import Frame
 from ..rng import as_rng
-from .base import CueResult
+from .base import CueContext, CueResult
 from .regions import (
+    MIN_AREA_PX,
     check_float,
     check_int,
     clear_border,
@@ -368,7 +370,7 @@ class SkinCue:
         self,
         model: SkinModel,
         *,
-        min_area: int = 40,
+        min_area: int = MIN_AREA_PX,
         dilate: int = 1,
         clear_border: bool = False,
         source: str | None = None,
@@ -380,6 +382,21 @@ class SkinCue:
         self.dilate = check_int("skin dilate radius", dilate, 0, 50)
         self.clear_border = bool(clear_border)
         self.source = str(source) if source is not None else model.name
+
+    #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
+    needs = frozenset({"color"})
+
+    @property
+    def name(self) -> str:
+        """Source name of the measurements."""
+        return self.source
+
+    def reset(self) -> None:
+        """Nothing to forget: the skin cue has no state."""
+
+    def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
+        """The :class:`~fusion_pf.cues.base.Cue` form: skin in ``frame``'s colour image."""
+        return self(frame.color, roi=ctx.roi, stages=ctx.stages)
 
     def __call__(self, color: np.ndarray, *, roi: Roi | None = None, stages: bool = False) -> CueResult:
         """Segment skin in ``color`` (inside ``roi``) and measure the largest skin region."""

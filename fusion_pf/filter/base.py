@@ -9,44 +9,16 @@ log space). A source missing from a frame contributes nothing.
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
-from typing import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fusion_pf.cues.base import Measurement
+from fusion_pf.errors import InputError
+from fusion_pf.frame import Estimate, Measurement
+
+__all__ = ["Estimate", "Measurement", "Tracker", "check_prior", "check_timestamp", "fused_position"]
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Estimate:
-    """The filter's palm estimate for one frame.
-
-    Parameters
-    ----------
-    timestamp_ns : int
-        Time of the frame the estimate is for.
-    u, v : float
-        Estimated palm centre in colour pixels.
-    ess : float
-        Effective sample size ``1 / sum(w^2)`` before resampling (N/A -> nan for KF).
-    resampled : bool
-        Whether the particles were resampled in this step.
-    n_particles : int
-        Particle count (0 for the Kalman filter).
-    cov : ndarray, shape (2, 2)
-        Position covariance of the posterior (px^2).
-    particles : ndarray, shape (N, 2), or None
-        Particle positions after the update (None for the Kalman filter).
-    """
-
-    timestamp_ns: int
-    u: float
-    v: float
-    ess: float
-    resampled: bool
-    n_particles: int
-    cov: np.ndarray
-    particles: np.ndarray | None = None
 
 
 class Tracker(abc.ABC):
@@ -63,3 +35,36 @@ class Tracker(abc.ABC):
     @abc.abstractmethod
     def reset(self) -> None:
         """Forget the state; the next measurement initialises again."""
+
+
+def check_prior(prior) -> np.ndarray | None:
+    """Validate ``prior``: None, ``(u, v)`` or ``(u, v, du, dv)``; returns a (4,) array or None."""
+    if prior is None:
+        return None
+    p = np.asarray(prior, dtype=np.float64).ravel()
+    if p.shape not in ((2,), (4,)) or not np.isfinite(p).all():
+        raise InputError(f"prior must be finite (u, v) or (u, v, du, dv), got {prior!r}")
+    return np.concatenate([p, np.zeros(4 - p.shape[0])])
+
+
+def fused_position(measurements: Sequence[Measurement], sigma: Mapping[str, float]) -> np.ndarray:
+    """Precision-weighted mean of measurements, ``sum z_s / sigma_s^2 / sum 1 / sigma_s^2``.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
+    prec = np.array([1.0 / sigma[m.source] ** 2 for m in measurements])
+    z = np.array([[m.u, m.v] for m in measurements])
+    # z_bar = sum_s z_s / sigma_s^2 / sum_s 1 / sigma_s^2
+    return prec @ z / prec.sum()
+
+
+def check_timestamp(timestamp_ns, last_ns: int | None) -> int:
+    """Validate a step's timestamp: an int, later than the previous step's."""
+    if isinstance(timestamp_ns, bool) or not isinstance(timestamp_ns, (int, np.integer)):
+        raise InputError(f"timestamp_ns must be an int (nanoseconds), got {timestamp_ns!r}")
+    t = int(timestamp_ns)
+    if last_ns is not None and t <= last_ns:
+        raise InputError(f"timestamp_ns must increase, got {t} after {last_ns}")
+    return t

@@ -11,7 +11,7 @@ are equal, and smooth when they are not.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

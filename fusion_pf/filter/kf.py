@@ -11,17 +11,16 @@ linear, this is the optimal filter the particle filter approximates.
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
+from fusion_pf.frame import Measurement
 
-from .base import Estimate, Tracker
+from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
 from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
-from .motion import FrameClock, check_process_noise, process_covariance, transition_matrix
-from .pf import check_prior, check_timestamp, fused_position
+from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, process_covariance, transition_matrix
 
 __all__ = ["KalmanFilter"]
 
@@ -56,7 +55,7 @@ class KalmanFilter(Tracker):
     def __init__(
         self,
         *,
-        process_noise: tuple[float, float] = (3.0, 1.0),
+        process_noise: tuple[float, float] = DEFAULT_PROCESS_NOISE,
         noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
         init_spread_px: float = 20.0,
         init_velocity_px: float = 2.0,

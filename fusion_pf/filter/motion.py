@@ -28,6 +28,11 @@ from fusion_pf.errors import InputError
 __all__ = ["FrameClock", "check_process_noise", "noise_std", "predict", "process_covariance", "transition_matrix"]
 
 
+#: Default process noise per frame step: (position px, velocity px/frame) std
+#: of eq. 4, tuned with :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`.
+DEFAULT_PROCESS_NOISE = (3.0, 1.0)
+
+
 def check_process_noise(process_noise) -> tuple[float, float]:
     """Validate ``process_noise = (pos_px, vel_px)``; both finite and >= 0."""
     try:

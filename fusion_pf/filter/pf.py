@@ -27,54 +27,21 @@ forever.
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
+from fusion_pf.frame import Measurement
 from fusion_pf.rng import as_rng
 
-from .base import Estimate, Tracker
+from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
 from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, JointLikelihood
-from .motion import FrameClock, check_process_noise, noise_std, predict
+from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
 from .resample import RESAMPLERS
 
-__all__ = ["ParticleFilter", "check_prior", "fused_position"]
-
-
-def check_prior(prior) -> np.ndarray | None:
-    """Validate ``prior``: None, ``(u, v)`` or ``(u, v, du, dv)``; returns a (4,) array or None."""
-    if prior is None:
-        return None
-    p = np.asarray(prior, dtype=np.float64).ravel()
-    if p.shape not in ((2,), (4,)) or not np.isfinite(p).all():
-        raise InputError(f"prior must be finite (u, v) or (u, v, du, dv), got {prior!r}")
-    return np.concatenate([p, np.zeros(4 - p.shape[0])])
-
-
-def fused_position(measurements: Sequence[Measurement], sigma: Mapping[str, float]) -> np.ndarray:
-    """Precision-weighted mean of measurements, ``sum z_s / sigma_s^2 / sum 1 / sigma_s^2``.
-
-    Returns
-    -------
-    ndarray, shape (2,)
-    """
-    prec = np.array([1.0 / sigma[m.source] ** 2 for m in measurements])
-    z = np.array([[m.u, m.v] for m in measurements])
-    # z_bar = sum_s z_s / sigma_s^2 / sum_s 1 / sigma_s^2
-    return prec @ z / prec.sum()
-
-
-def check_timestamp(timestamp_ns, last_ns: int | None) -> int:
-    """Validate a step's timestamp: an int, later than the previous step's."""
-    if isinstance(timestamp_ns, bool) or not isinstance(timestamp_ns, (int, np.integer)):
-        raise InputError(f"timestamp_ns must be an int (nanoseconds), got {timestamp_ns!r}")
-    t = int(timestamp_ns)
-    if last_ns is not None and t <= last_ns:
-        raise InputError(f"timestamp_ns must increase, got {t} after {last_ns}")
-    return t
+__all__ = ["ParticleFilter"]
 
 
 class ParticleFilter(Tracker):
@@ -89,8 +56,7 @@ class ParticleFilter(Tracker):
         velocity (px / frame) per frame step.
     noise_px : mapping of str to float
         Per-source measurement noise sigma in px (eq. 6 uses ``rho = sigma^2``).
-        Default :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`:
-        colour 6, depth 10, skeleton 15.
+        Default :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`.
     likelihood : {"gaussian", "robust"}
         The paper's Gaussian (eq. 6) or the Gaussian + uniform outlier mixture.
     outlier_prob : float
@@ -156,7 +122,7 @@ class ParticleFilter(Tracker):
         self,
         *,
         n_particles: int = 100,
-        process_noise: tuple[float, float] = (3.0, 1.0),
+        process_noise: tuple[float, float] = DEFAULT_PROCESS_NOISE,
         noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
         likelihood: str = "gaussian",
         outlier_prob: float = 0.1,

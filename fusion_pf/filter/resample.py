@@ -32,8 +32,8 @@ exchangeable after resampling, so the order carries no information.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from types import SimpleNamespace
-from typing import Callable
 
 import numpy as np
 

@@ -9,21 +9,22 @@ offset by a fixed vector (e.g. the skeleton snapping to the wrong hand).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
-from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
+from fusion_pf.frame import Measurement
 from fusion_pf.rng import as_rng
 
 from .base import Tracker
-from .likelihood import DEFAULT_NOISE_PX
 
 __all__ = ["Scenario", "rmse", "run_tracker", "scripted_scenario"]
 
 FRAME_NS = 33_333_333
+#: Noise of the simulated cues (px, 1 sigma per axis): colour tightest, skeleton loosest.
+SCENARIO_NOISE_PX: Mapping[str, float] = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ class Scenario:
 def scripted_scenario(
     n_frames: int = 200,
     *,
-    noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
+    noise_px: Mapping[str, float] = SCENARIO_NOISE_PX,
     dropout: float = 0.0,
     lie_source: str | None = None,
     lie_offset_px: tuple[float, float] = (60.0, 0.0),

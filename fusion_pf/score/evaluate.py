@@ -24,15 +24,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fusion_pf.errors import InputError
 
 from . import plots, report
-from .inputs import Reference, TrackTable, align, read_annotations, read_ground_truth, read_tracker
+from .inputs import Reference, TopicReader, TrackTable, align, read_annotations, read_ground_truth, read_tracker
 from .metrics import TIE_TOL_PX, Score, score
-from .sweep import SweepResult
+
+if TYPE_CHECKING:
+    from ..experiments.sweep import SweepResult
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,9 @@ class Evaluation:
     score: Score
 
 
-def read_reference(reference: str | Path | None = None, ground_truth: str | Path | None = None) -> Reference:
+def read_reference(
+    reference: str | Path | None = None, ground_truth: str | Path | None = None, read_topic: TopicReader | None = None
+) -> Reference:
     """Read the reference: annotations (``reference``) or ground truth (``ground_truth``), exactly one.
 
     Raises
@@ -69,7 +74,7 @@ def read_reference(reference: str | Path | None = None, ground_truth: str | Path
     """
     if (reference is None) == (ground_truth is None):
         raise InputError("give exactly one reference: annotations (--reference) or ground truth (--ground-truth)")
-    return read_annotations(reference) if reference is not None else read_ground_truth(ground_truth)
+    return read_annotations(reference) if reference is not None else read_ground_truth(ground_truth, read_topic)
 
 
 def evaluate(
@@ -77,6 +82,7 @@ def evaluate(
     reference: Reference,
     *,
     tie_tol: float = TIE_TOL_PX,
+    read_topic: TopicReader | None = None,
 ) -> Evaluation:
     """Read a tracker output, align it to ``reference`` and score it.
 
@@ -88,12 +94,14 @@ def evaluate(
         From :func:`read_reference`.
     tie_tol : float
         BestMax tie tolerance in pixels.
+    read_topic : callable, optional
+        MCAP topic reader (:data:`~fusion_pf.score.inputs.TopicReader`), needed for an MCAP ``tracked``.
 
     Returns
     -------
     Evaluation
     """
-    table = read_tracker(tracked)
+    table = read_tracker(tracked, read_topic)
     uv, occ = align(table.frame, table.timestamp_ns, reference, name=table.path)
     return Evaluation(table, reference, uv, occ, score(table.points, uv, occ, tie_tol=tie_tol))
 

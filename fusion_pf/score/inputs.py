@@ -35,22 +35,21 @@ Alignment (:func:`align`)
 from __future__ import annotations
 
 import csv
-import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from fusion_pf.cues.base import SOURCES
 from fusion_pf.errors import InputError
+from fusion_pf.frame import SOURCES
 
 from .metrics import SCORED_SOURCES
 
-#: Topics read from MCAP files.
-ESTIMATE_TOPIC = "/tracker/estimate"
-CUES_TOPIC = "/tracker/cues"
-GROUND_TRUTH_TOPIC = "/ground_truth/palm"
+#: What the scorer reads from MCAP files, by kind (``drivers.tracker_topics.TOPICS``
+#: maps each kind to its topic of docs/recording-format.md).
+ESTIMATE_TOPIC, CUES_TOPIC, GROUND_TRUTH_TOPIC = "estimate", "cues", "ground_truth"
 
 #: Latency stages of the tracker output, in plot order (docs/architecture.md).
 LATENCY_STAGES = ("decode", "colour", "depth", "skeleton", "filter", "total", "sinks")
@@ -245,29 +244,16 @@ def read_tracker_csv(path: str | Path) -> TrackTable:
     )
 
 
-def _json_messages(path: str, topic: str) -> list[tuple[int, dict]]:
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+#: ``read_topic(path, kind) -> [(log_time_ns, message dict), ...]`` for a kind
+#: ``"estimate"``, ``"cues"`` or ``"ground_truth"``: how MCAP topics are read
+#: (``drivers.tracker_topics.read_topic``); the scorer never opens MCAP files.
+TopicReader = Callable[[str, str], "list[tuple[int, dict]]"]
 
-    out = []
-    try:
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            for _schema, channel, message in reader.iter_messages(topics=[topic]):
-                if channel.message_encoding != "json":
-                    raise InputError(
-                        f"{path}: topic {topic} must be JSON-encoded, got {channel.message_encoding!r}"
-                    )
-                try:
-                    out.append((message.log_time, json.loads(message.data)))
-                except ValueError:
-                    raise InputError(
-                        f"{path}: topic {topic} has a message that is not valid JSON at "
-                        f"log_time {message.log_time}"
-                    ) from None
-    except McapError as exc:
-        raise InputError(f"{path}: cannot read the MCAP file ({exc})") from None
-    return out
+
+def _need_reader(path: str, read_topic: TopicReader | None) -> TopicReader:
+    if read_topic is None:
+        raise InputError(f"{path} is an MCAP file: pass read_topic (drivers.tracker_topics.read_topic) to read it")
+    return read_topic
 
 
 def _xy(path: str, topic: str, obj: object, where: str) -> tuple[float, float]:
@@ -298,7 +284,7 @@ def _frame_of(path: str, topic: str, msg: dict, log_time: int) -> int:
     return frame
 
 
-def read_tracker_mcap(path: str | Path) -> TrackTable:
+def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -> TrackTable:
     """Read the tracker topics of an MCAP written by ``fusion-pf track -o``.
 
     Rows are the union of the frames of ``/tracker/estimate`` and
@@ -310,11 +296,12 @@ def read_tracker_mcap(path: str | Path) -> TrackTable:
         When neither topic is present or a message is malformed.
     """
     path = str(path)
-    estimates = _json_messages(path, ESTIMATE_TOPIC)
-    cues = _json_messages(path, CUES_TOPIC)
+    read_topic = _need_reader(path, read_topic)
+    estimates = read_topic(path, ESTIMATE_TOPIC)
+    cues = read_topic(path, CUES_TOPIC)
     if not estimates and not cues:
         raise InputError(
-            f"{path}: no {ESTIMATE_TOPIC} or {CUES_TOPIC} messages; expected the output of "
+            f"{path}: no tracker estimate or cue messages; expected the output of "
             "fusion-pf track -o (a recording must be tracked before it is scored)"
         )
     rows: dict[int, dict] = {}
@@ -346,11 +333,11 @@ def read_tracker_mcap(path: str | Path) -> TrackTable:
     return TrackTable(path=path, frame=frames, timestamp_ns=ts, points=points, latency_ms=latency)
 
 
-def read_tracker(path: str | Path) -> TrackTable:
-    """Read a tracker output, CSV or MCAP (by its content, see :func:`file_kind`)."""
+def read_tracker(path: str | Path, read_topic: TopicReader | None = None) -> TrackTable:
+    """Read a tracker output, CSV or MCAP (by its content, see :func:`file_kind`; MCAP through ``read_topic``)."""
     kind = file_kind(path)
     if kind == "mcap":
-        return read_tracker_mcap(path)
+        return read_tracker_mcap(path, read_topic)
     if kind == "csv":
         return read_tracker_csv(path)
     raise InputError(
@@ -359,7 +346,7 @@ def read_tracker(path: str | Path) -> TrackTable:
     )
 
 
-def read_ground_truth(path: str | Path) -> Reference:
+def read_ground_truth(path: str | Path, read_topic: TopicReader | None = None) -> Reference:
     """Read ``/ground_truth/palm`` of a synthetic recording (or of a tracker MCAP).
 
     Raises
@@ -369,11 +356,11 @@ def read_ground_truth(path: str | Path) -> Reference:
     """
     path = str(path)
     if file_kind(path) != "mcap":
-        raise InputError(f"{path}: ground truth must be an MCAP recording with {GROUND_TRUTH_TOPIC}")
-    msgs = _json_messages(path, GROUND_TRUTH_TOPIC)
+        raise InputError(f"{path}: ground truth must be an MCAP recording with ground-truth palm messages")
+    msgs = _need_reader(path, read_topic)(path, GROUND_TRUTH_TOPIC)
     if not msgs:
         raise InputError(
-            f"{path}: no {GROUND_TRUTH_TOPIC} messages; only synthetic recordings carry ground "
+            f"{path}: no ground-truth palm messages; only synthetic recordings carry ground "
             "truth (use --reference annotations.sqlite for real ones)"
         )
     msgs.sort(key=lambda m: m[0])

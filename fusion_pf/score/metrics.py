@@ -54,8 +54,8 @@ different seeds; see :mod:`fusion_pf.score.sweep`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 

@@ -14,8 +14,8 @@ the path. Colours are fixed per source (:data:`SOURCE_STYLE`) across figures.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -40,24 +40,21 @@ STAGE_STYLE = {
 
 
 def _figure(width: float = 8.0, height: float = 4.5):
-    import matplotlib
+    """A figure and its axes from matplotlib's object API (no pyplot, no global backend)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(width, height), dpi=110)
-    return plt, fig, ax
+    fig = Figure(figsize=(width, height), dpi=110)
+    return fig, fig.subplots()
 
 
 def _legend(ax, ncol: int) -> None:
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=ncol, fontsize=9, frameon=False)
 
 
-def _save(plt, fig, path: str | Path) -> Path:
+def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
     return path
 
 
@@ -81,7 +78,7 @@ def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
     -------
     Path
     """
-    plt, fig, ax = _figure()
+    fig, ax = _figure()
     x = np.arange(len(sweep.particle_counts))
     for i, s in enumerate(sweep.sources):
         st = SOURCE_STYLE[s]
@@ -94,7 +91,7 @@ def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
     ax.grid(alpha=0.3)
     ax.set_ylim(bottom=0)
     _legend(ax, 4)
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def plot_multiexec(sweep, path: str | Path) -> Path:
@@ -109,7 +106,7 @@ def plot_multiexec(sweep, path: str | Path) -> Path:
     -------
     Path
     """
-    plt, fig, ax = _figure(9.0, 4.8)
+    fig, ax = _figure(9.0, 4.8)
     mean, std = sweep.mean_bestmax(), sweep.std_bestmax()
     k = len(sweep.sources)
     width = 0.8 / k
@@ -125,7 +122,7 @@ def plot_multiexec(sweep, path: str | Path) -> Path:
     ax.grid(axis="y", alpha=0.3)
     ax.set_ylim(bottom=0)
     _legend(ax, 4)
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def plot_errors(
@@ -152,7 +149,7 @@ def plot_errors(
     -------
     Path
     """
-    plt, fig, ax = _figure(10.0, 4.8)
+    fig, ax = _figure(10.0, 4.8)
     frame = np.asarray(frame)
     shaded = False
     for start, stop in (episodes if episodes is not None else np.zeros((0, 2), int)):
@@ -174,7 +171,7 @@ def plot_errors(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     _legend(ax, 5 if shaded else 4)
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def plot_latency(
@@ -199,7 +196,7 @@ def plot_latency(
     -------
     Path
     """
-    plt, fig, ax = _figure(10.0, 4.8)
+    fig, ax = _figure(10.0, 4.8)
     for stage, ms in latency_ms.items():
         st = STAGE_STYLE.get(stage, {"color": None, "label": stage})
         ms = np.asarray(ms, dtype=np.float64)
@@ -214,4 +211,4 @@ def plot_latency(
     ax.set_title("Latency per frame and stage")
     ax.grid(alpha=0.3, which="both")
     _legend(ax, 4)
-    return _save(plt, fig, path)
+    return _save(fig, path)

@@ -9,12 +9,15 @@ seconds or milliseconds as the key says.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .metrics import Score
-from .sweep import SweepResult
+
+if TYPE_CHECKING:
+    from ..experiments.sweep import SweepResult
 
 _LABELS = {"colour": "colour", "depth": "depth", "skeleton": "skeleton", "fused": "fused (DF-PF)"}
 

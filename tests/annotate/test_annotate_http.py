@@ -90,7 +90,7 @@ def test_frames_are_the_recordings_images(served, rec20):
 
 def test_others_hidden_until_own_click(served):
     server, db = served
-    post = lambda body: requests.post(server.url + "/api/clicks", json=body, timeout=10)  # noqa: E731
+    post = lambda body: requests.post(server.url + "/api/clicks", json=body, timeout=10)
     assert post({"operator": "hid-a", "frame": 2, "u": 100.0, "v": 50.0}).status_code == 200
     view = requests.get(server.url + "/api/frames/2/clicks", params={"operator": "hid-b"}, timeout=10).json()
     assert view["hidden"] is True and view["others"] is None and view["reference"] is None

@@ -33,7 +33,7 @@ def test_cues_command_writes_one_labelled_sheet_per_cue(recording, tmp_path, cap
 
 def test_cues_command_text_output_and_full_frame(recording, capsys):
     capsys.readouterr()
-    assert main(["cues", str(recording), "--prior", "full", "--background-frames", "3"]) == 0
+    assert main(["cues", str(recording), "--prior", "full", "--background-k", "3"]) == 0
     out = capsys.readouterr().out
     assert "frame 4 of" in out and "roi full frame" in out
     assert out.count("\n") == 2 + 5
@@ -42,8 +42,10 @@ def test_cues_command_text_output_and_full_frame(recording, capsys):
 @pytest.mark.parametrize(
     "argv,needle",
     [(["--frame", "99"], "--frame must be in [0, 8], got 99"),
-     (["--colour-thresholds", "50,10"], "colour upper threshold must be an int in [50, 255], got 10"),
-     (["--stages", "/nonexistent/dir"], "is not a directory")],
+     (["--colour-lower", "50", "--colour-upper", "10"], "colour_upper (--colour-upper) must be >= colour_lower 50, got 10"),
+     (["--depth-range-mm", "9"], "--depth-range-mm: expected 2 comma-separated numbers, got '9'"),
+     (["--cues", "colour,sonar"], "cues must be distinct names among"),
+     (["--stages", __file__], "is a file; expected a directory")],
 )
 def test_cues_command_bad_options_exit_2_with_one_line(recording, capsys, argv, needle):
     capsys.readouterr()
@@ -64,7 +66,7 @@ def test_cues_command_with_empty_scene_file_and_skin_model(recording, tmp_path, 
     assert main(["cues", str(recording), "--frame", "5", "--background", str(empty),
                  "--skin-model", str(model), "--prior", "truth", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["background"] == f"{empty} (3 frames)"
+    assert doc["background"] == f"{empty}"
     assert "skin_lab" in doc["cues"]
     assert doc["cues"]["colour"]["error_px"] < 14.0  # 9.4 px measured
     bad = tmp_path / "bad.npz"

@@ -3,7 +3,8 @@
 import math
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fusion_pf.cues import ColourCue, DepthCue, RgbRuleSkin, RgChromaSkin, SkinCue, make_roi

@@ -11,7 +11,7 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
 from fusion_pf.filter import KalmanFilter, ParticleFilter
-from fusion_pf.filter.scenario import rmse, run_tracker, scripted_scenario
+from fusion_pf.filter.scenario import SCENARIO_NOISE_PX, rmse, run_tracker, scripted_scenario
 
 NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
 
@@ -60,16 +60,16 @@ def test_hand_worked_two_steps():
 def test_kf_is_the_accuracy_reference_the_pf_approaches():
     """Same Gaussian model: a large-N weighted-mean PF lands within 20 % of the optimal KF."""
     sc = scripted_scenario(200, rng=12)
-    kf = rmse(run_tracker(KalmanFilter(), sc), sc.truth, slice(10, None))
-    pf = rmse(run_tracker(ParticleFilter(n_particles=3000, estimator="weighted_mean", rng=0), sc), sc.truth,
+    kf = rmse(run_tracker(KalmanFilter(noise_px=SCENARIO_NOISE_PX), sc), sc.truth, slice(10, None))
+    pf = rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=3000, estimator="weighted_mean", rng=0), sc), sc.truth,
               slice(10, None))
     assert kf < rmse(sc.measurements["colour"], sc.truth) and pf < 1.2 * kf, (kf, pf)
 
 
 def test_bad_input():
     with pytest.raises(InputError, match="process_noise"):
-        KalmanFilter(process_noise=(1.0,))
-    kf = KalmanFilter()
+        KalmanFilter(noise_px=SCENARIO_NOISE_PX, process_noise=(1.0,))
+    kf = KalmanFilter(noise_px=SCENARIO_NOISE_PX)
     with pytest.raises(InputError, match="known sources"):
         kf.step(0, [Measurement("lidar", 1.0, 2.0)])
     kf.step(5, [Measurement("colour", 1.0, 2.0)])
@@ -90,14 +90,14 @@ def test_auto_frame_period_bridges_dropped_frames_in_whole_steps():
     # a Kalman filter that learns the period predicts across a gap like one told the period
     ms = [Measurement("colour", 10.0 + 3 * k, 20.0 - k) for k in range(4)]
     stamps = [0, period, 2 * period, 5 * period]
-    told = KalmanFilter(frame_period_ns=period)
-    learnt = KalmanFilter(frame_period_ns="auto")
+    told = KalmanFilter(noise_px=SCENARIO_NOISE_PX, frame_period_ns=period)
+    learnt = KalmanFilter(noise_px=SCENARIO_NOISE_PX, frame_period_ns="auto")
     for t, m in zip(stamps, ms):
         told.step(t, [m])
         learnt.step(t, [m])
     np.testing.assert_allclose(learnt.x, told.x, rtol=0, atol=1e-9)
     np.testing.assert_allclose(learnt.P, told.P, rtol=0, atol=1e-9)
-    paper = KalmanFilter()
+    paper = KalmanFilter(noise_px=SCENARIO_NOISE_PX)
     for t, m in zip(stamps, ms):
         paper.step(t, [m])
     assert not np.allclose(paper.P, told.P)

@@ -15,7 +15,7 @@ from fusion_pf.errors import InputError
 from fusion_pf.filter import Estimate, ParticleFilter
 from fusion_pf.filter.estimate import map_estimate, robust_mean, weighted_covariance, weighted_mean
 from fusion_pf.filter.likelihood import JointLikelihood, robust_loglik
-from fusion_pf.filter.scenario import rmse, run_tracker, scripted_scenario
+from fusion_pf.filter.scenario import SCENARIO_NOISE_PX, rmse, run_tracker, scripted_scenario
 
 NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
 MS = [Measurement("colour", 320.0, 200.0), Measurement("depth", 324.0, 197.0), Measurement("skeleton", 310.0, 210.0)]
@@ -30,7 +30,7 @@ def _clone(rng: np.random.Generator) -> np.random.Generator:
 def test_step_reproduces_equations_3_to_7_by_hand():
     """Predict (eq. 4) and weight update (eqs. 3, 5-7) recomputed independently, to 1e-12."""
     rng = np.random.default_rng(11)
-    pf = ParticleFilter(n_particles=257, process_noise=(2.0, 0.5), ess_threshold=0.0, rng=rng)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=257, process_noise=(2.0, 0.5), ess_threshold=0.0, rng=rng)
     pf.step(0, MS)
     x0 = pf.particles.copy()
     logw0 = pf.log_weights.copy()
@@ -51,7 +51,7 @@ def test_step_reproduces_equations_3_to_7_by_hand():
 
 
 def test_frame_without_measurements_only_predicts():
-    pf = ParticleFilter(n_particles=300, rng=1)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=300, rng=1)
     pf.step(0, MS)
     logw = pf.log_weights.copy()
     est = pf.step(5, [])
@@ -60,29 +60,29 @@ def test_frame_without_measurements_only_predicts():
 
 
 def test_not_initialised_until_measurement_or_prior():
-    pf = ParticleFilter(n_particles=50, rng=0)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=50, rng=0)
     assert pf.step(0, []) is None
     est = pf.step(1, MS)
     fused = np.array([[m.u, m.v] for m in MS]).T @ (w := np.array([1 / 36, 1 / 100, 1 / 225])) / w.sum()
     assert math.hypot(est.u - fused[0], est.v - fused[1]) < 10.0
-    with_prior = ParticleFilter(n_particles=2000, prior=(100.0, 50.0), init_spread_px=5.0, rng=0)
+    with_prior = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=2000, prior=(100.0, 50.0), init_spread_px=5.0, rng=0)
     est = with_prior.step(0, [])
     assert est is not None and abs(est.u - 100) < 2 and abs(est.v - 50) < 2
 
 
 def test_shapes_and_estimate_fields():
-    pf = ParticleFilter(n_particles=123, rng=4)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=123, rng=4)
     est = pf.step(0, MS)
     assert pf.particles.shape == (123, 4) and pf.log_weights.shape == (123,)
     assert est.particles.shape == (123, 2) and est.n_particles == 123
     assert est.cov.shape == (2, 2) and np.allclose(est.cov, est.cov.T) and np.all(np.linalg.eigvalsh(est.cov) > 0)
     assert 1.0 <= est.ess <= 123.0
-    assert ParticleFilter(n_particles=10, keep_particles=False, rng=0).step(0, MS).particles is None
+    assert ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=10, keep_particles=False, rng=0).step(0, MS).particles is None
 
 
 def test_resampling_happens_exactly_when_ess_below_two_thirds():
     sc = scripted_scenario(60, rng=5)
-    pf = ParticleFilter(n_particles=400, rng=5)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=400, rng=5)
     seen = set()
     for k, ts in enumerate(sc.timestamps_ns):
         est = pf.step(int(ts), sc.frame(k))
@@ -95,9 +95,9 @@ def test_resampling_happens_exactly_when_ess_below_two_thirds():
 
 def test_same_seed_same_output_different_seed_different():
     sc = scripted_scenario(40, rng=2)
-    a = run_tracker(ParticleFilter(n_particles=200, rng=9), sc)
-    b = run_tracker(ParticleFilter(n_particles=200, rng=9), sc)
-    c = run_tracker(ParticleFilter(n_particles=200, rng=10), sc)
+    a = run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=200, rng=9), sc)
+    b = run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=200, rng=9), sc)
+    c = run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=200, rng=10), sc)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
 
 
@@ -106,10 +106,10 @@ def test_fused_rmse_below_best_single_source(resampler):
     """Paper 003's claim on a scripted path with known noise (sigma 6 / 10 / 15 px)."""
     sc = scripted_scenario(200, noise_px=NOISE, rng=21)
     settle = slice(10, None)
-    fused = rmse(run_tracker(ParticleFilter(n_particles=500, resampler=resampler, rng=1), sc), sc.truth, settle)
+    fused = rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc), sc.truth, settle)
     raw = {s: rmse(z, sc.truth, settle) for s, z in sc.measurements.items()}
     single = {
-        s: rmse(run_tracker(ParticleFilter(n_particles=500, resampler=resampler, rng=1), sc, {s}), sc.truth, settle)
+        s: rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc, {s}), sc.truth, settle)
         for s in NOISE
     }
     best = min(min(raw.values()), min(single.values()))
@@ -118,7 +118,7 @@ def test_fused_rmse_below_best_single_source(resampler):
 
 def test_missing_sources_and_dropouts_do_not_break_fusion():
     sc = scripted_scenario(200, dropout=0.3, rng=8)
-    est = run_tracker(ParticleFilter(n_particles=500, rng=3), sc)
+    est = run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, rng=3), sc)
     assert np.isfinite(est).all()
     assert rmse(est, sc.truth, slice(10, None)) < rmse(sc.measurements["colour"], sc.truth)
 
@@ -128,7 +128,7 @@ def test_robust_likelihood_resists_a_lying_source(liar):
     """One source offset by 60 px for 20 frames: the robust mixture stays closer to the truth."""
     sc = scripted_scenario(160, lie_source=liar, lie_start=80, lie_frames=20, rng=3)
     err = {
-        lik: rmse(run_tracker(ParticleFilter(n_particles=1000, likelihood=lik, rng=0), sc), sc.truth, sc.lie_frames)
+        lik: rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=1000, likelihood=lik, rng=0), sc), sc.truth, sc.lie_frames)
         for lik in ("gaussian", "robust")
     }
     assert err["robust"] < err["gaussian"], err
@@ -140,7 +140,7 @@ def test_low_quality_widens_robust_likelihood():
     """A cue 8 px off pulls by its precision: sigma 10 at quality 1, ~31.6 at quality 0.1."""
     est = {}
     for q in (1.0, 0.1):
-        pf = ParticleFilter(n_particles=4000, likelihood="robust", estimator="weighted_mean", ess_threshold=0.0, rng=0)
+        pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=4000, likelihood="robust", estimator="weighted_mean", ess_threshold=0.0, rng=0)
         pf.step(0, [Measurement("colour", 300.0, 200.0)])
         est[q] = pf.step(1, [Measurement("depth", 308.0, 200.0, quality=q)]).u
     assert est[1.0] > est[0.1] + 1.0, est
@@ -156,7 +156,7 @@ def test_robust_loglik_matches_scipy_mixture():
 
 
 def test_underflow_reinitialises_instead_of_nan():
-    pf = ParticleFilter(n_particles=300, rng=0)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=300, rng=0)
     pf.step(0, MS)
     far = [Measurement("colour", 1.0e5, -4.0e4), Measurement("skeleton", 1.0e5 + 5, -4.0e4)]
     est = pf.step(1, far)
@@ -166,7 +166,7 @@ def test_underflow_reinitialises_instead_of_nan():
 
 
 def test_robust_filter_reacquires_a_target_that_jumped_but_ignores_one_liar():
-    pf = ParticleFilter(n_particles=500, likelihood="robust", rng=0)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, likelihood="robust", rng=0)
     for k in range(10):
         pf.step(k, MS)
     liar = [MS[0], MS[1], Measurement("skeleton", 600.0, 200.0)]
@@ -201,7 +201,7 @@ def test_estimators_by_hand():
     m = weighted_mean(pos, w)
     d = pos - m
     np.testing.assert_allclose(weighted_covariance(pos, w), (w[:, None] * d).T @ d)
-    pf = ParticleFilter(n_particles=500, estimator="map", ess_threshold=0.0, rng=1)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, estimator="map", ess_threshold=0.0, rng=1)
     est = pf.step(0, MS)
     best = pf.particles[np.argmax(pf.log_weights)]
     assert (est.u, est.v) == (best[0], best[1])
@@ -209,7 +209,7 @@ def test_estimators_by_hand():
 
 @pytest.mark.parametrize(("pos", "vel"), [(2.0, 0.0), (0.0, 0.5), (0.0, 0.0)])
 def test_zero_process_noise_components_stay_deterministic(pos, vel):
-    pf = ParticleFilter(n_particles=300, process_noise=(pos, vel), ess_threshold=0.0, rng=3)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=300, process_noise=(pos, vel), ess_threshold=0.0, rng=3)
     pf.step(0, MS)
     x0 = pf.particles.copy()
     pf.step(1, [])
@@ -221,7 +221,7 @@ def test_zero_process_noise_components_stay_deterministic(pos, vel):
 
 def test_frame_period_bridges_dropped_frames():
     period = 33_333_333
-    pf = ParticleFilter(n_particles=2000, process_noise=(0.0, 0.0), prior=(100, 100, 3, -2), init_spread_px=0.0,
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=2000, process_noise=(0.0, 0.0), prior=(100, 100, 3, -2), init_spread_px=0.0,
                         init_velocity_px=0.0, frame_period_ns=period, rng=0)
     pf.step(0, [])
     est = pf.step(3 * period, [])
@@ -261,7 +261,7 @@ def test_bad_options_raise_input_error(kwargs, message):
     ],
 )
 def test_bad_steps_raise_input_error(ts, ms, message):
-    pf = ParticleFilter(n_particles=20, rng=0)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=20, rng=0)
     pf.step(0, MS)
     with pytest.raises(InputError, match=message):
         pf.step(ts, ms)
@@ -281,7 +281,7 @@ def test_bad_steps_raise_input_error(ts, ms, message):
 )
 def test_weights_stay_finite_and_normalised_for_any_cues(frames, likelihood):
     """Wild, contradictory cues (sources 1e6 px apart) never give NaN: log-sum-exp and re-initialisation."""
-    pf = ParticleFilter(n_particles=64, likelihood=likelihood, rng=0)
+    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=64, likelihood=likelihood, rng=0)
     for k, frame in enumerate(frames):
         est = pf.step(k, [Measurement(s, u, v, quality=q) for s, u, v, q in frame])
         if est is None:

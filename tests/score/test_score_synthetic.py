@@ -6,7 +6,6 @@ synthetic scene (not from the recording the scorer reads).
 """
 
 import csv
-import dataclasses
 import json
 import math
 
@@ -16,7 +15,8 @@ import pytest
 from drivers import open_source
 from drivers.synth import SynthSource
 from fusion_pf.cli import main
-from fusion_pf.track import extract_cues, run_filter
+from fusion_pf.experiments import job_config, job_seed
+from fusion_pf.pipeline import TrackConfig, TrackCsv, track
 
 SEED, FRAMES, BACKGROUND, SIZE = 5, 30, 5, (320, 200)  # seed 5: palm occluded in the first frames
 SPEC = f"synth:seed={SEED},frames={FRAMES},background_frames={BACKGROUND},size={SIZE[0]}x{SIZE[1]}"
@@ -83,7 +83,7 @@ def test_score_csv_against_ground_truth_end_to_end(files, capsys):
 
 def test_score_mcap_matches_csv(files, capsys):
     from_csv = score_json(capsys, files["csv"], "--ground-truth", files["rec"])
-    from_mcap = score_json(capsys, files["mcap"], "--ground-truth", files["mcap"])
+    from_mcap = score_json(capsys, files["mcap"], "--ground-truth", files["rec"])
     for s in (*SOURCES, "fused"):
         # The CSV rounds pixels to 3 decimals, the MCAP keeps full precision.
         assert from_mcap["sources"][s]["rmse_px"] == pytest.approx(from_csv["sources"][s]["rmse_px"], abs=2e-3)
@@ -113,19 +113,44 @@ def test_tiny_sweep_writes_figures_and_tables_and_is_deterministic(files, capsys
     again = score_json(capsys, *argv, "--workers", "1")["sweep"]
     assert again["bestmax"] == sweep["bestmax"] and again["rmse_px"] == sweep["rmse_px"]
 
-    # Independent recomputation of job (N=50, run 1): cues with the skeleton prior, the
-    # filter with SeedSequence([0, 50, 1]), errors against the scene's own ground truth.
-    from fusion_pf.score.sweep import sweep_config, tracker_settings
-
-    config = sweep_config(tracker_settings(str(files["mcap"])))
+    # Job (N=50, run 1) is `fusion-pf track --particles 50 --seed job_seed(0, 50, 1)`: the CLI's CSV,
+    # the same job tracked in this process and the sweep's RMSE (from the scene's own ground truth) agree.
+    seed = job_seed(0, 50, 1)
+    cli_csv = files["dir"] / "job.csv"
+    assert main(["track", str(files["rec"]), "-o", str(files["dir"] / "job.mcap"), "--csv", str(cli_csv),
+                 "--particles", "50", "--seed", str(seed), "--no-progress"]) == 0
     with open_source(str(files["rec"])) as src:
-        rows = extract_cues(src, config)
-    results = run_filter(rows, dataclasses.replace(config, particles=50),
-                         np.random.default_rng(np.random.SeedSequence([0, 50, 1])))
+        frames = list(src)
+    here_csv = files["dir"] / "job_here.csv"
+    with TrackCsv(here_csv) as table:
+        for result in track(frames, job_config(TrackConfig(), 0, 50, 1)):
+            table.write(result)
+    assert here_csv.read_bytes() == cli_csv.read_bytes()
     gt = ground_truth()
-    e = [math.hypot(r.estimate.u - gt[r.frame].u, r.estimate.v - gt[r.frame].v)
-         for r in results if r.estimate is not None and r.frame in gt]
-    assert sweep["rmse_px"][1][1][3] == pytest.approx(math.sqrt(np.mean(np.square(e))), abs=1e-3)
+    with open(cli_csv, newline="") as f:
+        e = [math.hypot(float(r["u"]) - gt[int(r["frame"])].u, float(r["v"]) - gt[int(r["frame"])].v)
+             for r in csv.DictReader(f) if r["u"] != "" and int(r["frame"]) in gt]
+    assert sweep["rmse_px"][1][1][3] == pytest.approx(math.sqrt(np.mean(np.square(e))), abs=2e-3)
+
+
+def test_sweep_on_an_existing_dask_scheduler_matches_in_process(files, capsys):
+    from distributed import LocalCluster
+
+    argv = [files["mcap"], "--ground-truth", files["rec"], "--sweep", "5,25", "--runs", "2", "--no-progress"]
+    inline = score_json(capsys, *argv, "--workers", "1")["sweep"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        remote = score_json(capsys, *argv, "--scheduler", cluster.scheduler_address)["sweep"]
+    assert remote["workers"] == 2 and inline["workers"] == 1
+    assert remote["bestmax"] == inline["bestmax"] and remote["rmse_px"] == inline["rmse_px"]
+    assert main(["score", str(files["mcap"]), "--ground-truth", str(files["rec"]), "--sweep", "5",
+                 "--scheduler", "tcp://127.0.0.1:9", "--no-progress"]) == 2
+    assert "cannot reach the Dask scheduler 'tcp://127.0.0.1:9'" in capsys.readouterr().err
+
+
+def test_sweep_rejects_a_bad_particle_count_before_tracking(files, capsys):
+    assert main(["score", str(files["mcap"]), "--ground-truth", str(files["rec"]), "--sweep", "5,200000"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "particles (--particles) must be an integer in [1, 100000], got 200000" in err
 
 
 def test_demo_on_a_small_recording(files, capsys):
@@ -141,6 +166,16 @@ def test_demo_on_a_small_recording(files, capsys):
     assert "## Particle-count sweep (2 runs per N, seed 0)" in stdout and "Demo took" in stdout
     rep = json.loads((out / "score.json").read_text())
     assert rep["n_reference"] == len(ground_truth()) and len(rep["sweep"]["bestmax"]) == 2
+    # the demo's tracked.csv is `fusion-pf track --csv` with the latency columns filled in
+    plain = files["dir"] / "plain.csv"
+    assert main(["track", str(files["rec"]), "-o", str(files["dir"] / "plain.mcap"), "--csv", str(plain),
+                 "--no-progress"]) == 0
+    with open(out / "tracked.csv", newline="") as a, open(plain, newline="") as b:
+        demo_rows, plain_rows = list(csv.reader(a)), list(csv.reader(b))
+    latency = [i for i, c in enumerate(plain_rows[0]) if c.startswith("latency_")]
+    assert any(demo_rows[1][i] for i in latency) and not any(plain_rows[1][i] for i in latency)
+    blank = demo_rows[:1] + [[("" if i in latency else c) for i, c in enumerate(row)] for row in demo_rows[1:]]
+    assert blank == plain_rows
 
 
 def test_demo_without_recording_is_a_one_line_error(tmp_path, capsys):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -19,8 +20,9 @@ from mcap.reader import make_reader
 from drivers.mcap_record import McapRecorder
 from drivers.mcap_replay import McapReplay
 from drivers.synth import SynthSource
+from drivers.tracker_topics import recording_metadata
 from fusion_pf.cli import main
-from fusion_pf.track import CSV_COLUMNS
+from fusion_pf.pipeline import CSV_COLUMNS
 
 CLI = [sys.executable, "-m", "fusion_pf"]
 TRACKER_TOPICS = ("/tracker/estimate", "/tracker/cues", "/tracker/overlay", "/tracker/particles")
@@ -55,9 +57,17 @@ def recording(tmp_path_factory):
 def test_outputs_of_a_recording(recording, tmp_path):
     out, table, ply = tmp_path / "out.mcap", tmp_path / "out.csv", tmp_path / "ply"
     proc = fusion_pf("track", recording, "-o", out, "--csv", table, "--particles", 60, "--seed", 3,
-                     "--export-ply", ply, "--no-progress")
+                     "--export-ply", ply, "--no-progress", "--copy-input")
     assert proc.returncode == 0, proc.stderr
     assert f"tracked 40 frames (10 background) of {recording} -> {out}, {table}" in proc.stderr
+    # without --copy-input: the tracker topics only, naming the input; same topics byte for byte
+    only = tmp_path / "only.mcap"
+    proc = fusion_pf("track", recording, "-o", only, "--particles", 60, "--seed", 3, "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert recording_metadata(only)["source"] == str(recording)
+    tracker_only = messages(only)
+    assert set(tracker_only) == set(TRACKER_TOPICS)
+    assert os.path.getsize(only) < os.path.getsize(recording) / 4
 
     with McapReplay(recording) as a, McapReplay(out) as b:
         info = b.info()
@@ -69,6 +79,7 @@ def test_outputs_of_a_recording(recording, tmp_path):
     assert json.loads(info.metadata["tracker"])["particles"] == 60
 
     topics = messages(out)
+    assert [d for _, _, d in topics["/tracker/cues"]] == [d for _, _, d in tracker_only["/tracker/cues"]]
     for topic in ("/camera/color", "/camera/depth", "/skeleton/joints", "/ground_truth/palm"):
         assert len(topics[topic]) == (40 if topic == "/ground_truth/palm" else 50)
     for topic in TRACKER_TOPICS:
@@ -156,19 +167,19 @@ def test_background_from_a_separate_file(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--particles", "0"], "--particles must be an integer in [1, 100000], got 0"),
-    (["--particles", "many"], "--particles must be an integer in [1, 100000], got 'many'"),
-    (["--seed", "-1"], "--seed must be an integer in [0,"),
-    (["--filter", "ukf"], "--filter must be one of pf, kf, got 'ukf'"),
-    (["--likelihood", "cauchy"], "--likelihood must be one of auto, gaussian, robust, got 'cauchy'"),
-    (["--filter", "kf", "--likelihood", "robust"], "--likelihood robust needs --filter pf"),
-    (["--roi-prior", "face"], "--roi-prior must be one of auto, filter, skeleton, got 'face'"),
-    (["--noise", "colour=x"], "--noise must look like colour=PX,depth=PX,skeleton=PX, got 'colour=x'"),
-    (["--noise", "hand=3"], "noise_px has unknown source(s) hand"),
-    (["--noise", "depth=0"], "depth noise (px) must be a number in [0.01, 10000.0], got 0.0"),
-    (["--process-noise", "3"], "--process-noise must be POS,VEL in px and px/frame, got '3'"),
-    (["--sources", "colour,sonar"], "sources must be distinct names among colour, depth, skeleton"),
-    (["--background-k", "0"], "--background-k must be an integer in [1, 10000], got 0"),
+    (["--particles", "0"], "particles (--particles) must be an integer in [1, 100000], got 0"),
+    (["--particles", "many"], "particles (--particles) must be an integer in [1, 100000], got 'many'"),
+    (["--seed", "-1"], "seed (--seed) must be an integer in [0,"),
+    (["--filter", "ukf"], "filter (--filter) must be one of pf, kf, got 'ukf'"),
+    (["--likelihood", "cauchy"], "likelihood (--likelihood) must be one of gaussian, robust, got 'cauchy'"),
+    (["--filter", "kf", "--likelihood", "robust"], "the Kalman filter (filter kf) is Gaussian only, got likelihood 'robust'"),
+    (["--roi-prior", "face"], "roi_prior (--roi-prior) must be one of auto, filter, skeleton, got 'face'"),
+    (["--noise", "colour=x"], "--noise: expected NAME=NUMBER,... (e.g. colour=4,depth=8), got 'colour=x'"),
+    (["--noise", "hand=3"], "noise_px (--noise) has unknown source(s) hand"),
+    (["--noise", "depth=0"], "noise_px (--noise): depth must be a number in [0.01, 10000] px, got 0.0"),
+    (["--process-noise", "3"], "--process-noise: expected 2 comma-separated numbers, got '3'"),
+    (["--sources", "colour,sonar"], "sources (--sources): cues must be distinct names among colour, depth, skeleton"),
+    (["--background-k", "0"], "background_k (--background-k) must be an integer in [1, 10000], got 0"),
     (["--background", "nowhere.mcap"], "--background nowhere.mcap does not exist"),
     (["--color-format", "gif"], "--color-format must be one of auto, raw, jpeg, png, got 'gif'"),
 ])
@@ -198,7 +209,7 @@ def test_error_midway_leaves_a_valid_output(tmp_path):
                 for f in src:
                     rec.write(f)
     out = tmp_path / "out.mcap"
-    proc = fusion_pf("track", source, "-o", out, "--csv", tmp_path / "out.csv")
+    proc = fusion_pf("track", source, "-o", out, "--csv", tmp_path / "out.csv", "--copy-input")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.splitlines() == ["fusion-pf: error: background is 320x200 but frame 20 is 256x160"]
     with McapReplay(out) as replay:
@@ -212,7 +223,7 @@ def test_error_midway_leaves_a_valid_output(tmp_path):
 def test_ctrl_c_finalises_the_output(tmp_path):
     out = tmp_path / "live.mcap"
     proc = subprocess.Popen([*CLI, "track", "synth:frames=100000,size=320x200,background_frames=5", "-o", str(out),
-                             "--csv", str(tmp_path / "live.csv")],
+                             "--copy-input", "--csv", str(tmp_path / "live.csv")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
@@ -251,7 +262,7 @@ def test_kalman_baseline_writes_no_particles(recording, tmp_path, capsys):
 
 def test_options_reach_the_tracker(recording, tmp_path, capsys):
     out = tmp_path / "opts.mcap"
-    argv = ["track", str(recording), "-o", str(out), "--roi-prior", "skeleton", "--sources", "colour,depth",
+    argv = ["track", str(recording), "-o", str(out), "--copy-input", "--roi-prior", "skeleton", "--sources", "colour,depth",
             "--cue-noise", "colour=2", "--noise", "skeleton=30", "--process-noise", "4,1.5",
             "--likelihood", "gaussian", "--particles", "20", "--joint", "right_hand", "--no-progress"]
     assert main(argv) == 0, capsys.readouterr().err

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fusion_pf.cues import SOURCES
-from fusion_pf.track import TrackConfig, TrackCsv, extract_cues, run_filter, track
+from fusion_pf.pipeline import TrackConfig, TrackCsv, extract_cues, run_filter, track
 
 #: Paper 003 §4.2-4.3 protocol: Gaussian noise added to the colour and depth cue
 #: positions. Without it the synthetic depth cue (1.5-2 px RMSE, unbiased) is

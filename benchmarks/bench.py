@@ -17,7 +17,7 @@
 * **robustness** -- RMSE of the Gaussian and robust likelihoods (and the Kalman
   baseline) on a scripted path where one source lies by 60 px for 20 frames;
 * **pipeline** -- per-frame latency per stage (decode, each cue, filter, sinks)
-  of :func:`fusion_pf.track.track` on synthetic recordings at 640x400 and
+  of :func:`fusion_pf.pipeline.track` on synthetic recordings at 640x400 and
   1280x800, with the depth-sized ROI and without ROI (whole frame);
 * **replay** -- end-to-end frames/s of the sample recording (or a synthetic one)
   and peak RSS (Linux ``VmHWM``) of a replay in a subprocess, short vs 4x longer
@@ -30,6 +30,7 @@ since other processes sharing the cores make them noisy.
 
 from __future__ import annotations
 
+import argparse
 import datetime as _dt
 import gc
 import json
@@ -41,13 +42,13 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 
-from .cues.base import Measurement
-from .errors import InputError
+from fusion_pf.errors import FusionPFError, InputError
+from fusion_pf.frame import Measurement
 
 __all__ = [
     "SIZES",
@@ -118,7 +119,7 @@ def pf_step_bench(n: int, repeats: int, *, likelihood: str = "gaussian", warmup:
         ``n``, ``median_ms``, ``p95_ms``, ``repeats``, ``updates_per_s``
         (``n / median``), ``resampled_fraction``.
     """
-    from .filter.pf import ParticleFilter
+    from fusion_pf.filter.pf import ParticleFilter
 
     cues = _cue_path(warmup + repeats + 1, np.random.default_rng(seed))
     frames = [[Measurement(s, *cues[k, j]) for j, s in enumerate(NOISE_PX)] for k in range(cues.shape[0])]
@@ -205,7 +206,7 @@ def resample_bench(n: int, repeats: int, *, seed: int = 0) -> dict:
     import particles.resampling as pr
     from filterpy.monte_carlo import residual_resample
 
-    from .filter.resample import RESAMPLERS
+    from fusion_pf.filter.resample import RESAMPLERS
 
     w = _bench_weights(n, seed)
     rng = np.random.default_rng(seed)
@@ -230,9 +231,9 @@ def robustness_bench(*, n_particles: int = 1000, seeds: Iterable[int] = (0, 1, 2
     window, averaged over seeds. Also, on the clean path, the RMSE of each
     point estimator (robust mean, weighted mean, MAP) and of the Kalman filter.
     """
-    from .filter import KalmanFilter, ParticleFilter
-    from .filter.estimate import ESTIMATORS
-    from .filter.scenario import rmse, run_tracker, scripted_scenario
+    from fusion_pf.filter import KalmanFilter, ParticleFilter
+    from fusion_pf.filter.estimate import ESTIMATORS
+    from fusion_pf.filter.scenario import rmse, run_tracker, scripted_scenario
 
     seeds = list(seeds)
     settle = slice(10, None)
@@ -287,10 +288,12 @@ def _track_latencies(path: Path, roi: bool, workdir: Path) -> dict:
     """Per-stage latency of :func:`track` over a recording, sinks included (CSV + tracker topics)."""
     from drivers.mcap_record import McapRecorder
     from drivers.mcap_replay import McapReplay
-
-    from .track import STAGES, TrackConfig, TrackCsv, TrackerTopics, track
+    from drivers.tracker_topics import TrackerTopics
+    from fusion_pf.pipeline import TrackConfig, TrackCsv, track
+    from fusion_pf.pipeline import stages as stage_names
 
     config = TrackConfig(filter="pf", particles=100, roi_half_size=None if roi else 2000, seed=0)
+    STAGES = stage_names(("colour", "depth", "skeleton"))
     stages: dict[str, list[int]] = {s: [] for s in (*STAGES, "sinks")}
     cues_filter: list[int] = []
     tag = f"{path.stem}_{'roi' if roi else 'full'}"
@@ -352,8 +355,7 @@ def _peak_rss_mib() -> float:
 def replay_child(path: str, csv_path: str) -> None:
     """Replay ``path`` end to end (track + CSV sink) and print JSON: frames, seconds, peak RSS."""
     from drivers.mcap_replay import McapReplay
-
-    from .track import TrackConfig, TrackCsv, track
+    from fusion_pf.pipeline import TrackConfig, TrackCsv, track
 
     t0 = time.perf_counter()
     n = 0
@@ -366,8 +368,10 @@ def replay_child(path: str, csv_path: str) -> None:
 
 
 def _run_child(path: Path, workdir: Path) -> dict:
-    code = "import sys; from fusion_pf.bench import replay_child; replay_child(sys.argv[1], sys.argv[2])"
-    proc = subprocess.run([sys.executable, "-c", code, str(path), str(workdir / f"{path.stem}.csv")],
+    code = ("import sys; sys.path.insert(0, sys.argv[3]); from bench import replay_child; "
+            "replay_child(sys.argv[1], sys.argv[2])")
+    proc = subprocess.run([sys.executable, "-c", code, str(path), str(workdir / f"{path.stem}.csv"),
+                           str(Path(__file__).resolve().parent)],
                           capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"replay of {path} failed: {proc.stderr.strip().splitlines()[-1:]}")
@@ -624,3 +628,81 @@ def to_markdown(result: dict) -> str:
                 lines.append(f"| {key} ({r['path']}) | {r['frames']} | {r['fps']:.0f} | {r['max_rss_mib']:.0f} |")
         lines += ["", f"Peak RSS long / short: {rep['rss_ratio_long_over_short']:.2f}.", ""]
     return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- command line
+
+DESCRIPTION = (
+    "Measure the particle-filter step (predict + 3-source likelihood + normalise + ESS + residual "
+    "resampling + estimate) for N = 1e2..1e6 against Stone Soup, nchopin particles and filterpy "
+    "(same model and N), the likelihoods' robustness to a lying source, the per-stage latency of "
+    "the tracking pipeline at 640x400 and 1280x800 with and without ROI, replay frames/s and peak "
+    "memory. Writes OUT/bench.json and OUT/bench.md and prints the Markdown. Times are medians of "
+    "repeats; other processes on the machine make them noisy (the load average is recorded)."
+)
+
+SECTIONS = ("pf", "stonesoup", "resampling", "robustness", "pipeline", "replay")
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(float(s)) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated particle counts, e.g. 1e2,1e4, got {text!r}"
+        ) from None
+    if not sizes or min(sizes) < 1 or max(sizes) > 10_000_000:
+        raise argparse.ArgumentTypeError(f"particle counts must be in 1..1e7, got {text!r}")
+    return sizes
+
+
+def _sections(text: str) -> list[str]:
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    bad = [s for s in names if s not in SECTIONS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"sections must be among {','.join(SECTIONS)}, got {text!r}")
+    return names
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark from the command line and print the Markdown report."""
+    p = argparse.ArgumentParser(prog="python benchmarks/bench.py", description=DESCRIPTION)
+    p.add_argument("--quick", action="store_true", help="fewer repeats, smaller recordings (< 5 min)")
+    p.add_argument("--out", type=Path, default=Path("bench-out"), metavar="DIR",
+                   help="directory for bench.json and bench.md")
+    p.add_argument("--sizes", type=_sizes, default="1e2,1e3,1e4,1e5,1e6", metavar="N,N,...",
+                   help="particle counts of the PF-step and resampling sections")
+    p.add_argument("--sections", type=_sections, default=",".join(SECTIONS), metavar="NAME,...",
+                   help=f"which sections to run, among {','.join(SECTIONS)}")
+    p.add_argument("--sample", type=Path, default=Path("recordings/sample.mcap"), metavar="FILE.mcap",
+                   help="recording replayed end to end if it exists (else only synthetic ones)")
+    args = p.parse_args(argv)
+    import importlib.util
+
+    needed = {"stonesoup": ["stonesoup"], "resampling": ["particles", "filterpy"]}
+    missing = [m for section in args.sections for m in needed.get(section, []) if importlib.util.find_spec(m) is None]
+    if missing:
+        raise FusionPFError(
+            f"the reference libraries {', '.join(missing)} are not installed; install them with "
+            "pip install 'fusion-pf[bench]', or choose --sections without stonesoup/resampling"
+        )
+
+    result = run_bench(
+        args.out,
+        quick=args.quick,
+        sizes=args.sizes,
+        sections=args.sections,
+        sample=args.sample,
+        progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True),
+    )
+    print(to_markdown(result))
+    print(f"wrote {args.out / 'bench.json'} and {args.out / 'bench.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except FusionPFError as exc:
+        print(f"bench: error: {exc}", file=sys.stderr)
+        sys.exit(2)

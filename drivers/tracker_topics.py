@@ -1,0 +1,218 @@
+"""The tracker's MCAP topics: writing them next to a recording, reading them back.
+
+Writing: :class:`TrackerTopics` puts ``/tracker/estimate``, ``/tracker/cues``,
+``/tracker/overlay`` and ``/tracker/particles`` (docs/recording-format.md,
+"Tracker outputs") into a :class:`~drivers.mcap_record.McapRecorder`. The JSON
+messages come from :mod:`fusion_pf.pipeline.outputs`; the Foxglove overlay and
+point cloud are encoded here.
+
+Reading: :func:`read_json_topic` returns the JSON messages of one topic
+(``/tracker/*``, ``/ground_truth/palm``) and :func:`recording_metadata` the
+``fusion_pf.recording`` metadata, for the scorer, ``render`` and sweeps. The
+frames themselves are read by :class:`~drivers.mcap_replay.McapReplay`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from fusion_pf.errors import InputError
+from fusion_pf.pipeline import TrackConfig, TrackResult, cues_json, estimate_json
+
+from . import mcap_format as fmt
+
+__all__ = [
+    "OVERLAY_COLOURS",
+    "PARTICLES_FRAME_ID",
+    "TrackerTopics",
+    "overlay",
+    "particle_cloud",
+    "TOPICS",
+    "read_json_topic",
+    "read_topic",
+    "recording_metadata",
+]
+
+
+def read_json_topic(path: str | Path, topic: str) -> list[tuple[int, dict]]:
+    """``(log_time, message)`` of every JSON message on ``topic`` in the MCAP file ``path``.
+
+    Raises
+    ------
+    InputError
+        When the file cannot be read as MCAP, the topic is not JSON or a
+        message is not valid JSON.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    path = str(path)
+    out = []
+    try:
+        with open(path, "rb") as f:
+            for _schema, channel, message in make_reader(f).iter_messages(topics=[topic]):
+                if channel.message_encoding != "json":
+                    raise InputError(f"{path}: topic {topic} must be JSON-encoded, got {channel.message_encoding!r}")
+                try:
+                    out.append((message.log_time, json.loads(message.data)))
+                except (ValueError, RecursionError):
+                    raise InputError(
+                        f"{path}: topic {topic} has a message that is not valid JSON at log_time {message.log_time}"
+                    ) from None
+    except McapError as exc:
+        raise InputError(f"{path}: cannot read the MCAP file ({exc})") from None
+    return out
+
+
+#: Topic of each kind the scorer reads (:data:`fusion_pf.score.inputs.TopicReader`).
+TOPICS = {"estimate": fmt.ESTIMATE_TOPIC, "cues": fmt.CUES_TOPIC, "ground_truth": fmt.GROUND_TRUTH_TOPIC}
+
+
+def read_topic(path: str | Path, kind: str) -> list[tuple[int, dict]]:
+    """The messages of the topic of ``kind`` (:data:`TOPICS`): the scorer's MCAP reader."""
+    return read_json_topic(path, TOPICS[kind])
+
+
+def recording_metadata(path: str | Path) -> dict[str, str]:
+    """The ``fusion_pf.recording`` metadata of an MCAP file (later records override earlier keys; {} if none)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    out: dict[str, str] = {}
+    try:
+        with open(path, "rb") as f:
+            for meta in make_reader(f).iter_metadata():
+                if meta.name == fmt.RECORDING_METADATA:
+                    out.update(meta.metadata)
+    except (McapError, ValueError):
+        return {}
+    return out
+
+
+def _timestamp(ns: int):
+    from google.protobuf.timestamp_pb2 import Timestamp
+
+    return Timestamp(seconds=ns // 1_000_000_000, nanos=ns % 1_000_000_000)
+
+
+#: Overlay colours (RGBA in [0, 1]) per source, the particles and the estimate.
+OVERLAY_COLOURS = {
+    "colour": (0.1, 0.9, 0.2, 1.0),
+    "depth": (0.2, 0.5, 1.0, 1.0),
+    "skeleton": (1.0, 0.3, 0.9, 1.0),
+    "particles": (1.0, 0.85, 0.1, 0.6),
+    "estimate": (1.0, 0.1, 0.1, 1.0),
+    "roi": (1.0, 1.0, 1.0, 0.5),
+    "other": (0.0, 0.9, 0.9, 1.0),
+}
+#: ``frame_id`` of ``/tracker/particles`` (coordinates are image pixels, not metres).
+PARTICLES_FRAME_ID = "camera_pixels"
+
+
+class TrackerTopics:
+    """Writes the tracker output topics of each tracked frame into a recorder.
+
+    Topics (docs/recording-format.md, "Tracker outputs"): ``/tracker/estimate``
+    and ``/tracker/cues`` (JSON) and ``/tracker/overlay``
+    (``foxglove.ImageAnnotations``) once per tracked frame;
+    ``/tracker/particles`` (``foxglove.PointCloud``) once per tracked frame
+    with a particle set. Background frames get none.
+
+    Parameters
+    ----------
+    recorder : drivers.mcap_record.McapRecorder
+        An open recorder.
+    config : TrackConfig
+        Written into the estimates (``filter``, ``likelihood``).
+    """
+
+    def __init__(self, recorder, config: TrackConfig) -> None:
+        self.recorder = recorder
+        self.config = config
+
+    def write(self, result: TrackResult) -> None:
+        """Write the topics of ``result`` (none for a background frame)."""
+        if result.background:
+            return
+        t = result.timestamp_ns
+        self.recorder.write_json(fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, estimate_json(result, self.config), t)
+        self.recorder.write_json(fmt.CUES_TOPIC, fmt.CUES_SCHEMA, cues_json(result), t)
+        self.recorder.write_protobuf(fmt.OVERLAY_TOPIC, overlay(result), t)
+        if result.particles is not None:
+            self.recorder.write_protobuf(fmt.PARTICLES_TOPIC, particle_cloud(result), t)
+
+
+def overlay(result: TrackResult):
+    """``foxglove.ImageAnnotations`` of ``result``: particles, ROI, cue points, estimate circle."""
+    from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
+    from foxglove_schemas_protobuf.Color_pb2 import Color
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+    from foxglove_schemas_protobuf.Point2_pb2 import Point2
+    from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+    from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+
+    ts = _timestamp(result.timestamp_ns)
+    msg = ImageAnnotations()
+
+    def colour(name: str) -> Color:
+        r, g, b, a = OVERLAY_COLOURS.get(name, OVERLAY_COLOURS["other"])
+        return Color(r=r, g=g, b=b, a=a)
+
+    if result.particles is not None:
+        msg.points.append(PointsAnnotation(
+            timestamp=ts, type=PointsAnnotation.POINTS, outline_color=colour("particles"), thickness=2.0,
+            points=[Point2(x=float(u), y=float(v)) for u, v in result.particles],
+        ))
+    if result.roi is not None and not result.roi.empty:
+        r = result.roi
+        corners = [(r.x0, r.y0), (r.x1, r.y0), (r.x1, r.y1), (r.x0, r.y1)]
+        msg.points.append(PointsAnnotation(
+            timestamp=ts, type=PointsAnnotation.LINE_LOOP, outline_color=colour("roi"), thickness=1.0,
+            points=[Point2(x=float(x) - 0.5, y=float(y) - 0.5) for x, y in corners],
+        ))
+    for s, m in result.cues.items():
+        if m is None:
+            continue
+        msg.points.append(PointsAnnotation(
+            timestamp=ts, type=PointsAnnotation.POINTS, outline_color=colour(s), thickness=8.0,
+            points=[Point2(x=m.u, y=m.v)],
+        ))
+        msg.texts.append(TextAnnotation(
+            timestamp=ts, position=Point2(x=m.u + 6.0, y=m.v - 6.0), text=s, font_size=12.0,
+            text_color=colour(s), background_color=Color(r=0, g=0, b=0, a=0.4),
+        ))
+    e = result.estimate
+    if e is not None:
+        # diameter of the 2-sigma circle of the posterior position, at least 10 px
+        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(e.cov))), 0.0))
+        msg.circles.append(CircleAnnotation(
+            timestamp=ts, position=Point2(x=e.u, y=e.v), diameter=max(10.0, 4.0 * sigma),
+            thickness=2.0, outline_color=colour("estimate"),
+        ))
+    return msg
+
+
+def particle_cloud(result: TrackResult):
+    """``foxglove.PointCloud`` of the particles: ``x = u``, ``y = v``, ``z = 0`` (px) and ``weight``."""
+    from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+    from foxglove_schemas_protobuf.Pose_pb2 import Pose
+    from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+    from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+
+    n = result.particles.shape[0]
+    data = np.zeros((n, 4), dtype="<f4")
+    data[:, :2] = result.particles
+    data[:, 3] = result.weights
+    f32 = PackedElementField.FLOAT32
+    return PointCloud(
+        timestamp=_timestamp(result.timestamp_ns), frame_id=PARTICLES_FRAME_ID,
+        pose=Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1)),
+        point_stride=16,
+        fields=[PackedElementField(name=name, offset=4 * i, type=f32) for i, name in enumerate(("x", "y", "z", "weight"))],
+        data=data.tobytes(),
+    )

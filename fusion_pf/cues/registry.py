@@ -1,0 +1,165 @@
+"""The cue registry and the cue stage's options: one configuration for every command.
+
+``fusion-pf track``, ``cues``, ``score --sweep`` and ``demo`` build their cues
+here, from one :class:`CueOptions`, so a threshold tuned with ``fusion-pf cues``
+is the threshold ``track`` uses. Each registered cue says what it needs from a
+frame (:data:`~fusion_pf.cues.base.NEEDS`); :func:`default_cues` picks the
+cues a recording can feed.
+
+A new cue is a class with the :class:`~fusion_pf.cues.base.Cue` members plus a
+:func:`register` call naming its builder.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import InputError
+from ..options import option, parse_tuple, validate
+from .base import Cue
+from .colour import ColourCue
+from .depth import DepthCue
+from .skeleton import SkeletonCue
+from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
+
+__all__ = ["CUES", "CueInfo", "CueOptions", "build_cue", "build_cues", "check_cue_names", "default_cues", "register"]
+
+
+def _default(cls: type, name: str):
+    """The keyword default of ``cls.__init__`` (where each cue's default is defined)."""
+    return inspect.signature(cls.__init__).parameters[name].default
+
+
+def _range_mm(label: str, value) -> tuple[int, int]:
+    try:
+        lo, hi = (int(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{label} must be two integers LO,HI in mm, got {value!r}") from None
+    if not 0 <= lo < hi <= 65535:
+        raise InputError(f"{label} must satisfy 0 <= LO < HI <= 65535 mm, got {lo},{hi}")
+    return lo, hi
+
+
+def _path_or_none(label: str, value) -> Path | None:
+    return None if value is None else Path(value)
+
+
+@dataclass(frozen=True)
+class CueOptions:
+    """Options of the cue stage (every command that runs cues takes these flags).
+
+    Each default is the keyword default of the cue class it configures.
+    """
+
+    colour_lower: int = option(_default(ColourCue, "lower"), kind="int", lo=0, hi=254, unit="grey levels",
+                               help="colour cue: lower threshold of the grey difference (I_C4A)")
+    colour_upper: int = option(_default(ColourCue, "upper"), kind="int", lo=0, hi=255, unit="grey levels",
+                               help="colour cue: upper threshold of the grey difference (I_C4B)")
+    depth_range_mm: tuple[int, int] = option(
+        _default(DepthCue, "range_mm"), parse=parse_tuple(2, int), check=_range_mm, metavar="LO,HI",
+        show=lambda v: f"{v[0]},{v[1]}", unit="mm",
+        help="depth cue: difference range quantised to grey levels 0-255 (I_d3)")
+    depth_lower: int = option(_default(DepthCue, "lower"), kind="int", lo=0, hi=254, unit="grey levels",
+                              help="depth cue: lower threshold on I_d3 (I_d4A)")
+    depth_upper: int = option(_default(DepthCue, "upper"), kind="int", lo=0, hi=255, unit="grey levels",
+                              help="depth cue: upper threshold on I_d3 (I_d4B)")
+    depth_nearest_mm: int = option(_default(DepthCue, "nearest_mm"), kind="int", lo=0, hi=65535, unit="mm",
+                                   help="depth cue: keep the slab this deep behind the nearest surface; 0 = the paper's band only")
+    min_area: int = option(_default(ColourCue, "min_area"), kind="int", lo=0, hi=100_000, unit="px",
+                           help="smallest region the colour, depth and skin cues keep")
+    skin_model: Path | None = option(None, optional=True, check=_path_or_none, metavar="MODEL.npz",
+                                     help="CIE-Lab GMM skin model saved by LabGmmSkin.save (needed by the skin_lab cue)")
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.colour_upper < self.colour_lower:
+            raise InputError(f"colour_upper (--colour-upper) must be >= colour_lower {self.colour_lower}, got {self.colour_upper}")
+        if self.depth_upper < self.depth_lower:
+            raise InputError(f"depth_upper (--depth-upper) must be >= depth_lower {self.depth_lower}, got {self.depth_upper}")
+
+
+@dataclass(frozen=True)
+class CueInfo:
+    """A registered cue: what it needs and how to build it from :class:`CueOptions`."""
+
+    name: str
+    needs: frozenset[str]
+    help: str
+    build: Callable[[CueOptions], Cue]
+
+
+#: Every cue the pipeline can run, by source name.
+CUES: dict[str, CueInfo] = {}
+
+
+def register(name: str, needs: Iterable[str], help: str) -> Callable[[Callable[[CueOptions], Cue]], Callable[[CueOptions], Cue]]:
+    """Decorator registering a cue builder ``build(options) -> Cue`` under ``name``."""
+
+    def decorate(build: Callable[[CueOptions], Cue]) -> Callable[[CueOptions], Cue]:
+        CUES[name] = CueInfo(name, frozenset(needs), help, build)
+        return build
+
+    return decorate
+
+
+@register("colour", ColourCue.needs, "paper 003 §3.5.1: background subtraction on colour")
+def _colour(o: CueOptions) -> Cue:
+    return ColourCue(lower=o.colour_lower, upper=o.colour_upper, min_area=o.min_area)
+
+
+@register("depth", DepthCue.needs, "paper 003 §3.5.2: background subtraction on depth")
+def _depth(o: CueOptions) -> Cue:
+    return DepthCue(range_mm=o.depth_range_mm, lower=o.depth_lower, upper=o.depth_upper, min_area=o.min_area,
+                    nearest_mm=o.depth_nearest_mm or None)
+
+
+@register("skeleton", SkeletonCue.needs, "the camera's skeleton joint (paper 003's K)")
+def _skeleton(o: CueOptions) -> Cue:
+    return SkeletonCue()
+
+
+@register("skin_rgb", SkinCue.needs, "paper 002 eq. 4: explicit RGB skin rule")
+def _skin_rgb(o: CueOptions) -> Cue:
+    return SkinCue(RgbRuleSkin(), min_area=o.min_area)
+
+
+@register("skin_rg", SkinCue.needs, "paper 000 eq. 5-6: rg-chromaticity skin model with grey world")
+def _skin_rg(o: CueOptions) -> Cue:
+    return SkinCue(RgChromaSkin(), min_area=o.min_area)
+
+
+@register("skin_lab", SkinCue.needs, "paper 001: EM mixtures in CIE Lab, naive Bayes (needs --skin-model)")
+def _skin_lab(o: CueOptions) -> Cue:
+    if o.skin_model is None:
+        raise InputError("the skin_lab cue needs a trained model: --skin-model MODEL.npz (LabGmmSkin.save)")
+    return SkinCue(LabGmmSkin.load(o.skin_model), min_area=o.min_area)
+
+
+def check_cue_names(names: Iterable[str]) -> tuple[str, ...]:
+    """Validate cue names (known, distinct, at least one); returns them as a tuple."""
+    out = tuple(names)
+    unknown = [n for n in out if n not in CUES]
+    if unknown or not out or len(set(out)) != len(out):
+        raise InputError(f"cues must be distinct names among {', '.join(CUES)}, got {','.join(map(str, out))!r}")
+    return out
+
+
+def build_cue(name: str, options: CueOptions | None = None) -> Cue:
+    """A new instance of the cue ``name``."""
+    check_cue_names((name,))
+    return CUES[name].build(options or CueOptions())
+
+
+def build_cues(names: Iterable[str], options: CueOptions | None = None) -> dict[str, Cue]:
+    """New instances of the cues ``names``, by name, in that order."""
+    options = options or CueOptions()
+    return {n: CUES[n].build(options) for n in check_cue_names(names)}
+
+
+def default_cues(has: Iterable[str]) -> tuple[str, ...]:
+    """The paper's cues a recording can feed, given the frame parts it ``has`` (:data:`NEEDS`)."""
+    parts = set(has)
+    return tuple(n for n in ("colour", "depth", "skeleton") if CUES[n].needs <= parts)

@@ -1,0 +1,39 @@
+"""The tracking pipeline: configuration, frames -> cues -> filter -> results, and its outputs."""
+
+from .config import DEFAULT_BACKGROUND_K, FILTERS, ROI_PRIORS, TrackConfig
+from .outputs import CSV_COLUMNS, TrackCsv, csv_columns, csv_row, cues_json, estimate_json
+from .run import (
+    PATCH_MARGIN,
+    CueRow,
+    TrackResult,
+    cue_names,
+    cue_window,
+    extract_cues,
+    make_tracker,
+    run_filter,
+    stages,
+    track,
+)
+
+__all__ = [
+    "CSV_COLUMNS",
+    "DEFAULT_BACKGROUND_K",
+    "FILTERS",
+    "PATCH_MARGIN",
+    "ROI_PRIORS",
+    "CueRow",
+    "TrackConfig",
+    "TrackCsv",
+    "TrackResult",
+    "csv_columns",
+    "csv_row",
+    "cue_names",
+    "cue_window",
+    "cues_json",
+    "estimate_json",
+    "extract_cues",
+    "make_tracker",
+    "run_filter",
+    "stages",
+    "track",
+]

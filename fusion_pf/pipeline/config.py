@@ -1,0 +1,192 @@
+"""The tracking pipeline's options: :class:`TrackConfig`, one definition per default.
+
+Every field is declared with :func:`fusion_pf.options.option`, which also makes
+the ``fusion-pf track`` flags and their ``--help`` (with the real default). The
+cue stage's own options are a nested :class:`~fusion_pf.cues.registry.CueOptions`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..cues.registry import CUES, CueOptions, check_cue_names
+from ..errors import InputError
+from ..filter.likelihood import DEFAULT_NOISE_PX, LIKELIHOODS
+from ..filter.motion import DEFAULT_PROCESS_NOISE
+from ..frame import SOURCES
+from ..geometry import DEFAULT_DEPTH_RADIUS
+from ..options import option, parse_pairs, parse_tuple, validate
+
+__all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TrackConfig"]
+
+#: ``--filter`` values: the particle filter and the Kalman baseline.
+FILTERS = ("pf", "kf")
+#: ``--roi-prior`` values.
+ROI_PRIORS = ("auto", "filter", "skeleton")
+#: Frames of the running-median background when the source has no empty-scene frame.
+DEFAULT_BACKGROUND_K = 30
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(s.strip() for s in text.split(",") if s.strip())
+
+
+def _show_pairs(pairs: Mapping[str, float]) -> str:
+    return ",".join(f"{k}={v:g}" for k, v in pairs.items()) or "none"
+
+
+def _check_noise(label: str, value) -> dict[str, float]:
+    if not isinstance(value, Mapping):
+        raise InputError(f"{label} must map source names to px, e.g. colour=12,depth=4, got {value!r}")
+    unknown = sorted(set(value) - set(CUES))
+    if unknown:
+        raise InputError(f"{label} has unknown source(s) {', '.join(unknown)}; expected among {', '.join(CUES)}")
+    out = {}
+    for s, sigma in {**DEFAULT_NOISE_PX, **value}.items():
+        try:
+            x = float(sigma)
+        except (TypeError, ValueError):
+            x = float("nan")
+        if not 0.01 <= x <= 10_000.0:
+            raise InputError(f"{label}: {s} must be a number in [0.01, 10000] px, got {sigma!r}")
+        out[s] = x
+    return out
+
+
+def _check_cue_noise(label: str, value) -> dict[str, float]:
+    if not isinstance(value, Mapping):
+        raise InputError(f"{label} must map source names to px, e.g. colour=4,depth=4, got {value!r}")
+    unknown = sorted(set(value) - set(CUES))
+    if unknown:
+        raise InputError(f"{label} has unknown source(s) {', '.join(unknown)}; expected among {', '.join(CUES)}")
+    out = {}
+    for s in CUES:
+        if s in value:
+            x = float(value[s]) if isinstance(value[s], (int, float)) else float("nan")
+            if not 0.0 <= x <= 1000.0:
+                raise InputError(f"{label}: {s} must be a number in [0, 1000] px, got {value[s]!r}")
+            out[s] = x
+    return out
+
+
+def _check_pair(label: str, value) -> tuple[float, float]:
+    try:
+        pos, vel = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{label} must be a pair POS,VEL (px, px/frame), got {value!r}") from None
+    for what, x in (("position", pos), ("velocity", vel)):
+        if not 0.0 <= x <= 1000.0:
+            raise InputError(f"{label}: {what} must be in [0, 1000], got {x:g}")
+    return pos, vel
+
+
+def _check_names(label: str, value) -> tuple[str, ...]:
+    try:
+        return check_cue_names(tuple(value))
+    except InputError as exc:
+        raise InputError(f"{label}: {exc}") from None
+
+
+def _path(label: str, value) -> Path:
+    return Path(value)
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """Every option of the tracking pipeline and its filter (validated on construction).
+
+    The filter fields (``filter`` ... ``seed``) configure
+    :func:`~fusion_pf.pipeline.run.make_tracker`; the cue fields choose and
+    place the cues; ``cue_options`` configures them. See
+    :mod:`fusion_pf.pipeline.run` for the ROI prior, background and 3-D palm.
+    """
+
+    filter: str = option("pf", choices=FILTERS, help="the particle filter (paper 003) or the Kalman baseline")
+    particles: int = option(100, kind="int", lo=1, hi=100_000, metavar="N",
+                            help="particles of the particle filter (ignored by kf)")
+    likelihood: str | None = option(None, choices=LIKELIHOODS, optional=True, metavar="auto|gaussian|robust",
+                                    show=lambda v: "auto",
+                                    help="particle-filter likelihood: paper eq. 6 or Gaussian + outlier mixture; "
+                                         "auto = robust for pf, gaussian for kf")
+    joint: str = option("right_hand", kind="str", metavar="NAME", help="skeleton joint used as the skeleton cue and ROI prior")
+    cues: tuple[str, ...] | None = option(
+        None, optional=True, parse=_names, check=_check_names, metavar="CUE,...",
+        show=lambda v: ",".join(SOURCES),
+        help=f"cues to compute, among {', '.join(CUES)}")
+    sources: tuple[str, ...] | None = option(
+        None, optional=True, parse=_names, check=_check_names, metavar="SRC,...", show=lambda v: "all cues",
+        help="cues the filter fuses (every cue is still computed and written)")
+    noise_px: Mapping[str, float] = option(
+        factory=lambda: dict(DEFAULT_NOISE_PX), parse=parse_pairs, check=_check_noise, flag="--noise",
+        metavar="SRC=PX,...", show=_show_pairs, unit="px, 1 sigma per axis",
+        help="measurement noise per source (unnamed sources keep their default)")
+    process_noise: tuple[float, float] = option(
+        DEFAULT_PROCESS_NOISE, parse=parse_tuple(2), check=_check_pair, metavar="POS,VEL",
+        show=lambda v: f"{v[0]:g},{v[1]:g}", unit="px, px/frame",
+        help="process noise std per frame step of eq. 4")
+    cue_noise_px: Mapping[str, float] = option(
+        factory=dict, parse=parse_pairs, check=_check_cue_noise, flag="--cue-noise", metavar="SRC=PX,...",
+        show=_show_pairs, unit="px per axis",
+        help="Gaussian noise added to cue positions before fusion, as paper 003 §4.2-4.3 does, e.g. colour=4,depth=4")
+    roi_prior: str = option("auto", choices=ROI_PRIORS,
+                            help="centre of the cue window: the skeleton joint (paper), the filter prediction, "
+                                 "or auto: the joint while confident, else the prediction")
+    prior_confidence: float = option(0.5, kind="float", lo=0.0, hi=1.0,
+                                     help="auto ROI prior: smallest joint confidence for which the joint is the prior")
+    roi_half_size: int | None = option(None, kind="int", lo=1, hi=2000, optional=True, unit="px",
+                                       show=lambda v: "from depth", help="fixed ROI half-size")
+    roi_extent_mm: float = option(250.0, kind="float", lo=10.0, hi=2000.0, unit="mm",
+                                  help="ROI half-size at the hand when sized from depth (keeps a palm 24-56 px "
+                                       "off a biased skeleton joint inside the window)")
+    background: Path | None = option(None, optional=True, check=_path, metavar="FILE.mcap",
+                                     help="empty-scene recording for the background model (read by the command)")
+    background_k: int = option(DEFAULT_BACKGROUND_K, kind="int", lo=1, hi=10_000, metavar="K",
+                               help="frames of the running-median background when there is no empty scene")
+    depth_radius: int = option(DEFAULT_DEPTH_RADIUS, kind="int", lo=0, hi=50, unit="px", help="half-size of the 3-D palm's depth window")
+    seed: int = option(0, kind="int", lo=0, hi=2**63 - 1, metavar="S",
+                       help="seed of the particle filter and of --cue-noise")
+    cue_options: CueOptions = field(default_factory=CueOptions)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.likelihood is None:
+            object.__setattr__(self, "likelihood", "robust" if self.filter == "pf" else "gaussian")
+        if self.filter == "kf" and self.likelihood != "gaussian":
+            raise InputError(f"the Kalman filter (filter kf) is Gaussian only, got likelihood {self.likelihood!r}")
+        if not isinstance(self.cue_options, CueOptions):
+            raise InputError(f"cue_options must be a CueOptions, got {type(self.cue_options).__name__}")
+        if self.cues is not None and self.sources is not None:
+            extra = [s for s in self.sources if s not in self.cues]
+            if extra:
+                raise InputError(f"sources {', '.join(extra)} are not among the cues {', '.join(self.cues)}")
+
+    def settings(self) -> dict:
+        """The configuration as JSON-ready values (stored in the tracker's output metadata)."""
+        from dataclasses import asdict
+
+        out = asdict(self)
+        out["background"] = None if self.background is None else str(self.background)
+        opts = out["cue_options"]
+        opts["skin_model"] = None if opts["skin_model"] is None else str(opts["skin_model"])
+        return out
+
+    @classmethod
+    def from_settings(cls, settings: Mapping) -> "TrackConfig":
+        """Rebuild a configuration from :meth:`settings` (unknown keys are ignored)."""
+        import dataclasses
+
+        names = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {k: v for k, v in settings.items() if k in names}
+        for key in ("process_noise", "cues", "sources"):
+            if isinstance(kwargs.get(key), list):
+                kwargs[key] = tuple(kwargs[key])
+        opts = kwargs.get("cue_options")
+        if isinstance(opts, Mapping):
+            cue_names = {f.name for f in dataclasses.fields(CueOptions)}
+            opts = {k: v for k, v in opts.items() if k in cue_names}
+            if isinstance(opts.get("depth_range_mm"), list):
+                opts["depth_range_mm"] = tuple(opts["depth_range_mm"])
+            kwargs["cue_options"] = CueOptions(**opts)
+        return cls(**kwargs)

@@ -1,0 +1,142 @@
+"""What the pipeline writes, independent of the file format: CSV rows and JSON messages.
+
+* :class:`TrackCsv` writes the CSV of docs/architecture.md ("CSV"): one row per
+  tracked frame, columns :func:`csv_columns` of the computed cues;
+* :func:`estimate_json` and :func:`cues_json` are the ``/tracker/estimate`` and
+  ``/tracker/cues`` messages (docs/recording-format.md); the MCAP writer of
+  those and of the Foxglove overlay is ``drivers.tracker_topics``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO
+
+from ..cues.base import SOURCES
+from ..errors import InputError
+from .config import TrackConfig
+from .run import TrackResult, stages
+
+__all__ = ["CSV_COLUMNS", "TrackCsv", "csv_columns", "csv_row", "cues_json", "estimate_json"]
+
+
+def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
+    """CSV columns, in order, for the computed cues ``sources`` (docs/architecture.md "CSV")."""
+    return (
+        "frame", "timestamp_ns", "u", "v",
+        *(f"{s}_{c}" for s in sources for c in ("u", "v")),
+        "x_mm", "y_mm", "z_mm", "ess", "resampled", "n_particles",
+        *(f"latency_{stage}_ms" for stage in (*stages(sources), "sinks")),
+        *(f"{s}_quality" for s in sources),
+    )
+
+
+#: CSV columns of the paper's three cues (colour, depth, skeleton).
+CSV_COLUMNS = csv_columns(SOURCES)
+
+
+def _f(value: float | None, digits: int) -> str:
+    """Fixed-format float; empty for None or NaN (so a file never holds 'nan')."""
+    if value is None or not math.isfinite(value):
+        return ""
+    return f"{value:.{digits}f}"
+
+
+class TrackCsv:
+    """Writes tracked frames as CSV rows (:func:`csv_columns`), flushed row by row.
+
+    Background frames are skipped. Floats use fixed formats (pixels 3 decimals,
+    mm 1, ESS 3, latency ms 3), so the same seed gives a byte-identical file as
+    long as ``latency`` is False: wall-clock latency differs from run to run,
+    so its columns are left empty unless asked for.
+
+    Parameters
+    ----------
+    path : str or Path
+    latency : bool
+        Fill the ``latency_*_ms`` columns.
+    sources : sequence of str
+        The computed cues (:func:`~fusion_pf.pipeline.run.cue_names`).
+    """
+
+    def __init__(self, path: str | Path, *, latency: bool = False, sources: Sequence[str] = SOURCES) -> None:
+        self.path = Path(path)
+        self.latency = bool(latency)
+        self.sources = tuple(sources)
+        self._fh: IO[str] | None = None
+        self.rows = 0
+
+    def __enter__(self) -> "TrackCsv":
+        self._fh = open(self.path, "w", newline="", encoding="ascii")
+        self._writer = csv.writer(self._fh, lineterminator="\n")
+        self._writer.writerow(csv_columns(self.sources))
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+    def write(self, result: TrackResult) -> None:
+        """Append the row of ``result`` (nothing for a background frame)."""
+        if result.background:
+            return
+        if self._fh is None:
+            raise InputError(f"CSV {self.path} is not open; use TrackCsv inside a 'with' block")
+        self._writer.writerow(csv_row(result, latency=self.latency, sources=self.sources))
+        self._fh.flush()
+        self.rows += 1
+
+
+def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str] = SOURCES) -> list[str]:
+    """The CSV cells of one result, in :func:`csv_columns` order."""
+    e = result.estimate
+    cells = [str(result.frame), str(result.timestamp_ns), _f(e and e.u, 3), _f(e and e.v, 3)]
+    for s in sources:
+        m = result.cues.get(s)
+        cells += [_f(m and m.u, 3), _f(m and m.v, 3)]
+    xyz = result.xyz_mm
+    cells += [_f(None if xyz is None else float(c), 1) for c in (xyz if xyz is not None else (None,) * 3)]
+    cells += [_f(e and e.ess, 3), "" if e is None else str(int(e.resampled)), "" if e is None else str(e.n_particles)]
+    for stage in (*stages(sources), "sinks"):
+        ns = result.latency_ns.get(stage)
+        cells.append(_f(ns / 1e6, 3) if latency and ns is not None else "")
+    for s in sources:
+        m = result.cues.get(s)
+        cells.append(_f(m and m.quality, 3))
+    return cells
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def estimate_json(result: TrackResult, config: TrackConfig) -> dict:
+    """The ``/tracker/estimate`` message of ``result``."""
+    e = result.estimate
+    return {
+        "frame": result.frame,
+        "timestamp_ns": result.timestamp_ns,
+        "u": None if e is None else e.u,
+        "v": None if e is None else e.v,
+        "xyz_mm": None if result.xyz_mm is None else [float(c) for c in result.xyz_mm],
+        "ess": None if e is None else _finite_or_none(e.ess),
+        "resampled": None if e is None else e.resampled,
+        "n_particles": 0 if e is None else e.n_particles,
+        "filter": config.filter,
+        "likelihood": config.likelihood,
+        "latency_ns": {k: int(v) for k, v in result.latency_ns.items()},
+    }
+
+
+def cues_json(result: TrackResult) -> dict:
+    """The ``/tracker/cues`` message of ``result``: per computed cue ``{u, v, quality}`` or null."""
+    out: dict = {"frame": result.frame, "timestamp_ns": result.timestamp_ns}
+    for s, m in result.cues.items():
+        out[s] = None if m is None else {"u": m.u, "v": m.v, "quality": m.quality}
+    if result.roi is not None:
+        out["roi"] = result.roi.as_list()
+    return out

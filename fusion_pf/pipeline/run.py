@@ -1,0 +1,534 @@
+"""The tracking pipeline: frames -> cues -> filter -> :class:`TrackResult` rows.
+
+One frame goes through these stages (each timed with ``time.perf_counter_ns``;
+the names are the keys of ``latency_ns``):
+
+``decode``
+    getting the frame from the source (MCAP decompression and image decoding,
+    synthetic rendering, camera queue);
+one stage per cue (``config.cues``, built by :mod:`fusion_pf.cues.registry`)
+    in the configured order, e.g. ``colour`` and ``depth`` (paper 003 §3.5.1 /
+    §3.5.2 on a region of interest (ROI) around a prior) and ``skeleton`` (the
+    joint ``config.joint``);
+``filter``
+    one :meth:`~fusion_pf.filter.base.Tracker.step` over the fused sources,
+    then the palm in 3-D (:func:`fusion_pf.geometry.palm_xyz`);
+``total``
+    the whole frame, ``decode`` to the 3-D palm (the command line adds ``sinks``:
+    writing the outputs of the frame).
+
+ROI prior (``TrackConfig.roi_prior``)
+    ``"skeleton"``: the skeleton joint of the frame (the paper's choice, §3.1;
+    the previous frame's joint when it is missing). ``"filter"``: the filter's
+    prediction for the frame, i.e. the last estimate extrapolated at the
+    velocity of the last two (the joint until the filter has an estimate).
+    ``"auto"``: the joint while its confidence is at least
+    ``prior_confidence``, else the filter's prediction -- the skeleton is
+    accurate when the palm is clear and biased when the palm is in front of
+    the body, where its confidence drops; re-anchoring on a confident joint
+    also stops a filter that lost the palm from dragging the window along.
+    With ``"filter"`` or ``"auto"``, :func:`extract_cues` runs the configured
+    filter (seeded with ``config.seed``) to place the windows, exactly as
+    :func:`track` does; particle-count sweeps therefore re-run :func:`track`
+    itself for every job. The window is sized
+    from the depth at the prior (``roi_extent_mm`` either side at the hand,
+    see :func:`fusion_pf.cues.make_roi`) or fixed by ``roi_half_size``.
+
+Background model (colour and depth cues)
+    1. the ``background`` argument: a model the caller built, e.g. the command
+       line from the empty-scene recording ``config.background`` (the pipeline
+       never opens files or devices itself);
+    2. else the source's own leading background frames (``Frame.background``,
+       announced by the MCAP metadata ``fusion_pf.recording``
+       ``background_frames``);
+    3. else the running median of the first ``background_k`` frames of the
+       stream (default :data:`~fusion_pf.pipeline.config.DEFAULT_BACKGROUND_K`): those frames are read
+       ahead, the median built, then they are tracked like every other frame.
+    Background frames of the source are never tracked: they give a
+    :class:`TrackResult` with ``background=True``, no cues and no estimate (the
+    filter is not stepped), and the outputs skip them.
+
+3-D palm
+    ``xyz_mm`` is the estimate back-projected with the median of the non-zero
+    depths in a ``(2 r + 1)^2`` window (``r = depth_radius``) around it
+    (:mod:`fusion_pf.geometry`). The depth used is the frame's ROI grown by
+    :data:`PATCH_MARGIN` px (kept with the cue row, so filter-only reruns give
+    the same ``xyz_mm`` as :func:`track`); ``xyz_mm`` is None when the estimate
+    is outside it or no valid depth lies in the window.
+
+Outputs are in :mod:`fusion_pf.pipeline.outputs` (CSV, JSON messages) and, for
+MCAP, ``drivers.tracker_topics``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cues.background import BackgroundModel
+from ..cues.base import SOURCES, CueContext
+from ..cues.registry import build_cues
+from ..cues.roi import Roi, make_roi
+from ..errors import InputError
+from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
+from ..frame import Frame, Intrinsics, Measurement, PalmPoint
+from ..geometry import backproject, depth_at
+from .config import TrackConfig
+
+__all__ = [
+    "PATCH_MARGIN",
+    "CueRow",
+    "TrackResult",
+    "cue_names",
+    "cue_window",
+    "extract_cues",
+    "make_tracker",
+    "run_filter",
+    "stages",
+    "track",
+]
+
+#: Pixels the stored depth patch extends beyond the ROI on each side.
+PATCH_MARGIN = 32
+
+
+def cue_names(config: TrackConfig) -> tuple[str, ...]:
+    """The cues ``config`` computes: ``config.cues``, or the paper's colour, depth and skeleton."""
+    return config.cues if config.cues is not None else SOURCES
+
+
+def stages(cues: Sequence[str]) -> tuple[str, ...]:
+    """Latency stages of a frame in pipeline order: decode, one per cue, filter, total."""
+    return ("decode", *cues, "filter", "total")
+
+@dataclass(frozen=True, eq=False)
+class CueRow:
+    """The cues of one frame, computed once and reusable by :func:`run_filter`.
+
+    Attributes
+    ----------
+    frame : int
+        Index of the frame in the source (background frames included).
+    timestamp_ns : int
+    background : bool
+        An empty-scene frame: no cues, never tracked.
+    cues : mapping of str to Measurement or None
+        Per computed cue (:func:`cue_names`).
+    latency_ns : mapping of str to int
+        ``decode``, ``colour``, ``depth``, ``skeleton``.
+    roi : Roi or None
+        Window the colour and depth cues processed (None: no prior yet).
+    depth_patch : ndarray (h, w) uint16 or None
+        Depth of the ROI grown by :data:`PATCH_MARGIN` (for the 3-D palm).
+    patch_origin : (int, int)
+        Full-frame ``(x0, y0)`` of ``depth_patch``.
+    intrinsics : Intrinsics
+    ground_truth : PalmPoint or None
+    """
+
+    frame: int
+    timestamp_ns: int
+    background: bool
+    cues: Mapping[str, Measurement | None]
+    latency_ns: Mapping[str, int]
+    roi: Roi | None
+    depth_patch: np.ndarray | None
+    patch_origin: tuple[int, int]
+    intrinsics: Intrinsics
+    ground_truth: PalmPoint | None = None
+
+    def measurements(self, sources: Sequence[str]) -> list[Measurement]:
+        """The present measurements of ``sources``, in that order."""
+        return [m for s in sources if (m := self.cues.get(s)) is not None]
+
+
+@dataclass(eq=False)
+class TrackResult:
+    """The tracker's output for one frame.
+
+    Attributes
+    ----------
+    frame : int
+        Index of the frame in the source.
+    timestamp_ns : int
+    background : bool
+        An empty-scene frame (not tracked; estimate None, no cues).
+    estimate : Estimate or None
+        None for background frames and until the filter is initialised.
+    cues : dict of str to Measurement or None
+    xyz_mm : ndarray, shape (3,), or None
+        Palm in camera coordinates (mm).
+    latency_ns : dict of str to int
+        Per stage of :func:`stages` (plus ``sinks`` once the command wrote the frame).
+    roi : Roi or None
+    particles : ndarray, shape (N, 2), or None
+        Particle positions after the step (particle filter only).
+    weights : ndarray, shape (N,), or None
+        Their normalised weights.
+    ground_truth : PalmPoint or None
+    source_frame : Frame or None
+        The frame itself (set by :func:`track`, None from :func:`run_filter`).
+    """
+
+    frame: int
+    timestamp_ns: int
+    background: bool
+    estimate: Estimate | None
+    cues: dict[str, Measurement | None]
+    xyz_mm: np.ndarray | None
+    latency_ns: dict[str, int]
+    roi: Roi | None = None
+    particles: np.ndarray | None = None
+    weights: np.ndarray | None = None
+    ground_truth: PalmPoint | None = None
+    source_frame: Frame | None = None
+
+
+# ---------------------------------------------------------------------- background
+
+
+def _timed(source: Iterable[Frame]) -> Iterator[tuple[int, Frame, int]]:
+    """``(index, frame, decode_ns)`` for every frame of ``source``."""
+    it = iter(source)
+    index = 0
+    while True:
+        t0 = time.perf_counter_ns()
+        try:
+            frame = next(it)
+        except StopIteration:
+            return
+        yield index, frame, time.perf_counter_ns() - t0
+        index += 1
+
+
+def _with_background(
+    source: Iterable[Frame], config: TrackConfig, background: BackgroundModel | None
+) -> Iterator[tuple[int, Frame, int, BackgroundModel | None]]:
+    """Frames with the background model to use for them (None for background frames)."""
+    frames = _timed(source)
+    model = background
+    empties: list[Frame] = []
+    for index, frame, dec in frames:
+        if frame.background:
+            if model is None:
+                empties.append(frame)
+            yield index, frame, dec, None
+            continue
+        if model is None:
+            if empties:
+                model = BackgroundModel.from_frames(empties)
+            else:
+                ahead = [(index, frame, dec)]
+                for item in frames:
+                    if item[1].background:
+                        raise InputError(
+                            f"background frame {item[0]} comes after tracked frames; "
+                            "background frames must lead the recording"
+                        )
+                    ahead.append(item)
+                    if len(ahead) >= config.background_k:
+                        break
+                model = BackgroundModel.from_frames(f for _, f, _ in ahead)
+                _check_size(model, index, frame)
+                for i, f, d in ahead:
+                    yield i, f, d, model
+                continue
+            empties.clear()
+        _check_size(model, index, frame)
+        yield index, frame, dec, model
+
+
+def _check_size(model: BackgroundModel, index: int, frame: Frame) -> None:
+    h, w = model.color.shape[:2]
+    if (w, h) != frame.size:
+        raise InputError(f"background is {w}x{h} but frame {index} is {frame.size[0]}x{frame.size[1]}")
+
+
+# ---------------------------------------------------------------------- cues
+
+
+def cue_window(frame: Frame, prior: tuple[float, float] | None, config: TrackConfig) -> Roi | None:
+    """The cue window around ``prior`` in ``frame``: sized from the depth there, or fixed (None without a prior)."""
+    if prior is None:
+        return None
+    z = depth_at(frame.depth, *prior, radius=config.depth_radius) if frame.depth is not None else None
+    return make_roi(
+        prior[0], prior[1], frame.size, depth_mm=z, fx=frame.intrinsics.fx,
+        half_size=config.roi_half_size, extent_mm=config.roi_extent_mm,
+    )
+
+
+class _CueStage:
+    """Per-stream cue extraction: the configured cues, their state and the ROI prior."""
+
+    def __init__(self, config: TrackConfig) -> None:
+        self.config = config
+        self.names = cue_names(config)
+        self.cues = build_cues(self.names, config.cue_options)
+        self.last_joint: tuple[float, float] | None = None
+        self.noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1,)))
+
+    def prior(self, frame: Frame, mode: str, prediction: tuple[float, float] | None) -> tuple[float, float] | None:
+        """The ROI prior of ``frame`` under ``mode`` (module docstring)."""
+        joint = frame.joint(self.config.joint)
+        if joint is not None and joint.confidence > 0:
+            self.last_joint = (joint.u, joint.v)
+        if mode == "skeleton" or prediction is None:
+            return self.last_joint
+        if mode == "auto" and joint is not None and joint.confidence >= self.config.prior_confidence:
+            return joint.u, joint.v
+        return prediction
+
+    def roi(self, frame: Frame, prior: tuple[float, float] | None) -> Roi | None:
+        """Window around ``prior`` (:func:`cue_window`)."""
+        return cue_window(frame, prior, self.config)
+
+    def add_noise(self, cues: dict[str, Measurement | None]) -> dict[str, Measurement | None]:
+        """``cues`` with ``config.cue_noise_px`` Gaussian noise added (paper 003 §4.2-4.3)."""
+        draws = self.noise_rng.standard_normal((len(self.names), 2))
+        out = dict(cues)
+        for i, s in enumerate(self.names):
+            sigma = self.config.cue_noise_px.get(s, 0.0)
+            m = cues[s]
+            if m is not None and sigma > 0:
+                extras = {**m.extras, "added_noise_px": sigma}
+                out[s] = Measurement(s, m.u + sigma * draws[i, 0], m.v + sigma * draws[i, 1], m.quality, extras)
+        return out
+
+    def __call__(
+        self, index: int, frame: Frame, decode_ns: int, model: BackgroundModel | None, prior: tuple[float, float] | None
+    ) -> CueRow:
+        """All cues of one frame; window cues search around ``prior`` (None: no window, no window cue)."""
+        lat = {"decode": decode_ns}
+        roi = self.roi(frame, prior)
+        ctx = CueContext(roi=roi, background=model, joint=self.config.joint)
+        cues: dict[str, Measurement | None] = {}
+        for name, cue in self.cues.items():
+            t0 = time.perf_counter_ns()
+            windowed = not cue.needs <= {"skeleton"}
+            cues[name] = None if windowed and (roi is None or model is None) else cue.measure(frame, ctx).measurement
+            lat[name] = time.perf_counter_ns() - t0
+        if self.config.cue_noise_px:
+            cues = self.add_noise(cues)
+        patch, origin = None, (0, 0)
+        if roi is not None and not roi.empty and frame.depth is not None:
+            w, h = frame.size
+            x0, y0 = max(roi.x0 - PATCH_MARGIN, 0), max(roi.y0 - PATCH_MARGIN, 0)
+            x1, y1 = min(roi.x1 + PATCH_MARGIN, w), min(roi.y1 + PATCH_MARGIN, h)
+            patch, origin = frame.depth[y0:y1, x0:x1].copy(), (x0, y0)
+        return CueRow(
+            frame=index, timestamp_ns=frame.timestamp_ns, background=False,
+            cues=cues, latency_ns=lat,
+            roi=roi, depth_patch=patch, patch_origin=origin, intrinsics=frame.intrinsics,
+            ground_truth=frame.ground_truth,
+        )
+
+
+def _background_row(index: int, frame: Frame, decode_ns: int, names: Sequence[str]) -> CueRow:
+    return CueRow(
+        frame=index, timestamp_ns=frame.timestamp_ns, background=True,
+        cues={s: None for s in names}, latency_ns={"decode": decode_ns, **{s: 0 for s in names}},
+        roi=None, depth_patch=None, patch_origin=(0, 0), intrinsics=frame.intrinsics,
+        ground_truth=frame.ground_truth,
+    )
+
+
+# ---------------------------------------------------------------------- filter
+
+
+def make_tracker(config: TrackConfig, rng: np.random.Generator | int | None = None) -> Tracker:
+    """The filter ``config`` describes: the particle filter (seeded by ``rng``, else ``config.seed``) or Kalman.
+
+    Both learn the frame period from the timestamps (``frame_period_ns="auto"``):
+    a steady source steps by one frame as in the paper, and a gap left by
+    dropped frames is bridged by as many motion steps.
+    """
+    if config.filter == "kf":
+        return KalmanFilter(process_noise=config.process_noise, noise_px=config.noise_px, frame_period_ns="auto")
+    return ParticleFilter(
+        n_particles=config.particles, process_noise=config.process_noise, noise_px=config.noise_px,
+        likelihood=config.likelihood, resampler="residual", estimator="robust_mean", frame_period_ns="auto",
+        rng=config.seed if rng is None else rng,
+    )
+
+
+class _FilterStage:
+    """The filter over a stream of cue rows, with the prediction used as ROI prior."""
+
+    def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
+        self.config = config
+        self.tracker = make_tracker(config, rng)
+        self.sources = config.sources if config.sources is not None else cue_names(config)
+        self._history: list[tuple[int, float, float]] = []
+
+    def prediction(self, timestamp_ns: int) -> tuple[float, float] | None:
+        """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns``."""
+        if not self._history:
+            return None
+        t1, u1, v1 = self._history[-1]
+        if len(self._history) == 1:
+            return u1, v1
+        t0, u0, v0 = self._history[-2]
+        k = (timestamp_ns - t1) / (t1 - t0)
+        return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
+
+    def __call__(self, row: CueRow) -> TrackResult:
+        """Step the filter with ``row`` (not for background rows) and build the result."""
+        t0 = time.perf_counter_ns()
+        estimate = self.tracker.step(row.timestamp_ns, row.measurements(self.sources))
+        particles = weights = xyz = None
+        if estimate is not None:
+            self._history = [*self._history[-1:], (row.timestamp_ns, estimate.u, estimate.v)]
+            xyz = _xyz(row, estimate.u, estimate.v, self.config.depth_radius)
+            if isinstance(self.tracker, ParticleFilter):
+                particles = self.tracker.particles[:, :2].copy()
+                weights = np.exp(self.tracker.log_weights)
+        lat = dict(row.latency_ns)
+        lat["filter"] = time.perf_counter_ns() - t0
+        return TrackResult(
+            frame=row.frame, timestamp_ns=row.timestamp_ns, background=False, estimate=estimate,
+            cues=dict(row.cues), xyz_mm=xyz, latency_ns=lat, roi=row.roi,
+            particles=particles, weights=weights, ground_truth=row.ground_truth,
+        )
+
+
+def _xyz(row: CueRow, u: float, v: float, radius: int) -> np.ndarray | None:
+    """The palm in 3-D from the row's depth patch (None outside it or without depth)."""
+    if row.depth_patch is None:
+        return None
+    x0, y0 = row.patch_origin
+    h, w = row.depth_patch.shape
+    if not (x0 - 0.5 <= u < x0 + w - 0.5 and y0 - 0.5 <= v < y0 + h - 0.5):
+        return None
+    z = depth_at(row.depth_patch, u - x0, v - y0, radius=radius)
+    if z is None:
+        return None
+    return backproject(np.array([[u, v]]), np.array([z]), row.intrinsics)[0]
+
+
+def _background_result(row: CueRow) -> TrackResult:
+    lat = dict(row.latency_ns)
+    lat["filter"] = 0
+    lat["total"] = lat["decode"]
+    return TrackResult(
+        frame=row.frame, timestamp_ns=row.timestamp_ns, background=True, estimate=None,
+        cues=dict(row.cues), xyz_mm=None, latency_ns=lat, ground_truth=row.ground_truth,
+    )
+
+
+# ---------------------------------------------------------------------- public API
+
+
+def track(
+    source: Iterable[Frame],
+    config: TrackConfig,
+    *,
+    background: BackgroundModel | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> Iterator[TrackResult]:
+    """Track the palm through ``source``, one :class:`TrackResult` per frame.
+
+    Parameters
+    ----------
+    source : iterable of Frame
+        An opened :class:`~drivers.base.Source` (or any iterable of frames).
+    config : TrackConfig
+    background : BackgroundModel, optional
+        Empty-scene model (e.g. of ``config.background``, loaded by the
+        caller); None: the source's background frames, else the running median.
+    rng : numpy.random.Generator, int or None
+        The particle filter's random source; None uses ``config.seed``.
+
+    Yields
+    ------
+    TrackResult
+        In frame order, background frames included (``background=True``),
+        with ``source_frame`` set. ``latency_ns["total"]`` is the wall time of
+        the frame from ``decode`` to the 3-D palm.
+    """
+    cues = _CueStage(config)
+    filt = _FilterStage(config, rng)
+    for index, frame, dec, model in _with_background(source, config, background):
+        t0 = time.perf_counter_ns() - dec
+        if model is None:
+            result = _background_result(_background_row(index, frame, dec, cues.names))
+        else:
+            prior = cues.prior(frame, config.roi_prior, filt.prediction(frame.timestamp_ns))
+            result = filt(cues(index, frame, dec, model, prior))
+            result.latency_ns["total"] = time.perf_counter_ns() - t0
+        result.source_frame = frame
+        yield result
+
+
+def extract_cues(
+    frames: Iterable[Frame], config: TrackConfig, *, background: BackgroundModel | None = None
+) -> list[CueRow]:
+    """Compute the cues of every frame once, for filter-only reruns (:func:`run_filter`).
+
+    Parameters
+    ----------
+    frames : iterable of Frame
+        An opened source or any iterable of frames.
+    config : TrackConfig
+        Cue options (joint, ROI, cue noise). With ``roi_prior="skeleton"``
+        the rows do not depend on the filter; with ``"filter"`` or ``"auto"``
+        the configured filter, seeded with ``config.seed``, places the ROIs.
+    background : BackgroundModel, optional
+        As in :func:`track`.
+
+    Returns
+    -------
+    list of CueRow
+        One per frame, background frames included.
+    """
+    cues = _CueStage(config)
+    mode = config.roi_prior
+    filt = None if mode == "skeleton" else _FilterStage(config, None)
+    rows = []
+    for index, frame, dec, model in _with_background(frames, config, background):
+        if model is None:
+            rows.append(_background_row(index, frame, dec, cues.names))
+            continue
+        prediction = None if filt is None else filt.prediction(frame.timestamp_ns)
+        row = cues(index, frame, dec, model, cues.prior(frame, mode, prediction))
+        if filt is not None:
+            filt(row)
+        rows.append(row)
+    return rows
+
+
+def run_filter(
+    cue_rows: Sequence[CueRow], config: TrackConfig, rng: np.random.Generator | int | None = None
+) -> list[TrackResult]:
+    """Run only the filter over precomputed cue rows.
+
+    Parameters
+    ----------
+    cue_rows : sequence of CueRow
+        From :func:`extract_cues`.
+    config : TrackConfig
+        Filter options (filter, particles, likelihood, noises, sources).
+    rng : numpy.random.Generator, int or None
+        The particle filter's random source; None uses ``config.seed``.
+
+    Returns
+    -------
+    list of TrackResult
+        ``latency_ns`` holds the cue stages as measured by :func:`extract_cues`,
+        this run's ``filter`` time and ``total`` = their sum.
+    """
+    filt = _FilterStage(config, rng)
+    out = []
+    for row in cue_rows:
+        if row.background:
+            out.append(_background_result(row))
+            continue
+        result = filt(row)
+        result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(cue_names(config))[:-1])
+        out.append(result)
+    return out
+
+
