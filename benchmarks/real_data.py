@@ -264,8 +264,9 @@ def track_one(rec: Path, work: Path) -> dict:
     columns, rows = _read_csv(table)
     frames = [int(r["frame"]) for r in rows]
     sources = [c[:-2] for c in columns if c.endswith("_u") and c != "u" and f"{c[:-2]}_v" in columns]
+    lines = (proc.stdout.strip() or proc.stderr.strip()).splitlines()
     res: dict = {"recording": rec.name, "size": (info.width, info.height), "frames": len(rows),
-                 "stdout": proc.stdout.strip().splitlines()[-1:] if proc.stdout.strip() else []}
+                 "summary": lines[-1] if lines else ""}
     est = np.c_[_column(rows, "u"), _column(rows, "v")]
     w, h = info.width, info.height
     have = np.isfinite(est).all(axis=1)
@@ -276,7 +277,6 @@ def track_one(rec: Path, work: Path) -> dict:
     lat = _column(rows, "latency_total_ms") if "latency_total_ms" in columns else np.array([math.nan])
     res["latency_ms"] = float(np.nanmedian(lat)) if np.isfinite(lat).any() else math.nan
     res["wall_ms"] = 1000.0 * wall / max(len(rows), 1)
-    res["stdout_summary"] = proc.stdout.strip() or proc.stderr.strip().splitlines()[-1:]
     if truth:
         gt = np.array([truth.get(f, (math.nan, math.nan)) for f in frames])
         scored = np.isfinite(gt).all(axis=1)
@@ -309,8 +309,8 @@ def print_table(results: list[dict]) -> None:
         print(f"\n{r['recording']}  {w}x{h}, {r['frames']} tracked frames; lost {lost}; "
               f"without estimate {r['no_estimate']}; estimates outside the image {r['outside']}; "
               f"latency median {_fmt(r['latency_ms'], 2)} ms/frame, whole command {_fmt(r['wall_ms'], 1)} ms/frame")
-        if r["stdout_summary"]:
-            print(f"  track says: {' | '.join(r['stdout_summary']) if isinstance(r['stdout_summary'], list) else r['stdout_summary']}")
+        if r["summary"]:
+            print(f"  track says: {r['summary']}")
         print(f"  {'':18s} {'coverage':>9s} {'RMSE':>8s} {'median':>8s} {'p95':>8s}")
         for name, s in r["rows"].items():
             print(f"  {name:18s} {100 * s['coverage']:8.1f}% {_fmt(s['rmse']):>8s} {_fmt(s['median']):>8s} {_fmt(s['p95']):>8s}")
