@@ -72,27 +72,56 @@ border clearing drops); it was 0.3 px before the sleeve, blur and drift.
 
 Depth
 -----
-Stereo-like, aligned to colour, uint16 millimetres, 0 = invalid. The model is a
-stereo pair with baseline ``B = 75 mm`` (:data:`BASELINE_MM`) and this camera
-as the left, reference one; disparity ``d = fx * B / z``:
+Aligned to colour, uint16 millimetres, 0 = invalid. The model is a stereo pair
+with baseline ``B = 75 mm`` (:data:`BASELINE_MM`, the OAK-D's) and this camera as
+the left, reference one, matched at the scene's resolution and focal length;
+disparity ``d = fx * B / z``. Two models (``depth_model``):
+
+``realistic`` (the default) has the artefacts of a real stereo sensor, each with
+its source in the constant's documentation:
+
+* noise: ``d`` gets Gaussian noise of :data:`DISPARITY_NOISE_PX` = 0.1 px (Intel's
+  D400 sub-pixel RMS), spatially correlated (white noise blurred by a Gaussian of
+  sigma 2 px, :data:`DEPTH_NOISE_CORRELATION_PX`, renormalised), so
+  ``sigma_z = z**2 / (fx * B) * sigma_d``: 3.8 mm at 1.2 m and 24 mm at 3 m at 640
+  px width, twice that at 320 px;
+* quantisation: ``d`` is rounded to 1/8 px (:data:`SUBPIXEL_STEPS`, the OAK-D's 3
+  sub-pixel bits), i.e. depth steps of ``z**2 / (8 fx B)``: 4.8 mm at 1.2 m, 30 mm at
+  3 m (640 px), then ``z`` is rounded to mm. Measured on flat planes 0.45-4.4 m:
+  log-log slope of the std 1.9-2.1, within 10 % of
+  ``z**2 / (fx B) * sqrt(sigma_d**2 + (1/8)**2 / 12)`` from 1 m;
+* depth steps (a disparity range above :data:`EDGE_STEP_PX` = 1 px inside a 5 x 5
+  window, :data:`EDGE_BAND_PX`): of the pixels within 2 px of a step,
+  :data:`EDGE_INVALID_FRACTION` = 40 % are invalid (left-right check) and
+  :data:`EDGE_FLYING_FRACTION` = 40 % become flying pixels, with a disparity mixed
+  uniformly between the near and the far surface's; on the palm, 9 % of the pixels
+  are invalid and 7 % flying at 640 px width (16 % and 12 % at 320 px; seed 0);
+* stereo shadows as in ``basic``, plus the band on the left border where the right
+  camera does not see the point (``x < d``: 12 px for the wall at 640 px width);
+* speckle holes: blobs (a white field blurred by a Gaussian of
+  :data:`SPECKLE_BLOB_PX` = 1.5 px, thresholded) covering :data:`SPECKLE_FRACTION`
+  = 1.5 % of the pixels;
+* 0 closer than ``fx * B / MAX_DISPARITY_PX`` (the OAK-D's 0-95 px search range:
+  0.39 m at 640 px width) and beyond :data:`MAX_RANGE_MM` = 4.5 m (the doorway).
+
+About 17 % of the pixels of an empty frame are invalid.
+
+``basic`` (the model ``recordings/sample.mcap`` was made with):
 
 * noise: ``d`` gets Gaussian noise of sigma ``c * fx * B`` px (0.19 px at 640 px
-  width), spatially correlated (white noise blurred by a Gaussian of sigma 2 px,
-  :data:`DEPTH_NOISE_CORRELATION_PX`, renormalised), then is quantised to 1/8 px
-  (:data:`SUBPIXEL_STEPS`, the OAK-D's 3 sub-pixel bits) and converted back to
-  ``z`` rounded to mm. To first order ``sigma_z = c * z**2`` with
-  ``c = 5e-6 / mm`` (:data:`DEPTH_NOISE_C`): 7 mm at 1.2 m, 11 mm at 1.5 m,
+  width), correlated and quantised to 1/8 px as above, so ``sigma_z = c * z**2``
+  with ``c = 5e-6 / mm`` (:data:`DEPTH_NOISE_C`) at any resolution: 7 mm at 1.2 m,
   20 mm (1 %) at 2 m, 45 mm at 3 m. Measured (temporal std of 16 background
   frames, 2.3-3.2 m): sigma / (c z**2) = 1.00-1.04, log-log slope 2.06;
 * stereo shadows: points this camera sees but the right camera cannot are
   invalid, giving a band on the left (occluded) side of every near-to-far edge,
   ``fx * B * (1/z_near - 1/z_far)`` px wide: ~6 px left of the palm over the
   torso, ~12 px left of the person over the wall at 640 px width;
-* invalid speckles: 1.5 % of the pixels (:data:`SPECKLE_FRACTION`);
+* invalid single-pixel speckles: 1.5 % of the pixels (:data:`SPECKLE_FRACTION`);
 * 0 beyond :data:`MAX_RANGE_MM` = 4.5 m (the doorway).
 
-Overall about 14 % of the pixels of an empty frame are invalid (mostly the
-doorway).
+About 14 % of the pixels of an empty frame are invalid (mostly the doorway); the
+palm is 98.5 % valid and has no flying pixels.
 
 Skeleton (Kinect failure model)
 -------------------------------
@@ -131,7 +160,7 @@ Determinism
 -----------
 The scene (background textures, motion parameters) comes from
 ``SeedSequence(seed, spawn_key=(0,))``, the sleeve and the illumination drift
-from ``spawn_key=(3,)``; frame ``i``'s image noise and flicker from
+from ``spawn_key=(3,)``; frame ``i``'s image noise, flicker and depth artefacts from
 ``spawn_key=(1, i)`` and its skeleton noise from ``spawn_key=(2, i)``. So frame
 ``i`` depends only on ``(seed, i, size, background_frames)`` and random access
 equals iteration. The motion (and so the motion blur) is a function of the
@@ -155,8 +184,38 @@ from fusion_pf.frame import KNOWN_JOINTS, Frame, Intrinsics, Joint, PalmPoint
 from . import synth_scene as sc
 from .base import ReplaySource
 
-#: Depth noise coefficient: ``sigma_z = DEPTH_NOISE_C * z**2`` (z in mm).
+#: Depth models: ``realistic`` (the default: stereo artefacts of a real sensor, see
+#: "Depth") and ``basic`` (the model ``recordings/sample.mcap`` was made with).
+DEPTH_MODELS = ("realistic", "basic")
+#: ``basic`` model: ``sigma_z = DEPTH_NOISE_C * z**2`` (z in mm).
 DEPTH_NOISE_C = 5e-6
+#: ``realistic`` model: disparity noise (px, 1 sigma) of the stereo matcher. Intel's D400
+#: tuning white paper (Grunnet-Jepsen et al., "Tuning depth cameras for best performance",
+#: 2019) models the depth RMS error as ``z**2 * s / (f * B)`` with a sub-pixel RMS ``s`` of
+#: 0.05-0.1 px on textured targets; Luxonis quotes < 2 % absolute error below 4 m for an
+#: OAK-D at 800P (f = 882.5 px, B = 75 mm), i.e. at most 0.33 px. Skin is poorly textured,
+#: so the upper end of Intel's range.
+DISPARITY_NOISE_PX = 0.1
+#: ``realistic`` model: disparity search range (px). The OAK-D searches 0-95 px (96
+#: levels; Luxonis, "Configuring stereo depth"), so anything closer than ``f * B / 95``
+#: is invalid (0.39 m at 640 px width).
+MAX_DISPARITY_PX = 95.0
+#: ``realistic`` model: half-width (px) of the band around a depth step where block
+#: matching mixes foreground and background: half of a 5 x 5 matching window.
+EDGE_BAND_PX = 2
+#: ``realistic`` model: a disparity range above this (px) inside the matching window is a
+#: depth step (1 px: 1.2 m palm over a 1.45 m torso is 5.4 px at 640 px width).
+EDGE_STEP_PX = 1.0
+#: ``realistic`` model: fractions of the edge-band pixels that the left-right consistency
+#: check invalidates (0) and that become flying pixels (disparity ``(1 - a) d_near + a
+#: d_far``, ``a`` uniform in [0, 1]); the rest keep their own depth. Chosen by eye to
+#: resemble OAK-D depth at hand outlines with LR-check on, not measured.
+EDGE_INVALID_FRACTION = 0.4
+EDGE_FLYING_FRACTION = 0.4
+#: ``realistic`` model: speckle holes are blobs (a white field blurred by a Gaussian of
+#: this sigma in px, thresholded) covering :data:`SPECKLE_FRACTION` of the image, as the
+#: speckle filter and poorly textured patches leave them.
+SPECKLE_BLOB_PX = 1.5
 #: Stereo baseline (mm) of the shadow model.
 BASELINE_MM = 75.0
 #: Spatial correlation of the disparity noise: Gaussian blur sigma in pixels.
@@ -186,13 +245,15 @@ FULL_FAILURE_OVERLAP = 0.4
 _NORMAL_TABLE = ndtri((np.arange(65536) + 0.5) / 65536).astype(np.float32)
 
 _CORR_KSIZE = 13
+#: Threshold, in standard deviations of the blurred field, above which a pixel is a speckle hole.
+_SPECKLE_THRESHOLD = float(ndtri(1.0 - SPECKLE_FRACTION))
 #: Standard deviation of unit white noise after the correlation blur (sqrt of the sum of
 #: the squared 2-D kernel weights), used to bring the blurred field back to unit variance.
 _CORR_STD = float((cv2.getGaussianKernel(_CORR_KSIZE, DEPTH_NOISE_CORRELATION_PX) ** 2).sum())
 
 #: fx of the 640-px-wide camera, to which the skeleton's pixel figures refer.
 _REFERENCE_FX = 0.78 * 640.0
-_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns")
+_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model")
 _MAX_FRAMES = 10_000_000
 _MAX_SIZE = 4096
 _MIN_SIZE = 32
@@ -261,6 +322,8 @@ class SynthSource(ReplaySource):
         ``[0, frames]``.
     start_ns : int
         Timestamp of frame 0 in integer nanoseconds (>= 0).
+    depth_model : {"realistic", "basic"}
+        The stereo sensor model of the depth image (module docstring, "Depth").
 
     Raises
     ------
@@ -277,6 +340,7 @@ class SynthSource(ReplaySource):
         fps: float = 30.0,
         background_frames: int = 0,
         start_ns: int = 1_700_000_000_000_000_000,
+        depth_model: str = "realistic",
     ) -> None:
         super().__init__()
         self._n = _int_option("synth option frames", frames, 1, _MAX_FRAMES)
@@ -285,6 +349,9 @@ class SynthSource(ReplaySource):
         self.fps = _fps_option(fps)
         self.background_frames = _int_option("synth option background_frames", background_frames, 0, self._n)
         self.start_ns = _int_option("synth option start_ns", start_ns, 0, 2**63 - 1)
+        if depth_model not in DEPTH_MODELS:
+            raise InputError(f"synth option depth_model must be one of {', '.join(DEPTH_MODELS)}, got {depth_model!r}")
+        self.depth_model = depth_model
         self.intrinsics: Intrinsics = sc.default_intrinsics(*self.size)
         scene_rng = self._rng(0)
         self._motion = sc.motion_parameters(scene_rng)
@@ -302,7 +369,7 @@ class SynthSource(ReplaySource):
         ----------
         options : mapping of str to str or object
             Any of ``seed``, ``frames``, ``size`` (``"640x400"`` or ``(w, h)``),
-            ``fps``, ``background_frames``, ``start_ns``.
+            ``fps``, ``background_frames``, ``start_ns``, ``depth_model``.
 
         Raises
         ------
@@ -327,7 +394,8 @@ class SynthSource(ReplaySource):
 
     def describe(self) -> str:
         w, h = self.size
-        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}"
+        return (f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}"
+                + ("" if self.depth_model == "realistic" else f" depth_model={self.depth_model}"))
 
     def timestamp_ns(self, index: int) -> int:
         """Capture time of frame ``index`` in integer nanoseconds."""
@@ -366,7 +434,10 @@ class SynthSource(ReplaySource):
             "background_frames": str(self.background_frames),
             "size": f"{w}x{h}",
             "fps": repr(self.fps),
-            "depth_noise_c_per_mm": repr(DEPTH_NOISE_C),
+            "depth_model": self.depth_model,
+            **({"depth_noise_c_per_mm": repr(DEPTH_NOISE_C)} if self.depth_model == "basic" else {
+                "disparity_noise_px": repr(DISPARITY_NOISE_PX), "baseline_mm": repr(BASELINE_MM),
+                "subpixel_steps": str(SUBPIXEL_STEPS), "max_disparity_px": repr(MAX_DISPARITY_PX)}),
             "occluded_overlap": repr(OCCLUDED_OVERLAP),
         }
 
@@ -444,15 +515,75 @@ class SynthSource(ReplaySource):
         return np.take(_NORMAL_TABLE, index).reshape(shape)
 
     def _stereo_valid(self, depth_m: np.ndarray) -> np.ndarray:
-        """False where the second camera (``BASELINE_MM`` to the right) cannot see the point."""
+        """False where the second camera (``BASELINE_MM`` to the right) cannot see the point:
+        hidden behind a nearer surface (both models) or, in the realistic model, outside its
+        image (a band on the left border as wide as the disparity)."""
         disparity = (self.intrinsics.fx * BASELINE_MM * 1e-3) / depth_m
         x_right = np.arange(depth_m.shape[1], dtype=np.float32)[None, :] - disparity
         ahead = np.minimum.accumulate(x_right[:, ::-1], axis=1)[:, ::-1]
         valid = np.ones(depth_m.shape, bool)
         valid[:, :-1] = ahead[:, 1:] >= x_right[:, :-1]
+        if self.depth_model == "realistic":
+            valid &= x_right >= -0.5
         return valid
 
+    def depth_image(self, depth_m: np.ndarray, rng: np.random.Generator | int) -> np.ndarray:
+        """The sensor's depth image of a true depth map, with this source's depth model.
+
+        Parameters
+        ----------
+        depth_m : ndarray, shape (H, W), float32
+            True depth in metres (> 0), of this source's size.
+        rng : Generator or int
+            Noise source (:func:`fusion_pf.rng.as_rng`).
+
+        Returns
+        -------
+        ndarray, shape (H, W), uint16
+            Millimetres, 0 = invalid.
+        """
+        from fusion_pf.rng import as_rng
+
+        depth_m = np.asarray(depth_m, dtype=np.float32)
+        if depth_m.shape != (self.size[1], self.size[0]) or not (depth_m > 0).all():
+            raise InputError(f"depth_m must be a positive ({self.size[1]}, {self.size[0]}) array, "
+                             f"got shape {depth_m.shape}")
+        return self._depth_image(depth_m, self._stereo_valid(depth_m), as_rng(rng))
+
     def _depth_image(self, depth_m: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        if self.depth_model == "realistic":
+            return self._realistic_depth(depth_m, valid, rng)
+        return self._basic_depth(depth_m, valid, rng)
+
+    def _realistic_depth(self, depth_m: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Depth (mm, uint16) of a stereo sensor (module docstring, "Depth"): mixed disparities and
+        LR-check holes at depth steps, correlated disparity noise, sub-pixel quantisation,
+        stereo shadows and border band, search-range and range limits, speckle blobs."""
+        fb = np.float32(self.intrinsics.fx * BASELINE_MM)
+        disparity = np.float32(fb * 1e-3) / depth_m
+        window = np.ones((2 * EDGE_BAND_PX + 1, 2 * EDGE_BAND_PX + 1), np.uint8)
+        near, far = cv2.dilate(disparity, window), cv2.erode(disparity, window)
+        band = np.flatnonzero(near - far > np.float32(EDGE_STEP_PX))
+        draw = rng.random((2, band.size), dtype=np.float32)
+        flat = disparity.reshape(-1)
+        mixed = (draw[0] >= EDGE_INVALID_FRACTION) & (draw[0] < EDGE_INVALID_FRACTION + EDGE_FLYING_FRACTION)
+        flying, a = band[mixed], draw[1][mixed]
+        flat[flying] = (1.0 - a) * near.reshape(-1)[flying] + a * far.reshape(-1)[flying]
+        noise = self._gaussian(rng, depth_m.shape)
+        field = cv2.GaussianBlur(noise, (_CORR_KSIZE, _CORR_KSIZE), DEPTH_NOISE_CORRELATION_PX)
+        disparity += np.float32(DISPARITY_NOISE_PX / _CORR_STD) * field
+        disparity = np.rint(disparity * SUBPIXEL_STEPS) / np.float32(SUBPIXEL_STEPS)
+        with np.errstate(divide="ignore"):
+            z = np.rint(fb / disparity)
+        blobs = cv2.GaussianBlur(self._gaussian(rng, depth_m.shape), (0, 0), SPECKLE_BLOB_PX)
+        holes = blobs > np.float32(_SPECKLE_THRESHOLD * float(blobs.std()))
+        bad = ~valid | holes | (depth_m > np.float32(MAX_RANGE_MM * 1e-3)) | ~(disparity > 0)
+        bad |= (disparity > np.float32(MAX_DISPARITY_PX)) | (z > 65535)
+        bad.reshape(-1)[band[draw[0] < EDGE_INVALID_FRACTION]] = True
+        z[bad] = 0
+        return z.astype(np.uint16)
+
+    def _basic_depth(self, depth_m: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Stereo-like depth (mm, uint16) from the true depth: correlated disparity noise,
         sub-pixel quantisation, shadows, speckles, range limit."""
         fb = self.intrinsics.fx * BASELINE_MM

@@ -24,6 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--background-frames", default="0", metavar="K", help="empty-scene frames at the start")
     p.add_argument("--size", default="640x400", metavar="WxH", help="image size in pixels")
     p.add_argument("--fps", default="30", metavar="F", help="frame rate (timestamps 1/F s apart)")
+    p.add_argument("--depth-model", default="realistic", metavar="realistic|basic",
+                   help="depth sensor model: realistic stereo artefacts (noise ~ z^2, 1/8 px disparity steps, "
+                        "flying pixels and holes at depth steps, speckle holes, range limits), or basic "
+                        "(the model recordings/sample.mcap was made with)")
     p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
                    help="colour as RawImage rgb8, or CompressedImage jpeg/png")
     p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
@@ -48,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     source = SynthSource.from_options({
         "frames": args.frames, "seed": args.seed, "background_frames": args.background_frames,
-        "size": args.size, "fps": args.fps,
+        "size": args.size, "fps": args.fps, "depth_model": args.depth_model,
     })
     out: Path = args.output
     check_output(out, force=args.force)

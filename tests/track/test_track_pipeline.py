@@ -99,8 +99,10 @@ def test_xyz_reprojects_to_the_estimate_at_the_hand_depth(robust_run):
         np.testing.assert_allclose(back.reshape(2), [r.estimate.u, r.estimate.v], atol=1e-6)
         joint = r.source_frame.joint("right_hand")
         if not r.ground_truth.occluded and joint.confidence > 0.8:
-            # the synthetic palm is 1.15-1.35 m away; the clear joint's depth is within ~15 mm of it
-            assert abs(r.xyz_mm[2] - joint.depth_mm) < 60.0
+            # the synthetic palm is 1.15-1.35 m away, the torso 0.22-0.32 m behind it; the clear
+            # joint's depth has 15 mm noise (3 sigma 45 mm), the palm surface bulges up to 20 mm
+            # toward the camera and the stereo depth moves in 1/8 px steps (11 mm at 1.3 m, 320 px)
+            assert abs(r.xyz_mm[2] - joint.depth_mm) < 80.0
             checked += 1
     assert checked > 50
 

@@ -1,0 +1,408 @@
+"""Draw what the tracker did: images with cue points, particles, the estimate and the track state.
+
+Reads a tracked recording (the output of ``fusion-pf track -o``): the frames through
+:class:`drivers.mcap_replay.McapReplay` (from the tracked file, or, when it has no colour,
+from the input recording), the tracker topics ``/tracker/estimate``, ``/tracker/cues`` and
+``/tracker/particles`` with the ``mcap`` reader, matched to the frames by log time.
+
+``/tracker/cues`` is read as a mapping ``source -> {"u", "v", "quality"} or null`` for
+whatever sources it holds (besides ``frame``, ``timestamp_ns`` and the optional ``roi``
+``[x0, y0, x1, y1]``); an estimate with a ``state`` field has the state written under it.
+
+Drawing is done on the image scaled by an integer factor (so small images stay legible),
+with OpenCV; the particles are drawn in one vectorised assignment.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from fusion_pf.errors import InputError
+from fusion_pf.frame import Frame
+
+from . import mcap_format as fmt
+from .mcap_replay import McapReplay
+
+#: Colours (RGB) of the known sources; other sources take :data:`EXTRA_COLOURS` in sorted order.
+SOURCE_COLOURS = {
+    "colour": (40, 230, 60),
+    "depth": (60, 130, 255),
+    "skeleton": (255, 80, 230),
+    "skin_rgb": (255, 150, 40),
+    "skin_rg": (0, 230, 230),
+    "skin_lab": (170, 110, 255),
+}
+EXTRA_COLOURS = ((255, 255, 255), (150, 255, 150), (255, 200, 200), (200, 200, 120))
+PARTICLE_COLOUR = (255, 220, 30)
+ESTIMATE_COLOUR = (255, 30, 30)
+ROI_COLOUR = (235, 235, 235)
+#: Colours of the track states (paper 004's states for one target).
+STATE_COLOURS = {"tracking": (40, 230, 60), "lost": (255, 40, 40), "uninitialised": (255, 200, 0)}
+#: Keys of a ``/tracker/cues`` message that are not sources.
+CUE_META_KEYS = ("frame", "timestamp_ns", "roi")
+#: Images narrower than this are scaled up by an integer factor before drawing.
+MIN_DRAW_WIDTH = 640
+
+
+@dataclass
+class TrackerFrame:
+    """Tracker output of one frame (any part may be missing).
+
+    Attributes
+    ----------
+    estimate : dict or None
+        The ``/tracker/estimate`` message.
+    cues : dict of str to (u, v, quality) or None
+        Per source; None when the source gave nothing this frame.
+    roi : tuple of float or None
+        ``(x0, y0, x1, y1)``, x1 and y1 exclusive.
+    particles : ndarray, shape (N, 2), or None
+        Particle positions (u, v).
+    """
+
+    estimate: dict | None = None
+    cues: dict[str, tuple[float, float, float] | None] = field(default_factory=dict)
+    roi: tuple[float, float, float, float] | None = None
+    particles: np.ndarray | None = None
+
+
+def _number(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def _parse_cues(msg: dict, where: str) -> tuple[dict, tuple | None]:
+    cues: dict[str, tuple[float, float, float] | None] = {}
+    for name, value in msg.items():
+        if name in CUE_META_KEYS:
+            continue
+        if value is None:
+            cues[name] = None
+            continue
+        if not isinstance(value, dict):
+            raise InputError(f"{where}: source {name!r} must be an object with u, v or null, got {value!r}")
+        u, v = _number(value.get("u")), _number(value.get("v"))
+        q = _number(value.get("quality"))
+        cues[name] = None if u is None or v is None else (u, v, math.nan if q is None else q)
+    roi = msg.get("roi")
+    box = None
+    if roi is not None:
+        if not (isinstance(roi, list) and len(roi) == 4 and all(_number(x) is not None for x in roi)):
+            raise InputError(f"{where}: roi must be [x0, y0, x1, y1], got {roi!r}")
+        box = tuple(float(x) for x in roi)
+    return cues, box
+
+
+def _particles(data: bytes, where: str) -> np.ndarray:
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    cloud = PointCloud()
+    try:
+        cloud.ParseFromString(data)
+    except Exception:
+        raise InputError(f"{where}: not a foxglove.PointCloud message") from None
+    names = {f.name: f for f in cloud.fields}
+    if "x" not in names or "y" not in names or cloud.point_stride <= 0:
+        raise InputError(f"{where}: point cloud without x, y fields")
+    stride = cloud.point_stride
+    n = len(cloud.data) // stride
+    raw = np.frombuffer(cloud.data, np.uint8, count=n * stride).reshape(n, stride)
+    x = raw[:, names["x"].offset:names["x"].offset + 4].copy().view("<f4")[:, 0]
+    y = raw[:, names["y"].offset:names["y"].offset + 4].copy().view("<f4")[:, 0]
+    return np.stack([x, y], axis=1).astype(np.float64)
+
+
+def read_tracker_topics(path: Path) -> dict[int, TrackerFrame]:
+    """Tracker outputs of ``path`` by log time (ns).
+
+    Raises
+    ------
+    InputError
+        When the file has no tracker topic or a message is malformed.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    out: dict[int, TrackerFrame] = {}
+    topics = [fmt.ESTIMATE_TOPIC, fmt.CUES_TOPIC, fmt.PARTICLES_TOPIC]
+    try:
+        with open(path, "rb") as fh:
+            for _schema, channel, message in make_reader(fh).iter_messages(topics=topics):
+                t = message.log_time
+                where = f"{path}: {channel.topic} at log_time {t}"
+                item = out.setdefault(t, TrackerFrame())
+                if channel.topic == fmt.PARTICLES_TOPIC:
+                    item.particles = _particles(message.data, where)
+                    continue
+                try:
+                    msg = json.loads(message.data)
+                except ValueError:
+                    raise InputError(f"{where}: not valid JSON") from None
+                if not isinstance(msg, dict):
+                    raise InputError(f"{where}: expected a JSON object, got {type(msg).__name__}")
+                if channel.topic == fmt.ESTIMATE_TOPIC:
+                    item.estimate = msg
+                else:
+                    item.cues, item.roi = _parse_cues(msg, where)
+    except McapError as exc:
+        raise InputError(f"{path}: cannot read the MCAP file ({exc})") from None
+    if not out:
+        raise InputError(
+            f"{path} has no {fmt.ESTIMATE_TOPIC}, {fmt.CUES_TOPIC} or {fmt.PARTICLES_TOPIC} messages; "
+            "expected the output of fusion-pf track -o"
+        )
+    return out
+
+
+def image_recording(tracked: Path, input_path: Path | None) -> Path:
+    """The recording that holds the colour images: ``input_path``, else ``tracked`` when it
+    has ``/camera/color`` messages, else the recording named by its metadata ``source``.
+
+    Raises
+    ------
+    InputError
+        When no such recording exists.
+    """
+    from mcap.reader import make_reader
+
+    if input_path is not None:
+        if not input_path.is_file():
+            raise InputError(f"--input {input_path} does not exist; expected the recording that was tracked")
+        return input_path
+    with open(tracked, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        topics = set() if summary is None else {c.topic for c in summary.channels.values()}
+        if fmt.COLOR_TOPIC in topics:
+            return tracked
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    source = meta.get(fmt.RECORDING_METADATA, {}).get("source")
+    if source is None or not Path(source).is_file():
+        raise InputError(
+            f"{tracked} has no {fmt.COLOR_TOPIC} images and its metadata source {source!r} is not a file; "
+            "pass --input REC.mcap (the recording that was tracked)"
+        )
+    return Path(source)
+
+
+def _colour_of(name: str, order: list[str]) -> tuple[int, int, int]:
+    if name in SOURCE_COLOURS:
+        return SOURCE_COLOURS[name]
+    extras = [s for s in order if s not in SOURCE_COLOURS]
+    return EXTRA_COLOURS[extras.index(name) % len(EXTRA_COLOURS)]
+
+
+def draw_scale(width: int) -> int:
+    """Integer factor that brings an image of ``width`` px to at least :data:`MIN_DRAW_WIDTH`."""
+    return max(1, math.ceil(MIN_DRAW_WIDTH / width))
+
+
+def draw(frame: Frame, out: TrackerFrame | None, sources: list[str], scale: int) -> np.ndarray:
+    """Draw one frame.
+
+    Parameters
+    ----------
+    frame : Frame
+        Gives the image (RGB) and the frame number.
+    out : TrackerFrame or None
+        The tracker outputs of the frame (None: a frame the tracker did not process).
+    sources : list of str
+        Every source of the recording, for stable colours and the legend order.
+    scale : int
+        Integer scale factor of the drawing.
+
+    Returns
+    -------
+    ndarray, shape (H * scale, W * scale, 3), uint8
+        RGB.
+    """
+    img = frame.color
+    if scale > 1:
+        img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    img = np.ascontiguousarray(img).copy()
+    h, w = img.shape[:2]
+    font, fs, th = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1
+
+    def px(u: float, v: float) -> tuple[int, int]:
+        return int(round((u + 0.5) * scale - 0.5)), int(round((v + 0.5) * scale - 0.5))
+
+    def label(text: str, org: tuple[int, int], colour: tuple[int, int, int]) -> None:
+        cv2.putText(img, text, org, font, fs, (0, 0, 0), th + 2, cv2.LINE_AA)
+        cv2.putText(img, text, org, font, fs, colour, th, cv2.LINE_AA)
+
+    header = f"frame {frame.seq}" + ("  background" if frame.background else "")
+    if out is not None:
+        if out.roi is not None:
+            x0, y0, x1, y1 = out.roi
+            cv2.rectangle(img, px(x0, y0), px(x1 - 1, y1 - 1), ROI_COLOUR, 1)
+        if out.particles is not None and len(out.particles):
+            p = np.rint((out.particles + 0.5) * scale - 0.5).astype(np.int64)
+            for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):
+                u, v = p[:, 0] + du, p[:, 1] + dv
+                inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+                img[v[inside], u[inside]] = PARTICLE_COLOUR
+        for k, name in enumerate(sources):
+            colour = _colour_of(name, sources)
+            cue = out.cues.get(name)
+            present = cue is not None
+            label(f"{name}{'' if present else ': -'}", (w - 110, 16 + 16 * k), colour)
+            if present:
+                c = px(cue[0], cue[1])
+                cv2.drawMarker(img, c, (0, 0, 0), cv2.MARKER_TILTED_CROSS, 15, 4)
+                cv2.drawMarker(img, c, colour, cv2.MARKER_TILTED_CROSS, 14, 2)
+        e = out.estimate or {}
+        u, v = _number(e.get("u")), _number(e.get("v"))
+        if u is not None and v is not None:
+            c = px(u, v)
+            cv2.circle(img, c, 9, (0, 0, 0), 4, cv2.LINE_AA)
+            cv2.circle(img, c, 9, ESTIMATE_COLOUR, 2, cv2.LINE_AA)
+            cv2.drawMarker(img, c, ESTIMATE_COLOUR, cv2.MARKER_CROSS, 6, 1)
+        else:
+            header += "  no estimate"
+        state = e.get("state")
+        if isinstance(state, str):
+            label(f"state: {state}", (6, 34), STATE_COLOURS.get(state, (255, 255, 255)))
+    label(header, (6, 16), (255, 255, 255))
+    return img
+
+
+@dataclass
+class Rendered:
+    """What :func:`render` produced."""
+
+    frames: int = 0
+    tracked: int = 0
+    size: tuple[int, int] = (0, 0)
+    sheet_tiles: int = 0
+
+
+class VideoWriter:
+    """H.264 (libx264, yuv420p) MP4 writer with PyAV; odd sizes are padded to even."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        import av
+
+        self.path = path
+        self.fps = fps
+        self._container = av.open(str(path), mode="w")
+        self._stream = None
+        self.frames = 0
+
+    def write(self, rgb: np.ndarray) -> None:
+        from fractions import Fraction
+
+        import av
+
+        h, w = rgb.shape[:2]
+        if self._stream is None:
+            self._stream = self._container.add_stream("libx264", rate=Fraction(self.fps).limit_denominator(1000))
+            self._stream.width, self._stream.height = w + w % 2, h + h % 2
+            self._stream.pix_fmt = "yuv420p"
+            self._stream.options = {"crf": "20", "preset": "veryfast"}
+        if w % 2 or h % 2:
+            rgb = cv2.copyMakeBorder(rgb, 0, h % 2, 0, w % 2, cv2.BORDER_CONSTANT, value=0)
+        for packet in self._stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+            self._container.mux(packet)
+        self.frames += 1
+
+    def close(self) -> None:
+        if self._stream is not None:
+            for packet in self._stream.encode():
+                self._container.mux(packet)
+        self._container.close()
+
+
+def contact_sheet(tiles: list[np.ndarray], columns: int, tile_width: int) -> np.ndarray:
+    """Tiles (RGB, same size) resized to ``tile_width`` and laid out row by row; black gaps."""
+    h, w = tiles[0].shape[:2]
+    tw = min(tile_width, w)
+    th = max(1, round(h * tw / w))
+    cols = min(columns, len(tiles))
+    rows = math.ceil(len(tiles) / cols)
+    gap = 2
+    sheet = np.zeros((rows * (th + gap) - gap, cols * (tw + gap) - gap, 3), np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, cols)
+        small = cv2.resize(tile, (tw, th), interpolation=cv2.INTER_AREA)
+        sheet[r * (th + gap):r * (th + gap) + th, c * (tw + gap):c * (tw + gap) + tw] = small
+    return sheet
+
+
+def render(
+    tracked: Path,
+    *,
+    video: Path | None = None,
+    sheet: Path | None = None,
+    every: int = 10,
+    columns: int = 6,
+    tile_width: int = 320,
+    fps: float | None = None,
+    input_path: Path | None = None,
+) -> Rendered:
+    """Render a tracked recording to an MP4 and/or a PNG contact sheet.
+
+    Parameters
+    ----------
+    tracked : Path
+        Output of ``fusion-pf track -o``.
+    video : Path, optional
+        MP4 (H.264) with every frame.
+    sheet : Path, optional
+        PNG with every ``every``-th frame, ``columns`` tiles a row, each ``tile_width`` px wide
+        at most.
+    fps : float, optional
+        Video frame rate; default from the frame timestamps (median period), 30 when unknown.
+    input_path : Path, optional
+        The recording that was tracked, for the images when ``tracked`` has none.
+
+    Returns
+    -------
+    Rendered
+        Frame counts and the drawing size.
+    """
+    outputs = read_tracker_topics(tracked)
+    sources: list[str] = []
+    for item in outputs.values():
+        sources += [s for s in item.cues if s not in sources]
+    result = Rendered()
+    writer: VideoWriter | None = None
+    tiles: list[np.ndarray] = []
+    with McapReplay(image_recording(tracked, input_path)) as replay:
+        times = np.asarray(replay.timestamps, dtype=np.int64)
+        if not set(times.tolist()) & set(outputs):
+            raise InputError(
+                f"{tracked}: no tracker message has the time of a frame of {replay.path}; "
+                "pass --input with the recording that was tracked"
+            )
+        if fps is None:
+            period = float(np.median(np.diff(times))) if times.size > 1 else 0.0
+            fps = 1e9 / period if period > 0 else 30.0
+        try:
+            for frame in replay:
+                out = outputs.get(frame.timestamp_ns)
+                img = draw(frame, out, sources, draw_scale(frame.color.shape[1]))
+                result.size = (img.shape[1], img.shape[0])
+                if video is not None:
+                    if writer is None:
+                        writer = VideoWriter(video, fps)
+                    writer.write(img)
+                if sheet is not None and result.frames % every == 0:
+                    tiles.append(img)
+                result.frames += 1
+                result.tracked += out is not None
+        finally:
+            if writer is not None:
+                writer.close()
+    if sheet is not None and tiles:
+        sheet_img = contact_sheet(tiles, columns, tile_width)
+        if not cv2.imwrite(str(sheet), cv2.cvtColor(sheet_img, cv2.COLOR_RGB2BGR)):
+            raise InputError(f"cannot write the contact sheet {sheet}")
+        result.sheet_tiles = len(tiles)
+    return result

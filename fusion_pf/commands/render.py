@@ -1,0 +1,78 @@
+"""``fusion-pf render``: draw a tracked recording as a video and/or a PNG contact sheet."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "render"
+HELP = "draw a tracked recording (image, cue points, particles, estimate, state) as MP4 and/or PNG sheet"
+DESCRIPTION = (
+    "Draw every frame of TRACKED.mcap (the output of fusion-pf track -o): the colour image, the "
+    "cue point of every source in /tracker/cues (one colour per source, listed top right; ': -' "
+    "when the source gave nothing), the cue window (white), the particles (yellow), the estimate "
+    "(red circle) and, when the estimate has one, the track state. -o writes an H.264 MP4 of every "
+    "frame; --sheet a PNG contact sheet of every K-th frame (--every). Images narrower than 640 px "
+    "are scaled up by an integer factor. The images come from TRACKED.mcap, or, when it has no "
+    "colour topic, from the recording named in its metadata 'source', or from --input."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf render``."""
+    p.add_argument("tracked", type=Path, metavar="TRACKED.mcap", help="output of fusion-pf track -o")
+    p.add_argument("-o", "--output", type=Path, metavar="OUT.mp4", help="video of every frame (H.264 MP4)")
+    p.add_argument("--sheet", type=Path, metavar="OUT.png", help="contact sheet of every K-th frame")
+    p.add_argument("--every", default="10", metavar="K", help="contact sheet: every K-th frame, K >= 1")
+    p.add_argument("--columns", default="6", metavar="N", help="contact sheet: tiles per row, 1-100")
+    p.add_argument("--tile-width", default="320", metavar="PX", help="contact sheet: tile width at most, 32-4096 px")
+    p.add_argument("--fps", default=None, metavar="FPS",
+                   help="video frame rate (default: from the frame timestamps)")
+    p.add_argument("--input", type=Path, metavar="REC.mcap",
+                   help="the recording that was tracked (images), when TRACKED.mcap has none")
+    p.add_argument("--force", action="store_true", help="overwrite OUT.mp4 / OUT.png if they exist")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Render TRACKED.mcap; returns the exit status."""
+    import math
+
+    from drivers.render import render
+    from fusion_pf.errors import InputError
+
+    from ._paths import check_output
+    from .track import _int
+
+    if args.output is None and args.sheet is None:
+        raise InputError("nothing to write: pass -o OUT.mp4 and/or --sheet OUT.png")
+    if not args.tracked.is_file():
+        raise InputError(f"{args.tracked} does not exist; expected the output of fusion-pf track -o")
+    every = _int("--every", args.every, 1, 1_000_000)
+    columns = _int("--columns", args.columns, 1, 100)
+    tile_width = _int("--tile-width", args.tile_width, 32, 4096)
+    fps = None
+    if args.fps is not None:
+        try:
+            fps = float(args.fps)
+        except ValueError:
+            fps = math.nan
+        if not (math.isfinite(fps) and 0.0 < fps <= 1000.0):
+            raise InputError(f"--fps must be a number in (0, 1000], got {args.fps!r}")
+    for what, out, suffix in (("output", args.output, ".mp4"), ("--sheet", args.sheet, ".png")):
+        if out is None:
+            continue
+        if out.suffix.lower() != suffix:
+            raise InputError(f"{what} {out} must end in {suffix}")
+        check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input))
+    if args.output is not None and args.sheet is not None and args.output.resolve() == args.sheet.resolve():
+        raise InputError(f"-o and --sheet are the same file {args.output}")
+    done = render(args.tracked, video=args.output, sheet=args.sheet, every=every, columns=columns,
+                  tile_width=tile_width, fps=fps, input_path=args.input)
+    w, h = done.size
+    parts = []
+    if args.output is not None:
+        parts.append(f"{args.output} ({done.frames} frames, {w}x{h}, H.264)")
+    if args.sheet is not None:
+        parts.append(f"{args.sheet} ({done.sheet_tiles} tiles, every {every}th frame)")
+    print(f"rendered {done.frames} frames ({done.tracked} with tracker output) -> {', '.join(parts)}")
+    return 0
