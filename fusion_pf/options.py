@@ -104,9 +104,13 @@ def _label(f: dataclasses.Field, spec: Spec) -> str:
     return f"{f.name} ({_flag(f, spec)})" if spec.cli else f.name
 
 
+def _bound(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
 def _range_text(spec: Spec) -> str:
-    lo = "-inf" if spec.lo is None else f"{spec.lo:g}"
-    hi = "inf" if spec.hi is None else f"{spec.hi:g}"
+    lo = "-inf" if spec.lo is None else _bound(spec.lo)
+    hi = "inf" if spec.hi is None else _bound(spec.hi)
     return f"[{lo}, {hi}]"
 
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
+
+from fusion_pf.options import add_options, from_args, option, validate
 
 NAME = "render"
 HELP = "draw a tracked recording (image, cue points, particles, estimate, state) as MP4 and/or PNG sheet"
@@ -18,16 +21,26 @@ DESCRIPTION = (
 )
 
 
+@dataclass(frozen=True)
+class RenderOptions:
+    """The drawing options of ``fusion-pf render``."""
+
+    every: int = option(10, kind="int", lo=1, hi=1_000_000, metavar="K", help="contact sheet: every K-th frame")
+    columns: int = option(6, kind="int", lo=1, hi=100, metavar="N", help="contact sheet: tiles per row")
+    tile_width: int = option(320, kind="int", lo=32, hi=4096, unit="px", help="contact sheet: tile width at most")
+    fps: float | None = option(None, kind="float", lo=0.001, hi=1000.0, optional=True, metavar="FPS",
+                               show=lambda v: "from the frame timestamps", help="video frame rate")
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf render``."""
     p.add_argument("tracked", type=Path, metavar="TRACKED.mcap", help="output of fusion-pf track -o")
     p.add_argument("-o", "--output", type=Path, metavar="OUT.mp4", help="video of every frame (H.264 MP4)")
     p.add_argument("--sheet", type=Path, metavar="OUT.png", help="contact sheet of every K-th frame")
-    p.add_argument("--every", default="10", metavar="K", help="contact sheet: every K-th frame, K >= 1")
-    p.add_argument("--columns", default="6", metavar="N", help="contact sheet: tiles per row, 1-100")
-    p.add_argument("--tile-width", default="320", metavar="PX", help="contact sheet: tile width at most, 32-4096 px")
-    p.add_argument("--fps", default=None, metavar="FPS",
-                   help="video frame rate (default: from the frame timestamps)")
+    add_options(p, RenderOptions)
     p.add_argument("--input", type=Path, metavar="REC.mcap",
                    help="the recording that was tracked (images), when TRACKED.mcap has none")
     p.add_argument("--force", action="store_true", help="overwrite OUT.mp4 / OUT.png if they exist")
@@ -35,29 +48,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render TRACKED.mcap; returns the exit status."""
-    import math
-
     from drivers.render import render
     from fusion_pf.errors import InputError
 
     from ._paths import check_output
-    from .track import _int
 
     if args.output is None and args.sheet is None:
         raise InputError("nothing to write: pass -o OUT.mp4 and/or --sheet OUT.png")
     if not args.tracked.is_file():
         raise InputError(f"{args.tracked} does not exist; expected the output of fusion-pf track -o")
-    every = _int("--every", args.every, 1, 1_000_000)
-    columns = _int("--columns", args.columns, 1, 100)
-    tile_width = _int("--tile-width", args.tile_width, 32, 4096)
-    fps = None
-    if args.fps is not None:
-        try:
-            fps = float(args.fps)
-        except ValueError:
-            fps = math.nan
-        if not (math.isfinite(fps) and 0.0 < fps <= 1000.0):
-            raise InputError(f"--fps must be a number in (0, 1000], got {args.fps!r}")
+    opts = from_args(RenderOptions, args)
+    every = opts.every
     for what, out, suffix in (("output", args.output, ".mp4"), ("--sheet", args.sheet, ".png")):
         if out is None:
             continue
@@ -66,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
         check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input))
     if args.output is not None and args.sheet is not None and args.output.resolve() == args.sheet.resolve():
         raise InputError(f"-o and --sheet are the same file {args.output}")
-    done = render(args.tracked, video=args.output, sheet=args.sheet, every=every, columns=columns,
-                  tile_width=tile_width, fps=fps, input_path=args.input)
+    done = render(args.tracked, video=args.output, sheet=args.sheet, every=every, columns=opts.columns,
+                  tile_width=opts.tile_width, fps=opts.fps, input_path=args.input)
     w, h = done.size
     parts = []
     if args.output is not None:

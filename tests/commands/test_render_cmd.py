@@ -53,7 +53,7 @@ def test_video_and_sheet_of_a_tracked_sample(tracked, tmp_path, capsys):
     assert codec == "h264" and abs(fps - 30.0) < 0.01
     assert len(frames) == 300 and frames[0].shape == (400, 640, 3)  # 320x200 drawn at 2x
     outputs = read_tracker_topics(tracked)
-    with McapReplay(tracked) as rec:
+    with McapReplay(SAMPLE) as rec:
         f = rec.frame(150)
         est = outputs[f.timestamp_ns].estimate
     # the estimate ring (radius 9 px at 2x) is red in the decoded video, the image elsewhere is not
@@ -123,9 +123,9 @@ def test_images_from_the_source_named_in_the_metadata(tracked, tmp_path, capsys)
 @pytest.mark.parametrize("argv, message", [
     (["{sample}", "--sheet", "{tmp}/x.png"], "has no /tracker/estimate, /tracker/cues or /tracker/particles"),
     (["{tracked}"], "nothing to write"),
-    (["{tracked}", "--sheet", "{tmp}/x.png", "--every", "0"], "--every must be an integer in [1, 1000000], got 0"),
+    (["{tracked}", "--sheet", "{tmp}/x.png", "--every", "0"], "every (--every) must be an integer in [1, 1000000], got 0"),
     (["{tracked}", "-o", "{tmp}/x.avi"], "must end in .mp4"),
-    (["{tracked}", "-o", "{tmp}/x.mp4", "--fps", "fast"], "--fps must be a number in (0, 1000], got 'fast'"),
+    (["{tracked}", "-o", "{tmp}/x.mp4", "--fps", "fast"], "fps (--fps) must be a number in [0.001, 1000], got 'fast'"),
     (["{tmp}/none.mcap", "-o", "{tmp}/x.mp4"], "does not exist; expected the output of fusion-pf track"),
 ])
 def test_errors_are_one_line(tracked, tmp_path, capsys, argv, message):
