@@ -192,7 +192,9 @@ _CORR_STD = float((cv2.getGaussianKernel(_CORR_KSIZE, DEPTH_NOISE_CORRELATION_PX
 
 #: fx of the 640-px-wide camera, to which the skeleton's pixel figures refer.
 _REFERENCE_FX = 0.78 * 640.0
-_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns")
+_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "hands")
+#: Ground-truth targets of the two-hand scene, the primary one first.
+TARGETS = ("right_hand", "left_hand", "head")
 _MAX_FRAMES = 10_000_000
 _MAX_SIZE = 4096
 _MIN_SIZE = 32
@@ -261,6 +263,9 @@ class SynthSource(ReplaySource):
         ``[0, frames]``.
     start_ns : int
         Timestamp of frame 0 in integer nanoseconds (>= 0).
+    hands : int
+        1 (default): the single-palm scene; 2: the two-hand hand-washing scene
+        (see "Two hands" in the module docstring).
 
     Raises
     ------
@@ -277,8 +282,10 @@ class SynthSource(ReplaySource):
         fps: float = 30.0,
         background_frames: int = 0,
         start_ns: int = 1_700_000_000_000_000_000,
+        hands: int = 1,
     ) -> None:
         super().__init__()
+        self.hands = _int_option("synth option hands", hands, 1, 2)
         self._n = _int_option("synth option frames", frames, 1, _MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
         self.size = _size_option(size)
@@ -291,6 +298,7 @@ class SynthSource(ReplaySource):
         self._background = sc.render_background(self.intrinsics, scene_rng)
         self._bg_depth_valid = self._stereo_valid(self._background.depth_m)
         self._appearance = sc.appearance_parameters(self._rng(3))
+        self._wash = sc.wash_parameters(self._rng(4)) if self.hands == 2 else None
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
 
@@ -302,7 +310,7 @@ class SynthSource(ReplaySource):
         ----------
         options : mapping of str to str or object
             Any of ``seed``, ``frames``, ``size`` (``"640x400"`` or ``(w, h)``),
-            ``fps``, ``background_frames``, ``start_ns``.
+            ``fps``, ``background_frames``, ``start_ns``, ``hands`` (1 or 2).
 
         Raises
         ------
@@ -327,7 +335,8 @@ class SynthSource(ReplaySource):
 
     def describe(self) -> str:
         w, h = self.size
-        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}"
+        hands = " hands=2" if self.hands == 2 else ""
+        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}"
 
     def timestamp_ns(self, index: int) -> int:
         """Capture time of frame ``index`` in integer nanoseconds."""
@@ -358,6 +367,7 @@ class SynthSource(ReplaySource):
     def metadata(self) -> dict[str, str]:
         """Key/values for the recording's ``fusion_pf.recording`` metadata record."""
         w, h = self.size
+        extra = {"hands": "2", "targets": ",".join(TARGETS)} if self.hands == 2 else {}
         return {
             "generator": "fusion_pf.synth",
             "generator_version": __version__,
@@ -368,6 +378,7 @@ class SynthSource(ReplaySource):
             "fps": repr(self.fps),
             "depth_noise_c_per_mm": repr(DEPTH_NOISE_C),
             "occluded_overlap": repr(OCCLUDED_OVERLAP),
+            **extra,
         }
 
     # -- geometry without pixels ----------------------------------------------------------------
@@ -383,15 +394,27 @@ class SynthSource(ReplaySource):
         index = self._check_index(index)
         if index < self.background_frames:
             return None
+        if self._wash is not None:
+            return sc.wash_pose_at(self._motion, self._wash, float(index - self.background_frames))
         return sc.pose_at(self._motion, float(index - self.background_frames))
 
     def palm_overlap(self, index: int) -> float:
-        """Fraction of the palm's area over the torso/head region at ``index`` (0 when empty)."""
+        """Fraction of the palm's area over the torso/head region at ``index`` (0 when empty).
+
+        Two hands: the fraction of the right palm covered by the left palm.
+        """
         pose = self.pose(index)
-        return 0.0 if pose is None else sc.palm_overlap(self.intrinsics, pose)
+        if pose is None:
+            return 0.0
+        if self._wash is not None:
+            return sc.hands_overlap(self.intrinsics, pose)
+        return sc.palm_overlap(self.intrinsics, pose)
 
     def ground_truth(self, index: int) -> PalmPoint | None:
-        """The true palm centre of frame ``index`` without rendering it."""
+        """The true palm centre of frame ``index`` without rendering it (two hands: the right palm)."""
+        truths = self.ground_truths(index)
+        if truths is not None:
+            return truths[TARGETS[0]]
         pose = self.pose(index)
         if pose is None:
             return None
@@ -399,12 +422,32 @@ class SynthSource(ReplaySource):
         occluded = sc.palm_overlap(self.intrinsics, pose) >= OCCLUDED_OVERLAP
         return PalmPoint(u, v, occluded=occluded)
 
+    def ground_truths(self, index: int) -> dict[str, PalmPoint] | None:
+        """Two hands: the true centre per target (:data:`TARGETS`); None for one hand or a background frame.
+
+        ``occluded`` is true for a palm while at least :data:`OCCLUDED_OVERLAP`
+        of the right palm is covered by the left one (the hands are joined);
+        the head (face centre) is never occluded.
+        """
+        pose = self.pose(index)
+        if pose is None or self._wash is None:
+            return None
+        intr = self.intrinsics
+        joined = sc.hands_overlap(intr, pose) >= OCCLUDED_OVERLAP
+        points = (pose.right_hand, pose.left_hand, sc.face_centre(pose))
+        return {
+            name: PalmPoint(*sc.project(intr, p), occluded=joined and name != "head")
+            for name, p in zip(TARGETS, points)
+        }
+
     def joints(self, index: int) -> dict[str, Joint]:
         """The skeleton stream of frame ``index`` (``{}`` for a background frame)."""
         pose = self.pose(index)
         if pose is None:
             return {}
         intr = self.intrinsics
+        if self._wash is not None:
+            return self._wash_joints(index, pose)
         k = intr.fx / _REFERENCE_FX
         w = min(sc.palm_overlap(intr, pose) / FULL_FAILURE_OVERLAP, 1.0)
         rng = self._rng(2, index)
@@ -431,6 +474,31 @@ class SynthSource(ReplaySource):
             z_mm += pull * (pose.torso[2] * 1000.0 - z_mm) + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
             drop = 0.6 if name == "right_hand" else 0.3 if name == "right_wrist" else 0.0
             conf = 0.9 - drop * ww + conf_noise[j]
+            out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
+        return out
+
+    def _wash_joints(self, index: int, pose: sc.Pose) -> dict[str, Joint]:
+        """Two-hand skeleton: both hands fail while joined (see "Two hands" in the module docstring)."""
+        intr = self.intrinsics
+        k = intr.fx / _REFERENCE_FX
+        w = min(sc.hands_overlap(intr, pose) / FULL_FAILURE_OVERLAP, 1.0)
+        rng = self._rng(2, index)
+        noise = rng.standard_normal((len(KNOWN_JOINTS), 3))
+        conf_noise = rng.uniform(-0.05, 0.05, size=len(KNOWN_JOINTS))
+        ru, rv = sc.project(intr, pose.right_hand)
+        lu, lv = sc.project(intr, pose.left_hand)
+        mid = np.array([(ru + lu) / 2.0, (rv + lv) / 2.0])
+        out: dict[str, Joint] = {}
+        for j, name in enumerate(KNOWN_JOINTS):
+            p = getattr(pose, name)
+            u, v = sc.project(intr, p)
+            ww = w if name in ("right_hand", "left_hand") else 0.5 * w if name.endswith("wrist") else 0.0
+            sigma_px = (2.0 + 10.0 * ww) * k
+            # joined hands: each joint is pulled half-way to the pair's middle
+            u += 0.5 * ww * (mid[0] - u) + sigma_px * noise[j, 0]
+            v += 0.5 * ww * (mid[1] - v) + sigma_px * noise[j, 1]
+            z_mm = p[2] * 1000.0 + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
+            conf = 0.9 - 0.6 * ww + conf_noise[j]
             out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
         return out
 
@@ -474,10 +542,11 @@ class SynthSource(ReplaySource):
 
         The palm's image displacement during the exposure (centred on the frame
         time, :data:`EXPOSURE_FRACTION` of the frame period) as a line kernel;
-        None when the palm moves at most :data:`MIN_BLUR_SPEED_PX` per frame.
+        None when the palm moves at most :data:`MIN_BLUR_SPEED_PX` per frame, and
+        always in the two-hand scene.
         """
         index = self._check_index(index)
-        if index < self.background_frames:
+        if index < self.background_frames or self._wash is not None:
             return None
         t = float(index - self.background_frames)
         half = EXPOSURE_FRACTION / 2.0
@@ -513,7 +582,7 @@ class SynthSource(ReplaySource):
         masks : dict of str to ndarray
             Boolean (H, W) masks of the noise-free, unblurred scene:
             ``"skin"`` (face, neck, both hands, bare right forearm), ``"palm"``
-            (the tracked right palm only), ``"person"``.
+            (the tracked right palm only; two hands: both palms), ``"person"``.
         """
         index = self._check_index(index)
         pose = self.pose(index)
@@ -523,6 +592,10 @@ class SynthSource(ReplaySource):
             color_f, depth_m = bg.color, bg.depth_m
             labels = np.zeros(depth_m.shape, np.uint8)
             valid = self._bg_depth_valid
+        elif self._wash is not None:
+            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
+            color_f, depth_m, labels = sc.composite(bg, parts)
+            valid = self._stereo_valid(depth_m)
         else:
             parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
             color_f, depth_m, labels = sc.composite(bg, parts, self.blur_kernel(index))
@@ -538,6 +611,7 @@ class SynthSource(ReplaySource):
             joints=self.joints(index),
             ground_truth=self.ground_truth(index),
             background=pose is None,
+            ground_truths=self.ground_truths(index),
         )
         masks = {
             "skin": labels >= sc.LABEL_SKIN,
