@@ -24,6 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--background-frames", default="0", metavar="K", help="empty-scene frames at the start")
     p.add_argument("--size", default="640x400", metavar="WxH", help="image size in pixels")
     p.add_argument("--fps", default="30", metavar="F", help="frame rate (timestamps 1/F s apart)")
+    p.add_argument("--hands", default="1", metavar="H",
+                   help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
+                        "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)")
     p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
                    help="colour as RawImage rgb8, or CompressedImage jpeg/png")
     p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     source = SynthSource.from_options({
         "frames": args.frames, "seed": args.seed, "background_frames": args.background_frames,
-        "size": args.size, "fps": args.fps,
+        "size": args.size, "fps": args.fps, "hands": args.hands,
     })
     out: Path = args.output
     check_output(out, force=args.force)

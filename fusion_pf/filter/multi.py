@@ -353,6 +353,13 @@ class KMeansParticleFilter:
         Spread of a (re)started cluster around its measurement.
     states : StateConfig, optional
         Track-state thresholds (default: merge at ``radius_px``, split at ``1.6 radius_px``).
+    coincide_px : float
+        A combined pair whose estimates came closer than this has lost its
+        identities (the modes coincided); on separation they are re-assigned
+        by :func:`~fusion_pf.filter.states.reassign_identities`. A pair that
+        stayed farther apart keeps the identities the frame-to-frame cluster
+        linking followed (motion continuity through the combined state, e.g.
+        two hands crossing).
     rng : Generator, int or None
 
     Attributes
@@ -385,6 +392,7 @@ class KMeansParticleFilter:
         init_spread_px: float = 10.0,
         init_velocity_px: float = 2.0,
         states: StateConfig | None = None,
+        coincide_px: float = 4.0,
         rng: np.random.Generator | int | None = None,
     ) -> None:
         self.targets = _check_targets(targets)
@@ -413,6 +421,7 @@ class KMeansParticleFilter:
         self.conservative_gain = float(conservative_gain)
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
+        self.coincide_px = float(coincide_px)
         self.state_config = states or StateConfig(merge_px=self.radius_px, split_px=1.6 * self.radius_px)
         self.rng = as_rng(rng)
         self.particles = np.zeros((self.n_particles, 4))
@@ -424,6 +433,7 @@ class KMeansParticleFilter:
         self._degraded = np.zeros(k, dtype=np.int64)
         self._fsm = TrackStateMachine(self.targets, self.state_config)
         self._entry = np.zeros((k, 2))
+        self._closest = np.full(k, np.inf)
         self._last_ns: int | None = None
 
     def predictions(self) -> np.ndarray:
@@ -580,12 +590,17 @@ class KMeansParticleFilter:
         names = self.targets
         for k, name in enumerate(names):
             s_old, s_new = before[name], self._fsm.statuses[name]
-            if s_new.state == TrackState.COMBINED and s_old.state != TrackState.COMBINED:
+            if s_new.state == TrackState.COMBINED:
                 j = s_new.partner
-                self._entry[k] = self._est[k, :2] - 0.5 * (self._est[k, :2] + self._est[j, :2])
+                gap = float(np.hypot(*(self._est[k, :2] - self._est[j, :2])))
+                if s_old.state != TrackState.COMBINED:
+                    self._entry[k] = self._est[k, :2] - 0.5 * (self._est[k, :2] + self._est[j, :2])
+                    self._closest[k] = gap
+                self._closest[k] = min(self._closest[k], gap)
             if self.supervision and s_old.state == TrackState.COMBINED and s_new.state == TrackState.UNLABELLED:
                 j = s_old.partner
-                if j is not None and j > k and self._fsm.statuses[names[j]].state == TrackState.UNLABELLED:
+                if (j is not None and j > k and self._fsm.statuses[names[j]].state == TrackState.UNLABELLED
+                        and self._closest[k] < self.coincide_px):
                     self._swap_if_needed(k, j)
         return states
 
