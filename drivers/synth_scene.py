@@ -719,7 +719,7 @@ def wash_parameters(rng: np.random.Generator) -> WashMotion:
     u = rng.uniform
     return WashMotion(
         rub_period=float(u(10.0, 16.0)),
-        rub_amp=float(u(0.01, 0.02)),
+        rub_amp=float(u(0.008, 0.014)),
         bob_period=float(u(50.0, 80.0)),
         bob_phase=float(u(0, 2 * math.pi)),
         bob_amp=float(u(0.02, 0.04)),
