@@ -1,4 +1,4 @@
-"""Synthetic RGB-D scene source: a person waving a palm in front of a wall.
+"""Synthetic RGB-D scene source: a person waving a palm (or washing both hands) in front of a wall.
 
 :class:`SynthSource` renders the kind of scene paper 003 tracks (§3.5, §4): an
 empty-room background, a person in dark clothing (right sleeve pushed up)
@@ -126,6 +126,32 @@ the bare forearm is in the ``skin`` mask, never in ``palm``. Masks, depth and
 ground truth are the instantaneous (unblurred) scene.
 ``occluded`` is true when at least 25 % of the palm lies over the torso/head
 region (``f >= 0.25``, so ``w >= 0.625``); about 30 % of the person frames.
+
+Two hands (``hands=2``)
+-----------------------
+A hand-washing person (:func:`drivers.synth_scene.wash_pose_at`): both sleeves
+pushed up, both palms 0.28 m in front of the lower chest. One 300-frame cycle
+(10 s at 30 fps; :data:`drivers.synth_scene.WASH_KEYS`) has the hands apart
+(about 0.30 m, 58 px at 320 px width), approaching and **joined** for 61 and 47
+frames (palms 4 cm apart and rubbing, >= 25 % overlap: ``occluded``), and one
+**crossing** in between (the right hand passes 13 cm above the left, the palms
+touch); odd cycles are mirrored, so the motion is continuous (the hands cross
+back in the next cycle). The centre drifts and bobs a few centimetres
+(per-seed parameters from ``spawn_key=(4,)``, so the background, lighting and
+sleeve draws are those of the one-hand scene). The skin cues see both hands
+and forearms, the face and neck, and a skin-coloured painting on the wall.
+
+* Ground truth per target: ``Frame.ground_truths`` = ``{"right_hand",
+  "left_hand", "head"}`` (palm centres, face centre; :meth:`SynthSource.ground_truths`),
+  ``Frame.ground_truth`` = the right hand.
+* Skeleton: every joint sigma 2 px (at 640 px width), confidence 0.85-0.95;
+  while the hands are joined (weight ``w = clip(f / 0.4, 0, 1)``, ``f`` the
+  fraction of the right palm covered by the left) both hand joints are pulled
+  ``w / 2`` of the way to the pair's middle, jitter ``2 + 10 w`` px,
+  confidence ``0.9 - 0.6 w``.
+* No motion blur (two layers moving differently are not modelled); the depth
+  and colour noise are the one-hand scene's.
+* ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
 Determinism
 -----------
