@@ -5,7 +5,7 @@ One particle set ``(N, 4)`` of states ``(u, v, du, dv)`` represents all K target
 [...] multi-modal pdf"). Every particle carries a cluster label (its target).
 One :meth:`KMeansParticleFilter.step` per frame runs the paper's sub-systems:
 
-* **propagation** (§III-E): the constant-velocity model (paper 003 eq. 4,
+* **propagation** (§III-E): the constant-velocity model of paper 003 eq. 4 (as
   :func:`~fusion_pf.filter.motion.predict`) with a per-target process noise that
   the supervision scales;
 * **weight computation** (§III-B): each cluster is weighed with the
