@@ -31,7 +31,7 @@ from fusion_pf.cues.skin import RgbRuleSkin, SkinCue
 from fusion_pf.filter.kf import KalmanFilter
 from fusion_pf.filter.multi import IndependentTrackers, KMeansParticleFilter
 from fusion_pf.filter.pf import ParticleFilter
-from fusion_pf.filter.sspf import ScatterSearchPF
+from fusion_pf.filter.sspf import JointScatterSearchPF, ScatterSearchPF
 from fusion_pf.multitarget import frame_inputs, identity_swaps, rmse, run_tracker, state_counts
 
 TARGETS = ("right_hand", "left_hand", "head")
@@ -53,6 +53,7 @@ def methods(seed: int) -> dict[str, object]:
         "per-target KFs": IndependentTrackers(TARGETS, lambda: KalmanFilter(noise_px=NOISE_PX)),
         "SSPF per target (N=30)": IndependentTrackers(
             TARGETS, lambda: ScatterSearchPF(n_particles=30, noise_px=NOISE_PX, rng=rng)),
+        "joint SSPF (N=100, b=6)": JointScatterSearchPF(TARGETS, n_particles=100, noise_px=NOISE_PX, rng=seed),
     }
 
 

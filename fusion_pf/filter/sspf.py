@@ -1,37 +1,44 @@
 """Scatter-search particle filter (SSPF) of paper 002 §4 (Fig. 3).
 
 A particle filter whose best solutions are improved by scatter search every
-frame. One :meth:`ScatterSearchPF.step`:
+frame. A particle holds the states of K targets, shape ``(K, 4)`` (paper 002
+§5: face, right and left hand in one particle; K = 1 for one palm). One step:
 
-1. PREDICT: constant-velocity motion (paper 002 eq. 5 = paper 003 eq. 4,
-   :func:`~fusion_pf.filter.motion.predict`);
-2. EVALUATE: the fitness (Gaussian log-likelihood of paper 003 eqs. 5-7,
-   ``-P |p - z_bar|^2 / 2``) of every particle;
+1. PREDICT: constant-velocity motion (paper 002 eq. 5 = paper 003 eq. 4);
+2. EVALUATE: the fitness of every particle, the sum over targets of the
+   Gaussian log-likelihood of paper 003 eqs. 5-7, ``-P_k |p_k - z_bar_k|^2 / 2``
+   (a target without a cue adds nothing);
 3. MAKEREFSET: the ``b/2`` best and the ``b/2`` most diverse particles (greedy
-   max-min distance to the set);
+   max-min distance, :func:`diverse_subset`);
 4. COMBINE: every pair of the RefSet gives trial solutions -- the midpoint and
-   the two partition crossings (position of one, velocity of the other, as
-   paper 002 §5 combines the parts of two solutions) -- EVALUATE;
+   the partitions: for K > 1 every mix of the two solutions' targets (paper 002
+   §5: ``(F1, R2, L2)``, ``(F2, R1, L1)``, ... six for K = 3), for K = 1 the
+   position of one with the velocity of the other -- EVALUATE;
 5. IMPROVE: the best trial solution (paper 002 §5: "the best solution is
    chosen as result of the combination procedure"), if it beats the RefSet's
-   worst, is improved by a local search (pattern search on the position:
-   ``+-step`` on each axis, move to the best improving neighbour, halve the
-   step when none improves, stop below ``min_step_px``) -- EVALUATE;
+   worst, is improved by a local search (pattern search on the positions:
+   ``+-step`` on each axis of each target, move to the best improving
+   neighbour, halve the step when none improves, stop below ``min_step_px``)
+   -- EVALUATE;
 6. UPDATEREFSET: better solutions replace the worst; the SS stage repeats
    until no new solution enters the RefSet (at most ``max_rounds``);
 7. INCLUDE: the RefSet replaces the worst particles;
 8. SELECT and DIFFUSE: systematic resampling by the fitness weights (the
    diffusion is the prediction noise of the next step).
 
-The estimate is the weighted mean of the particles after INCLUDE.
-:attr:`ScatterSearchPF.evaluations` counts the fitness evaluations of the last
-step: unlike a PF's ``N``, it varies from frame to frame (paper 002: "SSPF is
-time-adaptive since the number of evaluations of the weighting function
-changes in each time step").
+The estimate is the weighted mean of the particles after INCLUDE. The number
+of fitness evaluations (``evaluations``, per step) varies from frame to frame
+(paper 002: "SSPF is time-adaptive since the number of evaluations of the
+weighting function changes in each time step").
+
+:class:`ScatterSearchPF` is the single-target :class:`~fusion_pf.filter.base.Tracker`;
+:class:`JointScatterSearchPF` tracks several targets in one particle, with
+the interface of :class:`~fusion_pf.filter.multi.KMeansParticleFilter`.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Mapping, Sequence
 
@@ -43,12 +50,14 @@ from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker
 from .estimate import weighted_covariance, weighted_mean
-from .likelihood import DEFAULT_NOISE_PX, JointLikelihood, squared_distance
-from .motion import FrameClock, check_process_noise, noise_std, predict
+from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
+from .motion import FrameClock, check_process_noise, noise_std
+from .multi import MultiEstimate, TargetEstimate, _check_measurements, _check_targets, cluster_spread, membership
 from .pf import check_prior, check_timestamp, fused_position
 from .resample import systematic
+from .states import Evidence, StateConfig, TrackStateMachine
 
-__all__ = ["ScatterSearchPF", "diverse_subset"]
+__all__ = ["JointScatterSearchPF", "ScatterSearchPF", "ScatterSearchCore", "diverse_subset"]
 
 
 def diverse_subset(points: np.ndarray, chosen: np.ndarray, count: int) -> np.ndarray:
@@ -74,6 +83,158 @@ def diverse_subset(points: np.ndarray, chosen: np.ndarray, count: int) -> np.nda
         d = np.minimum(d, ((points - points[j]) ** 2).sum(axis=1))
         d[j] = -1.0
     return np.array(out, dtype=np.int64)
+
+
+def _check_int(name: str, value, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+        raise InputError(f"{name} must be an int >= {lo}, got {value!r}")
+    return int(value)
+
+
+class ScatterSearchCore:
+    """The SSPF machinery over particles of K targets, shape (N, K, 4) (module docstring).
+
+    Parameters
+    ----------
+    n_targets : int
+        K (>= 1).
+    n_particles, refset_size, process_noise, step_px, min_step_px, max_rounds,
+    init_spread_px, init_velocity_px, rng
+        As for :class:`ScatterSearchPF`.
+
+    Attributes
+    ----------
+    x : ndarray, shape (N, K, 4)
+        The particles (None until initialised).
+    evaluations : int
+        Fitness evaluations in the last :meth:`update`.
+    total_evaluations : int
+    """
+
+    def __init__(self, n_targets: int, *, n_particles: int, refset_size: int, process_noise, step_px: float,
+                 min_step_px: float, max_rounds: int, init_spread_px: float, init_velocity_px: float, rng) -> None:
+        self.k = _check_int("n_targets", n_targets, 1)
+        self.n = _check_int("n_particles", n_particles, 2)
+        self.b = _check_int("refset_size", refset_size, 2)
+        if self.b % 2 or self.b > self.n:
+            raise InputError(f"refset_size must be an even int in [2, n_particles={self.n}], got {refset_size!r}")
+        if not (0.0 < float(min_step_px) <= float(step_px) and math.isfinite(float(step_px))):
+            raise InputError(f"need 0 < min_step_px <= step_px (finite), got {min_step_px!r} and {step_px!r}")
+        self.max_rounds = _check_int("max_rounds", max_rounds, 1)
+        self.step_px, self.min_step_px = float(step_px), float(min_step_px)
+        self.std_unit = noise_std(check_process_noise(process_noise), 1.0)
+        self.init_std = np.array([init_spread_px] * 2 + [init_velocity_px] * 2, dtype=np.float64)
+        self.rng = as_rng(rng)
+        if self.k > 1:
+            # every mix of two solutions' targets but the two solutions themselves
+            masks = [m for m in itertools.product((False, True), repeat=self.k) if 0 < sum(m) < self.k]
+            self._masks = np.array(masks)[:, :, None]
+        else:
+            # position of one, velocity of the other (both ways)
+            self._masks = np.array([[[True, True, False, False]], [[False, False, True, True]]])
+        self.x: np.ndarray | None = None
+        self.evaluations = 0
+        self.total_evaluations = 0
+
+    def initialise(self, centres: np.ndarray, which: np.ndarray | None = None) -> None:
+        """Particles of the targets ``which`` (all by default) ~ N(centre, init spread^2)."""
+        if self.x is None:
+            self.x = np.zeros((self.n, self.k, 4))
+        which = np.arange(self.k) if which is None else which
+        noise = self.rng.standard_normal((self.n, len(which), 4))
+        self.x[:, which] = centres[which] + self.init_std * noise
+
+    def predict(self, dt: float) -> None:
+        """PREDICT (eq. 5 of paper 002): ``x += dt v``, Gaussian noise ``std * sqrt(dt)``."""
+        self.x[..., :2] += dt * self.x[..., 2:]
+        self.x += self.std_unit * math.sqrt(dt) * self.rng.standard_normal(self.x.shape)
+
+    def fitness(self, states: np.ndarray, z_bar: np.ndarray, precision: np.ndarray) -> np.ndarray:
+        """EVALUATE states (M, K, 4): ``sum_k -P_k |p_k - z_bar_k|^2 / 2``; counts M evaluations."""
+        self.evaluations += len(states)
+        d2 = ((states[..., :2] - z_bar) ** 2).sum(axis=2)
+        # log Lh = sum_k -P_k |p_k - z_bar_k|^2 / 2 (+ const)   (paper 003 eqs. 5-7)
+        return -0.5 * d2 @ precision
+
+    def improve(self, sol: np.ndarray, fit: float, z_bar, precision) -> tuple[np.ndarray, float]:
+        """IMPROVE: pattern search on the positions of one solution (K, 4)."""
+        step = self.step_px
+        # neighbour m moves target m // 4 along +-u or +-v
+        moves = np.zeros((4 * self.k, self.k, 4))
+        for t in range(self.k):
+            moves[4 * t:4 * t + 4, t, :2] = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+        while step >= self.min_step_px:
+            nb = sol[None] + step * moves
+            f = self.fitness(nb, z_bar, precision)
+            j = int(np.argmax(f))
+            if f[j] > fit:
+                sol, fit = nb[j], float(f[j])
+            else:
+                step *= 0.5
+        return sol, fit
+
+    def scatter_search(self, x: np.ndarray, fit: np.ndarray, z_bar, precision) -> tuple[np.ndarray, np.ndarray]:
+        """MAKEREFSET, COMBINE, IMPROVE, UPDATEREFSET until the RefSet stops improving."""
+        half = self.b // 2
+        best = np.argsort(fit)[::-1][:half]
+        ref_idx = np.concatenate([best, diverse_subset(x[..., :2].reshape(len(x), -1), best, half)])
+        ref, ref_fit = x[ref_idx].copy(), fit[ref_idx].copy()
+        i, j = np.triu_indices(len(ref), 1)
+        for _ in range(self.max_rounds):
+            a, b = ref[i], ref[j]
+            mixes = np.where(self._masks, a[:, None], b[:, None]).reshape(-1, self.k, 4)
+            trials = np.concatenate([0.5 * (a + b), mixes])
+            tfit = self.fitness(trials, z_bar, precision)
+            top = int(np.argmax(tfit))
+            if tfit[top] <= ref_fit.min():
+                break
+            sol, sfit = self.improve(trials[top], float(tfit[top]), z_bar, precision)
+            worst = int(np.argmin(ref_fit))
+            ref[worst], ref_fit[worst] = sol, sfit
+        return ref, ref_fit
+
+    def update(self, z_bar: np.ndarray, precision: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """EVALUATE, scatter search, INCLUDE, estimate, SELECT.
+
+        Parameters
+        ----------
+        z_bar : ndarray, shape (K, 2)
+            Fused cue per target (any finite value where ``precision`` is 0).
+        precision : ndarray, shape (K,)
+            ``sum_s 1 / sigma_s^2`` of each target's cues (0: no cue).
+
+        Returns
+        -------
+        estimate : ndarray, shape (K, 4)
+            Weighted mean of the particles after INCLUDE.
+        cov : ndarray, shape (K, 2, 2)
+            Weighted position covariance per target.
+        ess : float
+        """
+        self.evaluations = 0
+        x = self.x
+        fit = self.fitness(x, z_bar, precision)
+        ref, ref_fit = self.scatter_search(x, fit, z_bar, precision)
+        # INCLUDE: the RefSet replaces the worst particles
+        worst = np.argsort(fit)[: len(ref)]
+        x[worst], fit[worst] = ref, ref_fit
+        w = np.exp(fit - fit.max())
+        w /= w.sum()
+        est = np.einsum("n,nkd->kd", w, x)
+        cov = np.stack([weighted_covariance(x[:, t, :2], w, est[t, :2]) for t in range(self.k)])
+        ess = 1.0 / float(w @ w)
+        # SELECT (the next PREDICT's noise is the DIFFUSE stage)
+        self.x = x[systematic(w, self.rng)]
+        self.total_evaluations += self.evaluations
+        return est, cov, ess
+
+
+def _fused(ms: Sequence[Measurement], noise_px: Mapping[str, float]) -> tuple[np.ndarray, float]:
+    """``(z_bar, P)``: precision-weighted cue mean and total precision (``(0, 0), 0`` without cues)."""
+    if not ms:
+        return np.zeros(2), 0.0
+    sigma = {m.source: noise_px[m.source] for m in ms}
+    return fused_position(ms, sigma), float(sum(1.0 / sigma[m.source] ** 2 for m in ms))
 
 
 class ScatterSearchPF(Tracker):
@@ -125,102 +286,41 @@ class ScatterSearchPF(Tracker):
         frame_period_ns: float | str | None = None,
         rng: np.random.Generator | int | None = None,
     ) -> None:
-        if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 2:
-            raise InputError(f"n_particles must be an int >= 2, got {n_particles!r}")
-        if (isinstance(refset_size, bool) or not isinstance(refset_size, (int, np.integer))
-                or refset_size < 2 or refset_size % 2 or refset_size > n_particles):
-            raise InputError(f"refset_size must be an even int in [2, n_particles={n_particles}], got {refset_size!r}")
-        if not (0.0 < float(min_step_px) <= float(step_px) and math.isfinite(float(step_px))):
-            raise InputError(f"need 0 < min_step_px <= step_px (finite), got {min_step_px!r} and {step_px!r}")
-        if isinstance(max_rounds, bool) or not isinstance(max_rounds, (int, np.integer)) or max_rounds < 1:
-            raise InputError(f"max_rounds must be an int >= 1, got {max_rounds!r}")
-        self.n_particles = int(n_particles)
-        self.refset_size = int(refset_size)
-        self.process_noise = check_process_noise(process_noise)
+        self._core = ScatterSearchCore(
+            1, n_particles=n_particles, refset_size=refset_size, process_noise=process_noise, step_px=step_px,
+            min_step_px=min_step_px, max_rounds=max_rounds, init_spread_px=init_spread_px,
+            init_velocity_px=init_velocity_px, rng=rng,
+        )
+        self.n_particles = self._core.n
         self._like = JointLikelihood(noise_px)
         self.noise_px = self._like.noise_px
-        self.step_px = float(step_px)
-        self.min_step_px = float(min_step_px)
-        self.max_rounds = int(max_rounds)
-        self.init_spread_px = float(init_spread_px)
-        self.init_velocity_px = float(init_velocity_px)
         self.prior = check_prior(prior)
         self._clock = FrameClock(frame_period_ns)
-        self.rng = as_rng(rng)
-        self._std_unit = noise_std(self.process_noise, 1.0)
-        self.evaluations = 0
-        self.total_evaluations = 0
         self.reset()
 
     @property
     def particles(self) -> np.ndarray:
-        """Current particles, shape (N, 4) (a view)."""
-        return self._x.T
+        """Current particles, shape (N, 4)."""
+        return self._core.x[:, 0]
+
+    @property
+    def evaluations(self) -> int:
+        """Fitness evaluations in the last step."""
+        return self._core.evaluations
+
+    @property
+    def total_evaluations(self) -> int:
+        """Fitness evaluations since construction."""
+        return self._core.total_evaluations
 
     def reset(self) -> None:
         """Forget the particles; re-initialise from ``prior`` or the next measurement."""
         self._last_ns: int | None = None
-        self._x = np.zeros((4, self.n_particles))
+        self._core.x = None
         self.initialised = False
         if self.prior is not None:
-            self._initialise(self.prior)
-
-    def _initialise(self, centre: np.ndarray) -> None:
-        std = np.array([self.init_spread_px] * 2 + [self.init_velocity_px] * 2)
-        self._x = centre[:, None] + std[:, None] * self.rng.standard_normal((4, self.n_particles))
-        self.initialised = True
-
-    def _fitness(self, states: np.ndarray, z_bar: np.ndarray, precision: float) -> np.ndarray:
-        """EVALUATE: ``-P |p - z_bar|^2 / 2`` for states (n, 4); counts n evaluations."""
-        self.evaluations += len(states)
-        # log Lh = -P |p - z_bar|^2 / 2 (+ const)   (paper 003 eqs. 5-7)
-        return -0.5 * precision * squared_distance(states[:, :2], z_bar)
-
-    def _improve(self, sols: np.ndarray, fit: np.ndarray, z_bar, precision) -> tuple[np.ndarray, np.ndarray]:
-        """IMPROVE: pattern search on the positions of all ``sols`` (m, 4) at once."""
-        sols, fit = sols.copy(), fit.copy()
-        step = np.full(len(sols), self.step_px)
-        moves = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-        active = step >= self.min_step_px
-        while active.any():
-            a = np.flatnonzero(active)
-            # neighbours (|a|, 4, 4): +-step on u and v
-            nb = np.repeat(sols[a][:, None, :], 4, axis=1)
-            nb[:, :, :2] += step[a, None, None] * moves[None]
-            f = self._fitness(nb.reshape(-1, 4), z_bar, precision).reshape(len(a), 4)
-            best = f.argmax(axis=1)
-            fbest = f[np.arange(len(a)), best]
-            better = fbest > fit[a]
-            sols[a[better]] = nb[better, best[better]]
-            fit[a[better]] = fbest[better]
-            step[a[~better]] *= 0.5
-            active = step >= self.min_step_px
-        return sols, fit
-
-    def _scatter_search(self, x: np.ndarray, fit: np.ndarray, z_bar, precision) -> tuple[np.ndarray, np.ndarray]:
-        """MAKEREFSET, COMBINE, IMPROVE, UPDATEREFSET until the RefSet stops improving."""
-        half = self.refset_size // 2
-        best = np.argsort(fit)[::-1][:half]
-        ref_idx = np.concatenate([best, diverse_subset(x[:, :2], best, half)])
-        ref, ref_fit = x[ref_idx].copy(), fit[ref_idx].copy()
-        i, j = np.triu_indices(len(ref), 1)
-        for _ in range(self.max_rounds):
-            a, b = ref[i], ref[j]
-            cross_ab = np.concatenate([a[:, :2], b[:, 2:]], axis=1)
-            cross_ba = np.concatenate([b[:, :2], a[:, 2:]], axis=1)
-            trials = np.concatenate([0.5 * (a + b), cross_ab, cross_ba])
-            tfit = self._fitness(trials, z_bar, precision)
-            top = int(np.argmax(tfit))
-            if tfit[top] <= ref_fit.min():
-                break
-            imp, ifit = self._improve(trials[top:top + 1], tfit[top:top + 1], z_bar, precision)
-            pool = np.concatenate([ref, imp])
-            pfit = np.concatenate([ref_fit, ifit])
-            keep = np.argsort(pfit)[::-1][: len(ref)]
-            if not (keep >= len(ref)).any():
-                break
-            ref, ref_fit = pool[keep], pfit[keep]
-        return ref, ref_fit
+            self._core.initialise(self.prior[None])
+            self.initialised = True
 
     def step(self, timestamp_ns: int, measurements: Sequence[Measurement]) -> Estimate | None:
         """PREDICT, EVALUATE, scatter search, INCLUDE, estimate, SELECT (module docstring).
@@ -232,39 +332,122 @@ class ScatterSearchPF(Tracker):
         """
         t = check_timestamp(timestamp_ns, self._last_ns)
         ms = self._like.check(measurements)
-        self.evaluations = 0
+        core = self._core
+        core.evaluations = 0
+        z_bar, precision = _fused(ms, self.noise_px)
         if not self.initialised:
             if not ms:
                 return None
-            sigma = {m.source: self.noise_px[m.source] for m in ms}
-            self._initialise(np.concatenate([fused_position(ms, sigma), [0.0, 0.0]]))
+            core.initialise(np.concatenate([z_bar, [0.0, 0.0]])[None])
+            self.initialised = True
         elif self._last_ns is not None:
-            dt = self._clock.steps(t, self._last_ns)
-            predict(self._x, self._std_unit * math.sqrt(dt), self.rng, dt=dt)
+            core.predict(self._clock.steps(t, self._last_ns))
         self._last_ns = t
-        n = self.n_particles
-        x = self._x.T.copy()
+        n = core.n
         if not ms:
             w = np.full(n, 1.0 / n)
-            est = weighted_mean(x[:, :2], w)
-            self._x = x.T.copy()
-            return Estimate(t, float(est[0]), float(est[1]), float(n), False, n,
-                            weighted_covariance(x[:, :2], w), x[:, :2].copy())
-        prec = np.array([1.0 / self.noise_px[m.source] ** 2 for m in ms])
-        precision = float(prec.sum())
-        z_bar = prec @ np.array([[m.u, m.v] for m in ms]) / precision
-        fit = self._fitness(x, z_bar, precision)
-        ref, ref_fit = self._scatter_search(x, fit, z_bar, precision)
-        # INCLUDE: the RefSet replaces the worst particles
-        worst = np.argsort(fit)[: len(ref)]
-        x[worst], fit[worst] = ref, ref_fit
-        w = np.exp(fit - fit.max())
-        w /= w.sum()
-        est = weighted_mean(x[:, :2], w)
-        cov = weighted_covariance(x[:, :2], w)
-        ess = 1.0 / float(w @ w)
-        # SELECT (the next PREDICT's noise is the DIFFUSE stage)
-        x = x[systematic(w, self.rng)]
-        self._x = x.T.copy()
-        self.total_evaluations += self.evaluations
-        return Estimate(t, float(est[0]), float(est[1]), ess, True, n, cov, x[:, :2].copy())
+            pos = core.x[:, 0, :2]
+            est = weighted_mean(pos, w)
+            return Estimate(t, float(est[0]), float(est[1]), float(n), False, n, weighted_covariance(pos, w),
+                            pos.copy())
+        est, cov, ess = core.update(z_bar[None], np.array([precision]))
+        return Estimate(t, float(est[0, 0]), float(est[0, 1]), ess, True, n, cov[0], core.x[:, 0, :2].copy())
+
+
+class JointScatterSearchPF:
+    """Paper 002's SSPF over several targets in one particle (face and both hands).
+
+    Same interface as :class:`~fusion_pf.filter.multi.KMeansParticleFilter`:
+    ``predictions()`` and ``step(timestamp_ns, {target: [Measurement]}) -> MultiEstimate``.
+    The filter starts once every target has a cue in the same frame; a target
+    without cues in a frame only predicts. Every step is one frame step.
+
+    Parameters
+    ----------
+    targets : sequence of str
+    n_particles, refset_size, process_noise, noise_px, step_px, min_step_px,
+    max_rounds, init_spread_px, init_velocity_px, rng
+        As for :class:`ScatterSearchPF`.
+    states : StateConfig, optional
+        Track-state thresholds (paper 004).
+    """
+
+    def __init__(
+        self,
+        targets: Sequence[str],
+        *,
+        n_particles: int = 100,
+        refset_size: int = 6,
+        process_noise: tuple[float, float] = (3.0, 1.0),
+        noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
+        step_px: float = 4.0,
+        min_step_px: float = 0.5,
+        max_rounds: int = 3,
+        init_spread_px: float = 20.0,
+        init_velocity_px: float = 2.0,
+        states: StateConfig | None = None,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        self.targets = _check_targets(targets)
+        self._core = ScatterSearchCore(
+            len(self.targets), n_particles=n_particles, refset_size=refset_size, process_noise=process_noise,
+            step_px=step_px, min_step_px=min_step_px, max_rounds=max_rounds, init_spread_px=init_spread_px,
+            init_velocity_px=init_velocity_px, rng=rng,
+        )
+        self.n_particles = self._core.n
+        self._like = JointLikelihood(noise_px)
+        self.noise_px = self._like.noise_px
+        self._fsm = TrackStateMachine(self.targets, states or StateConfig())
+        self._est = np.full((len(self.targets), 4), np.nan)
+        self._last_ns: int | None = None
+
+    @property
+    def evaluations(self) -> int:
+        """Fitness evaluations in the last step."""
+        return self._core.evaluations
+
+    def predictions(self) -> np.ndarray:
+        """Predicted positions of the targets, shape (K, 2) (nan before the filter starts)."""
+        return self._est[:, :2] + self._est[:, 2:]
+
+    def step(self, timestamp_ns: int, measurements: Mapping[str, Sequence[Measurement]]):
+        """PREDICT, EVALUATE, scatter search over the joint state, INCLUDE, estimate, SELECT.
+
+        Returns
+        -------
+        MultiEstimate
+        """
+        t = check_timestamp(timestamp_ns, self._last_ns)
+        _check_measurements(self.targets, measurements)
+        ms = [self._like.check(measurements.get(name, ())) for name in self.targets]
+        core = self._core
+        core.evaluations = 0
+        fused = [_fused(m, self.noise_px) for m in ms]
+        z_bar = np.array([f[0] for f in fused])
+        precision = np.array([f[1] for f in fused])
+        if core.x is None:
+            if not (precision > 0).all():
+                # wait until every target has a cue
+                self._last_ns = t
+                ev = {name: Evidence(None, cues=len(m)) for name, m in zip(self.targets, ms)}
+                states = self._fsm.update(ev)
+                nan = math.nan
+                return MultiEstimate(t, {name: TargetEstimate(nan, nan, nan, nan, states[name], nan, nan)
+                                         for name in self.targets}, 0)
+            core.initialise(np.concatenate([z_bar, np.zeros_like(z_bar)], axis=1))
+        elif self._last_ns is not None:
+            core.predict(1.0)
+        self._last_ns = t
+        if (precision > 0).any():
+            self._est, _, _ = core.update(z_bar, precision)
+        else:
+            self._est = core.x.mean(axis=0)
+        spread = [cluster_spread(core.x[:, k, :2], self._est[k, :2]) for k in range(core.k)]
+        memb = [membership(self._est[k, :2], ms[k], self.noise_px) for k in range(core.k)]
+        ev = {name: Evidence((float(self._est[k, 0]), float(self._est[k, 1])), spread[k], memb[k], len(ms[k]))
+              for k, name in enumerate(self.targets)}
+        states = self._fsm.update(ev)
+        out = {name: TargetEstimate(*(float(c) for c in self._est[k]), state=states[name], membership=memb[k],
+                                    spread_px=spread[k])
+               for k, name in enumerate(self.targets)}
+        return MultiEstimate(t, out, core.evaluations)

@@ -8,7 +8,8 @@ import pytest
 from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
 from fusion_pf.filter.pf import ParticleFilter
-from fusion_pf.filter.sspf import ScatterSearchPF, diverse_subset
+from fusion_pf.filter.sspf import JointScatterSearchPF, ScatterSearchCore, ScatterSearchPF, diverse_subset
+from fusion_pf.filter.states import TrackState
 
 T = 200
 FRAME_NS = 33_333_333
@@ -75,3 +76,25 @@ def test_no_measurement_predicts_and_bad_parameters():
                           ({"min_step_px": 5.0, "step_px": 1.0}, "min_step_px"), ({"max_rounds": 0}, "max_rounds")):
         with pytest.raises(InputError, match=match):
             ScatterSearchPF(**kwargs)
+
+
+def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
+    core = ScatterSearchCore(3, n_particles=10, refset_size=6, process_noise=(3, 1), step_px=4, min_step_px=0.5,
+                             max_rounds=1, init_spread_px=1, init_velocity_px=1, rng=0)
+    # paper 002 §5: six mixes of two (F, R, L) solutions
+    assert core._masks.shape == (6, 3, 1)
+    t = np.arange(60, dtype=float)
+    a = np.stack([100 + 100 * t / 60, np.full(60, 100.0)], 1)
+    b = np.stack([200 - 100 * t / 60, np.full(60, 130.0)], 1)
+    rng = np.random.default_rng(0)
+    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=0)
+    first = f.step(0, {"a": [Measurement("colour", *a[0])]})  # waits for both targets
+    assert first.evaluations == 0 and first.targets["b"].state == TrackState.UNINITIALISED
+    err = []
+    for k in range(1, 60):
+        e = f.step(k, {"a": [Measurement("colour", *(a[k] + rng.normal(0, 3, 2)))],
+                       "b": [Measurement("colour", *(b[k] + rng.normal(0, 3, 2)))]})
+        assert e.evaluations > 50
+        err.append([np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
+                    np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1])])
+    assert np.max(err[5:]) < 10
