@@ -104,21 +104,25 @@ class Run:
     restarts: dict[str, int] = field(default_factory=dict)
 
 
-def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0) -> Run:
+def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0, lost_gate_px: float = 120.0) -> Run:
     """Track ``inputs`` with ``tracker``: associate the blobs, step, collect.
 
     Parameters
     ----------
-    tracker : KMeansParticleFilter or IndependentTrackers
+    tracker : KMeansParticleFilter, IndependentTrackers or JointScatterSearchPF
         Anything with ``targets``, ``predictions()`` and ``step(t, {target: [Measurement]})``.
     inputs : sequence of FrameInputs
     gate_px : float
-        Association gate.
+        Association gate of a tracked target.
+    lost_gate_px : float
+        Wider gate of a target in the ``lost`` state (paper 004: the lost state
+        "tries to use prior information of the target position to retrieve the track").
     """
     targets = tracker.targets
     est = {t: np.full((len(inputs), 2), np.nan) for t in targets}
     states: dict[str, list[TrackState]] = {t: [] for t in targets}
     evals = np.zeros(len(inputs), dtype=np.int64)
+    gates = np.full(len(targets), float(gate_px))
     for i, fi in enumerate(inputs):
         ms = {t: list(fi.labelled.get(t, ())) for t in targets}
         if fi.blobs:
@@ -132,15 +136,16 @@ def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0) -
                         pred[k] = (ms[t][0].u, ms[t][0].v)
                     elif t in first:
                         pred[k] = pos[first[t]]
-            for k, j in enumerate(associate(pred, pos, gate_px)):
+            for k, j in enumerate(associate(pred, pos, gates)):
                 if j >= 0:
                     ms[targets[k]].append(fi.blobs[j])
         out = tracker.step(fi.timestamp_ns, ms)
         evals[i] = out.evaluations
-        for t in targets:
+        for k, t in enumerate(targets):
             e = out.targets[t]
             est[t][i] = (e.u, e.v)
             states[t].append(e.state)
+            gates[k] = lost_gate_px if e.state == TrackState.LOST else gate_px
     return Run(est, states, evals, dict(getattr(tracker, "restarts", {})))
 
 

@@ -80,7 +80,7 @@ __all__ = [
 ]
 
 
-def associate(predictions: np.ndarray, blobs: np.ndarray, gate_px: float) -> np.ndarray:
+def associate(predictions: np.ndarray, blobs: np.ndarray, gate_px) -> np.ndarray:
     """Associate blob measurements to targets: nearest prediction, gated.
 
     First a one-to-one assignment minimising the total distance (Hungarian)
@@ -94,8 +94,9 @@ def associate(predictions: np.ndarray, blobs: np.ndarray, gate_px: float) -> np.
         Predicted target positions; a row of nan (no prediction) gets no blob.
     blobs : ndarray, shape (M, 2)
         Blob centroids.
-    gate_px : float
-        Largest accepted distance (> 0).
+    gate_px : float or ndarray, shape (K,)
+        Largest accepted distance (> 0), for all targets or per target (e.g.
+        wider for a lost target).
 
     Returns
     -------
@@ -104,20 +105,21 @@ def associate(predictions: np.ndarray, blobs: np.ndarray, gate_px: float) -> np.
     """
     p = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
     b = np.asarray(blobs, dtype=np.float64).reshape(-1, 2)
-    if not (math.isfinite(gate_px) and gate_px > 0):
-        raise InputError(f"gate_px must be a finite number > 0, got {gate_px!r}")
+    gate = np.broadcast_to(np.asarray(gate_px, dtype=np.float64), (len(p),))
+    if not (np.isfinite(gate).all() and (gate > 0).all()):
+        raise InputError(f"gate_px must be finite numbers > 0, got {gate_px!r}")
     out = np.full(len(p), -1, dtype=np.int64)
     if len(b) == 0 or len(p) == 0:
         return out
     d = np.sqrt(((p[:, None, :] - b[None, :, :]) ** 2).sum(axis=2))
     d = np.where(np.isfinite(d), d, np.inf)
-    big = 1e12
-    rows, cols = linear_sum_assignment(np.where(d <= gate_px, d, big))
-    keep = d[rows, cols] <= gate_px
+    inside = d <= gate[:, None]
+    rows, cols = linear_sum_assignment(np.where(inside, d, 1e12))
+    keep = inside[rows, cols]
     out[rows[keep]] = cols[keep]
     for k in np.flatnonzero(out < 0):
         j = int(np.argmin(d[k]))
-        if d[k, j] <= gate_px:
+        if inside[k, j]:
             out[k] = j
     return out
 

@@ -18,8 +18,9 @@ frame. A particle holds the states of K targets, shape ``(K, 4)`` (paper 002
    chosen as result of the combination procedure"), if it beats the RefSet's
    worst, is improved by a local search (pattern search on the positions:
    ``+-step`` on each axis of each target, move to the best improving
-   neighbour, halve the step when none improves, stop below ``min_step_px``)
-   -- EVALUATE;
+   neighbour, halve the step when none improves, stop below ``min_step_px``;
+   a position moved by ``delta`` moves the velocity by ``delta`` too, since
+   it was predicted with it) -- EVALUATE;
 6. UPDATEREFSET: better solutions replace the worst; the SS stage repeats
    until no new solution enters the RefSet (at most ``max_rounds``);
 7. INCLUDE: the RefSet replaces the worst particles;
@@ -159,10 +160,12 @@ class ScatterSearchCore:
     def improve(self, sol: np.ndarray, fit: float, z_bar, precision) -> tuple[np.ndarray, float]:
         """IMPROVE: pattern search on the positions of one solution (K, 4)."""
         step = self.step_px
-        # neighbour m moves target m // 4 along +-u or +-v
+        # neighbour m moves target m // 4 along +-u or +-v; the velocity takes the same
+        # correction (the position was predicted with it: p = p_prev + v)
         moves = np.zeros((4 * self.k, self.k, 4))
         for t in range(self.k):
             moves[4 * t:4 * t + 4, t, :2] = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+        moves[..., 2:] = moves[..., :2]
         while step >= self.min_step_px:
             nb = sol[None] + step * moves
             f = self.fitness(nb, z_bar, precision)
@@ -223,8 +226,12 @@ class ScatterSearchCore:
         est = np.einsum("n,nkd->kd", w, x)
         cov = np.stack([weighted_covariance(x[:, t, :2], w, est[t, :2]) for t in range(self.k)])
         ess = 1.0 / float(w @ w)
-        # SELECT (the next PREDICT's noise is the DIFFUSE stage)
-        self.x = x[systematic(w, self.rng)]
+        # SELECT (the next PREDICT's noise is the DIFFUSE stage); the fitness says nothing
+        # about a target without a cue, so its components are not selected by the others' weights
+        selected = x[systematic(w, self.rng)]
+        silent = precision <= 0
+        selected[:, silent] = x[:, silent]
+        self.x = selected
         self.total_evaluations += self.evaluations
         return est, cov, ess
 
