@@ -36,6 +36,9 @@ def test_associate_one_to_one_then_shared_then_gated():
     # the nearest-prediction rule does not give a blob to the farther target when each has its own
     assert associate(pred[:2], np.array([[120.0, 100.0], [190.0, 100.0]]), 90.0).tolist() == [0, 1]
     assert associate(pred, np.zeros((0, 2)), 10.0).tolist() == [-1, -1, -1]
+    # per-target gates (a lost target looks farther)
+    far = np.array([[150.0, 100.0]])
+    assert associate(pred[:2], far, np.array([40.0, 60.0])).tolist() == [-1, 0]
     with pytest.raises(InputError, match="gate_px"):
         associate(pred, blobs, 0.0)
 

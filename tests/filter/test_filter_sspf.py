@@ -98,3 +98,17 @@ def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
         err.append([np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
                     np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1])])
     assert np.max(err[5:]) < 10
+
+
+def test_joint_sspf_target_without_cues_coasts_instead_of_drifting_away():
+    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=1)
+    rng = np.random.default_rng(1)
+    for k in range(40):
+        cues = {"a": [Measurement("colour", *(100 + 2.0 * k + rng.normal(0, 3), 100 + rng.normal(0, 3)))]}
+        if k < 10:
+            cues["b"] = [Measurement("colour", *(200 + rng.normal(0, 3), 150 + rng.normal(0, 3)))]
+        e = f.step(k, cues)
+    # a follows its cue; b, silent for 30 frames, stays near where it was last seen
+    assert np.hypot(e.targets["a"].u - 178.0, e.targets["a"].v - 100.0) < 10
+    assert np.hypot(e.targets["b"].u - 200.0, e.targets["b"].v - 150.0) < 60
+    assert e.targets["b"].state == TrackState.LOST
