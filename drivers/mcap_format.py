@@ -74,6 +74,8 @@ COMPRESSED_IMAGE = "foxglove.CompressedImage"
 CAMERA_CALIBRATION = "foxglove.CameraCalibration"
 SKELETON_SCHEMA = "fusion_pf.Skeleton"
 PALM_SCHEMA = "fusion_pf.PalmPoint"
+#: Ground truth of one target of a multi-target recording (a PalmPoint plus ``target``).
+TARGET_PALM_SCHEMA = "fusion_pf.TargetPalmPoint"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 CUES_SCHEMA = "fusion_pf.Cues"
 
@@ -129,6 +131,17 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "required": ["u", "v"],
         "properties": {"u": _NUMBER, "v": _NUMBER, "occluded": {"type": "boolean"}},
+    },
+    TARGET_PALM_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": TARGET_PALM_SCHEMA,
+        "description": "Ground-truth centre of one target (e.g. right_hand, left_hand, head) in colour pixels.",
+        "type": "object",
+        "required": ["target", "u", "v"],
+        "properties": {
+            "target": {"type": "string", "minLength": 1},
+            "u": _NUMBER, "v": _NUMBER, "occluded": {"type": "boolean"},
+        },
     },
     ESTIMATE_SCHEMA: {
         "$schema": _DRAFT,
@@ -571,6 +584,19 @@ def decode_palm(obj: Any, where: str = GROUND_TRUTH_TOPIC) -> PalmPoint:
         return PalmPoint(obj["u"], obj["v"], occluded)
     except InputError as exc:
         raise RecordingError(f"{where}: {exc}") from None
+
+
+def encode_target_palm(target: str, palm: PalmPoint) -> dict[str, Any]:
+    """The ``fusion_pf.TargetPalmPoint`` object of one target's ground truth."""
+    return {"target": target, **encode_palm(palm)}
+
+
+def decode_truth(obj: Any, where: str = GROUND_TRUTH_TOPIC) -> tuple[str | None, PalmPoint]:
+    """``(target, point)`` of a ground-truth message; target None for a single-target ``PalmPoint``."""
+    target = obj.get("target") if isinstance(obj, dict) else None
+    if target is not None and not (isinstance(target, str) and target):
+        raise RecordingError(f"{where}: 'target' must be a non-empty string, got {target!r}")
+    return target, decode_palm(obj, where)
 
 
 def check_timestamp(timestamp_ns: object, what: str = "timestamp_ns") -> int:

@@ -256,7 +256,12 @@ class McapRecorder(Sink):
             messages.append((fmt.DEPTH_TOPIC, fmt.encode_depth(frame.depth, t, self.depth_format), None, None))
         if frame.joints is not None:
             messages.append((fmt.SKELETON_TOPIC, None, fmt.SKELETON_SCHEMA, fmt.encode_skeleton(frame.joints)))
-        if frame.ground_truth is not None:
+        if frame.ground_truths is not None:
+            messages.extend(
+                (fmt.GROUND_TRUTH_TOPIC, None, fmt.TARGET_PALM_SCHEMA, fmt.encode_target_palm(name, point))
+                for name, point in frame.ground_truths.items()
+            )
+        elif frame.ground_truth is not None:
             messages.append((fmt.GROUND_TRUTH_TOPIC, None, fmt.PALM_SCHEMA, fmt.encode_palm(frame.ground_truth)))
         if not frame.background and not self._foreground:
             self._foreground = True

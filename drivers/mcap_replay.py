@@ -45,7 +45,7 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from fusion_pf.errors import InputError, RecordingError
-from fusion_pf.frame import Frame, Intrinsics
+from fusion_pf.frame import Frame, Intrinsics, PalmPoint
 
 from . import mcap_format as fmt
 from .base import ReplaySource, SourceStats
@@ -74,6 +74,14 @@ _PROTO_SCHEMAS = {
 _BLOCK_CACHE = 4
 _CALIBRATION_CACHE = 4096
 
+
+
+def _put(parts: dict, kind: str, record: tuple[int, memoryview, int]) -> None:
+    """File a message of a frame: one per kind, except ground truth (one per target)."""
+    if kind == "truth":
+        parts.setdefault(kind, []).append(record)
+    else:
+        parts[kind] = record
 
 class _Corrupt(Exception):
     """A record that cannot be parsed (internal; turned into notes or RecordingError)."""
@@ -663,7 +671,7 @@ class McapReplay(ReplaySource):
             for cid, log_time, data, seq in records:
                 kind = self._kind.get(cid)
                 if log_time == t and kind is not None and kind != "calibration":
-                    parts[kind] = (cid, data, seq)
+                    _put(parts, kind, (cid, data, seq))
         return parts
 
     def _calibration_at(self, t: int) -> Intrinsics:
@@ -704,9 +712,14 @@ class McapReplay(ReplaySource):
             w = f"{fmt.SKELETON_TOPIC} of {where}"
             joints = fmt.decode_skeleton(fmt.decode_json(parts["skeleton"][1], w), w)
         truth = None
-        if "truth" in parts:
-            w = f"{fmt.GROUND_TRUTH_TOPIC} of {where}"
-            truth = fmt.decode_palm(fmt.decode_json(parts["truth"][1], w), w)
+        truths: dict[str, PalmPoint] = {}
+        w = f"{fmt.GROUND_TRUTH_TOPIC} of {where}"
+        for _cid, data, _seq in parts.get("truth", ()):
+            target, point = fmt.decode_truth(fmt.decode_json(data, w), w)
+            if target is None:
+                truth = point
+            else:
+                truths[target] = point
         intrinsics = self._calibration_at(t)
         h, w = color.shape[:2]
         if depth is not None and depth.shape != (h, w):
@@ -720,7 +733,8 @@ class McapReplay(ReplaySource):
                 f"{fmt.COLOR_TOPIC} is {w}x{h} in {where}"
             )
         seq = seq if self._own_sequences else index
-        return Frame(t, seq, color, depth, intrinsics, joints, truth, background=index < self._background)
+        return Frame(t, seq, color, depth, intrinsics, joints, truth, background=index < self._background,
+                     ground_truths=truths or None)
 
     # ------------------------------------------------------------------ public API
 
@@ -825,7 +839,7 @@ class McapReplay(ReplaySource):
                 for cid, log_time, data, seq in records:
                     kind = self._kind.get(cid)
                     if kind is not None and kind != "calibration" and wanted(log_time):
-                        pending.setdefault(log_time, {})[kind] = (cid, data, seq)
+                        _put(pending.setdefault(log_time, {}), kind, (cid, data, seq))
             parts = pending.pop(t, {})
             if "color" not in parts:
                 self.stats.dropped += 1

@@ -1,4 +1,4 @@
-"""Synthetic RGB-D scene source: a person waving a palm in front of a wall.
+"""Synthetic RGB-D scene source: a person waving a palm (or washing both hands) in front of a wall.
 
 :class:`SynthSource` renders the kind of scene paper 003 tracks (§3.5, §4): an
 empty-room background, a person in dark clothing (right sleeve pushed up)
@@ -156,6 +156,32 @@ ground truth are the instantaneous (unblurred) scene.
 ``occluded`` is true when at least 25 % of the palm lies over the torso/head
 region (``f >= 0.25``, so ``w >= 0.625``); about 30 % of the person frames.
 
+Two hands (``hands=2``)
+-----------------------
+A hand-washing person (:func:`drivers.synth_scene.wash_pose_at`): both sleeves
+pushed up, both palms 0.28 m in front of the lower chest. One 300-frame cycle
+(10 s at 30 fps; :data:`drivers.synth_scene.WASH_KEYS`) has the hands apart
+(about 0.30 m, 58 px at 320 px width), approaching and **joined** for 61 and 47
+frames (palms 4 cm apart and rubbing, >= 25 % overlap: ``occluded``), and one
+**crossing** in between (the right hand passes 13 cm above the left, the palms
+touch); odd cycles are mirrored, so the motion is continuous (the hands cross
+back in the next cycle). The centre drifts and bobs a few centimetres
+(per-seed parameters from ``spawn_key=(4,)``, so the background, lighting and
+sleeve draws are those of the one-hand scene). The skin cues see both hands
+and forearms, the face and neck, and a skin-coloured painting on the wall.
+
+* Ground truth per target: ``Frame.ground_truths`` = ``{"right_hand",
+  "left_hand", "head"}`` (palm centres, face centre; :meth:`SynthSource.ground_truths`),
+  ``Frame.ground_truth`` = the right hand.
+* Skeleton: every joint sigma 2 px (at 640 px width), confidence 0.85-0.95;
+  while the hands are joined (weight ``w = clip(f / 0.4, 0, 1)``, ``f`` the
+  fraction of the right palm covered by the left) both hand joints are pulled
+  ``w / 2`` of the way to the pair's middle, jitter ``2 + 10 w`` px,
+  confidence ``0.9 - 0.6 w``.
+* No motion blur (two layers moving differently are not modelled); the depth
+  and colour noise are the one-hand scene's.
+* ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
+
 Determinism
 -----------
 The scene (background textures, motion parameters) comes from
@@ -253,7 +279,9 @@ _CORR_STD = float((cv2.getGaussianKernel(_CORR_KSIZE, DEPTH_NOISE_CORRELATION_PX
 
 #: fx of the 640-px-wide camera, to which the skeleton's pixel figures refer.
 _REFERENCE_FX = 0.78 * 640.0
-_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model")
+_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands")
+#: Ground-truth targets of the two-hand scene, the primary one first.
+TARGETS = ("right_hand", "left_hand", "head")
 _MAX_FRAMES = 10_000_000
 _MAX_SIZE = 4096
 _MIN_SIZE = 32
@@ -324,6 +352,9 @@ class SynthSource(ReplaySource):
         Timestamp of frame 0 in integer nanoseconds (>= 0).
     depth_model : {"realistic", "basic"}
         The stereo sensor model of the depth image (module docstring, "Depth").
+    hands : int
+        1 (default): the single-palm scene; 2: the two-hand hand-washing scene
+        (see "Two hands" in the module docstring).
 
     Raises
     ------
@@ -341,8 +372,10 @@ class SynthSource(ReplaySource):
         background_frames: int = 0,
         start_ns: int = 1_700_000_000_000_000_000,
         depth_model: str = "realistic",
+        hands: int = 1,
     ) -> None:
         super().__init__()
+        self.hands = _int_option("synth option hands", hands, 1, 2)
         self._n = _int_option("synth option frames", frames, 1, _MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
         self.size = _size_option(size)
@@ -358,6 +391,7 @@ class SynthSource(ReplaySource):
         self._background = sc.render_background(self.intrinsics, scene_rng)
         self._bg_depth_valid = self._stereo_valid(self._background.depth_m)
         self._appearance = sc.appearance_parameters(self._rng(3))
+        self._wash = sc.wash_parameters(self._rng(4)) if self.hands == 2 else None
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
 
@@ -369,7 +403,7 @@ class SynthSource(ReplaySource):
         ----------
         options : mapping of str to str or object
             Any of ``seed``, ``frames``, ``size`` (``"640x400"`` or ``(w, h)``),
-            ``fps``, ``background_frames``, ``start_ns``, ``depth_model``.
+            ``fps``, ``background_frames``, ``start_ns``, ``depth_model``, ``hands`` (1 or 2).
 
         Raises
         ------
@@ -394,7 +428,8 @@ class SynthSource(ReplaySource):
 
     def describe(self) -> str:
         w, h = self.size
-        return (f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}"
+        hands = " hands=2" if self.hands == 2 else ""
+        return (f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}"
                 + ("" if self.depth_model == "realistic" else f" depth_model={self.depth_model}"))
 
     def timestamp_ns(self, index: int) -> int:
@@ -426,6 +461,7 @@ class SynthSource(ReplaySource):
     def metadata(self) -> dict[str, str]:
         """Key/values for the recording's ``fusion_pf.recording`` metadata record."""
         w, h = self.size
+        extra = {"hands": "2", "targets": ",".join(TARGETS)} if self.hands == 2 else {}
         return {
             "generator": "fusion_pf.synth",
             "generator_version": __version__,
@@ -439,6 +475,7 @@ class SynthSource(ReplaySource):
                 "disparity_noise_px": repr(DISPARITY_NOISE_PX), "baseline_mm": repr(BASELINE_MM),
                 "subpixel_steps": str(SUBPIXEL_STEPS), "max_disparity_px": repr(MAX_DISPARITY_PX)}),
             "occluded_overlap": repr(OCCLUDED_OVERLAP),
+            **extra,
         }
 
     # -- geometry without pixels ----------------------------------------------------------------
@@ -454,15 +491,27 @@ class SynthSource(ReplaySource):
         index = self._check_index(index)
         if index < self.background_frames:
             return None
+        if self._wash is not None:
+            return sc.wash_pose_at(self._motion, self._wash, float(index - self.background_frames))
         return sc.pose_at(self._motion, float(index - self.background_frames))
 
     def palm_overlap(self, index: int) -> float:
-        """Fraction of the palm's area over the torso/head region at ``index`` (0 when empty)."""
+        """Fraction of the palm's area over the torso/head region at ``index`` (0 when empty).
+
+        Two hands: the fraction of the right palm covered by the left palm.
+        """
         pose = self.pose(index)
-        return 0.0 if pose is None else sc.palm_overlap(self.intrinsics, pose)
+        if pose is None:
+            return 0.0
+        if self._wash is not None:
+            return sc.hands_overlap(self.intrinsics, pose)
+        return sc.palm_overlap(self.intrinsics, pose)
 
     def ground_truth(self, index: int) -> PalmPoint | None:
-        """The true palm centre of frame ``index`` without rendering it."""
+        """The true palm centre of frame ``index`` without rendering it (two hands: the right palm)."""
+        truths = self.ground_truths(index)
+        if truths is not None:
+            return truths[TARGETS[0]]
         pose = self.pose(index)
         if pose is None:
             return None
@@ -470,12 +519,32 @@ class SynthSource(ReplaySource):
         occluded = sc.palm_overlap(self.intrinsics, pose) >= OCCLUDED_OVERLAP
         return PalmPoint(u, v, occluded=occluded)
 
+    def ground_truths(self, index: int) -> dict[str, PalmPoint] | None:
+        """Two hands: the true centre per target (:data:`TARGETS`); None for one hand or a background frame.
+
+        ``occluded`` is true for a palm while at least :data:`OCCLUDED_OVERLAP`
+        of the right palm is covered by the left one (the hands are joined);
+        the head (face centre) is never occluded.
+        """
+        pose = self.pose(index)
+        if pose is None or self._wash is None:
+            return None
+        intr = self.intrinsics
+        joined = sc.hands_overlap(intr, pose) >= OCCLUDED_OVERLAP
+        points = (pose.right_hand, pose.left_hand, sc.face_centre(pose))
+        return {
+            name: PalmPoint(*sc.project(intr, p), occluded=joined and name != "head")
+            for name, p in zip(TARGETS, points)
+        }
+
     def joints(self, index: int) -> dict[str, Joint]:
         """The skeleton stream of frame ``index`` (``{}`` for a background frame)."""
         pose = self.pose(index)
         if pose is None:
             return {}
         intr = self.intrinsics
+        if self._wash is not None:
+            return self._wash_joints(index, pose)
         k = intr.fx / _REFERENCE_FX
         w = min(sc.palm_overlap(intr, pose) / FULL_FAILURE_OVERLAP, 1.0)
         rng = self._rng(2, index)
@@ -502,6 +571,31 @@ class SynthSource(ReplaySource):
             z_mm += pull * (pose.torso[2] * 1000.0 - z_mm) + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
             drop = 0.6 if name == "right_hand" else 0.3 if name == "right_wrist" else 0.0
             conf = 0.9 - drop * ww + conf_noise[j]
+            out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
+        return out
+
+    def _wash_joints(self, index: int, pose: sc.Pose) -> dict[str, Joint]:
+        """Two-hand skeleton: both hands fail while joined (see "Two hands" in the module docstring)."""
+        intr = self.intrinsics
+        k = intr.fx / _REFERENCE_FX
+        w = min(sc.hands_overlap(intr, pose) / FULL_FAILURE_OVERLAP, 1.0)
+        rng = self._rng(2, index)
+        noise = rng.standard_normal((len(KNOWN_JOINTS), 3))
+        conf_noise = rng.uniform(-0.05, 0.05, size=len(KNOWN_JOINTS))
+        ru, rv = sc.project(intr, pose.right_hand)
+        lu, lv = sc.project(intr, pose.left_hand)
+        mid = np.array([(ru + lu) / 2.0, (rv + lv) / 2.0])
+        out: dict[str, Joint] = {}
+        for j, name in enumerate(KNOWN_JOINTS):
+            p = getattr(pose, name)
+            u, v = sc.project(intr, p)
+            ww = w if name in ("right_hand", "left_hand") else 0.5 * w if name.endswith("wrist") else 0.0
+            sigma_px = (2.0 + 10.0 * ww) * k
+            # joined hands: each joint is pulled half-way to the pair's middle
+            u += 0.5 * ww * (mid[0] - u) + sigma_px * noise[j, 0]
+            v += 0.5 * ww * (mid[1] - v) + sigma_px * noise[j, 1]
+            z_mm = p[2] * 1000.0 + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
+            conf = 0.9 - 0.6 * ww + conf_noise[j]
             out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
         return out
 
@@ -605,10 +699,11 @@ class SynthSource(ReplaySource):
 
         The palm's image displacement during the exposure (centred on the frame
         time, :data:`EXPOSURE_FRACTION` of the frame period) as a line kernel;
-        None when the palm moves at most :data:`MIN_BLUR_SPEED_PX` per frame.
+        None when the palm moves at most :data:`MIN_BLUR_SPEED_PX` per frame, and
+        always in the two-hand scene.
         """
         index = self._check_index(index)
-        if index < self.background_frames:
+        if index < self.background_frames or self._wash is not None:
             return None
         t = float(index - self.background_frames)
         half = EXPOSURE_FRACTION / 2.0
@@ -644,7 +739,7 @@ class SynthSource(ReplaySource):
         masks : dict of str to ndarray
             Boolean (H, W) masks of the noise-free, unblurred scene:
             ``"skin"`` (face, neck, both hands, bare right forearm), ``"palm"``
-            (the tracked right palm only), ``"person"``.
+            (the tracked right palm only; two hands: both palms), ``"person"``.
         """
         index = self._check_index(index)
         pose = self.pose(index)
@@ -654,6 +749,10 @@ class SynthSource(ReplaySource):
             color_f, depth_m = bg.color, bg.depth_m
             labels = np.zeros(depth_m.shape, np.uint8)
             valid = self._bg_depth_valid
+        elif self._wash is not None:
+            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
+            color_f, depth_m, labels = sc.composite(bg, parts)
+            valid = self._stereo_valid(depth_m)
         else:
             parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
             color_f, depth_m, labels = sc.composite(bg, parts, self.blur_kernel(index))
@@ -669,6 +768,7 @@ class SynthSource(ReplaySource):
             joints=self.joints(index),
             ground_truth=self.ground_truth(index),
             background=pose is None,
+            ground_truths=self.ground_truths(index),
         )
         masks = {
             "skin": labels >= sc.LABEL_SKIN,

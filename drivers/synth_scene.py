@@ -668,3 +668,170 @@ def composite(
     alpha = cv2.filter2D(alpha, -1, blur, borderType=cv2.BORDER_REPLICATE)
     color[r0:r1, c0:c1] = layer + (1.0 - alpha)[..., None] * base
     return color, depth, labels
+
+
+# -- two hands (``hands=2``): hand washing ---------------------------------------------------------
+
+#: Key frames of one hand-washing cycle (person frames): ``(frame, d, dy)`` with
+#: ``d`` the horizontal distance (metres) from the right to the left palm centre
+#: (> 0: each hand on its own side; < 0: crossed) and ``dy`` how far the right palm
+#: is above the left one (metres). Joined twice for >= 40 frames, crossed once.
+WASH_KEYS: tuple[tuple[float, float, float], ...] = (
+    (0.0, 0.30, 0.0),
+    (25.0, 0.30, 0.0),
+    (50.0, 0.04, 0.0),
+    (100.0, 0.04, 0.0),
+    (125.0, 0.30, 0.0),
+    (150.0, 0.30, 0.0),
+    (165.0, 0.15, 0.11),
+    (180.0, 0.0, 0.13),
+    (195.0, -0.15, 0.11),
+    (210.0, -0.30, 0.0),
+    (225.0, -0.30, 0.0),
+    (245.0, -0.04, 0.0),
+    (285.0, -0.04, 0.0),
+    (300.0, -0.30, 0.0),
+)
+#: Length of one cycle (frames); odd cycles are mirrored (``d -> -d``), so the motion is continuous.
+WASH_PERIOD = WASH_KEYS[-1][0]
+
+
+@dataclass(frozen=True)
+class WashMotion:
+    """Random parameters of the two-hand (hand-washing) motion, drawn once per seed.
+
+    Periods in frames, amplitudes in metres.
+    """
+
+    rub_period: float
+    rub_amp: float
+    bob_period: float
+    bob_phase: float
+    bob_amp: float
+    centre_period: float
+    centre_phase: float
+    centre_amp: float
+    height: float
+
+
+def wash_parameters(rng: np.random.Generator) -> WashMotion:
+    """Draw the hand-washing parameters (seed-dependent)."""
+    u = rng.uniform
+    return WashMotion(
+        rub_period=float(u(10.0, 16.0)),
+        rub_amp=float(u(0.008, 0.014)),
+        bob_period=float(u(50.0, 80.0)),
+        bob_phase=float(u(0, 2 * math.pi)),
+        bob_amp=float(u(0.02, 0.04)),
+        centre_period=float(u(90.0, 150.0)),
+        centre_phase=float(u(0, 2 * math.pi)),
+        centre_amp=float(u(0.02, 0.04)),
+        height=float(u(0.16, 0.22)),
+    )
+
+
+def wash_schedule(t: float) -> tuple[float, float]:
+    """``(d, dy)`` of :data:`WASH_KEYS` at person-frame ``t`` (cosine-eased between key frames)."""
+    cycle, local = divmod(t, WASH_PERIOD)
+    sign = -1.0 if int(cycle) % 2 else 1.0
+    times = [k[0] for k in WASH_KEYS]
+    i = min(max(int(np.searchsorted(times, local, side="right")) - 1, 0), len(WASH_KEYS) - 2)
+    (t0, d0, y0), (t1, d1, y1) = WASH_KEYS[i], WASH_KEYS[i + 1]
+    s = (1.0 - math.cos(math.pi * (local - t0) / (t1 - t0))) / 2.0
+    return sign * (d0 + s * (d1 - d0)), y0 + s * (y1 - y0)
+
+
+def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
+    """The two-hand pose at person-frame ``t``: both palms in front of the lower chest.
+
+    The torso sways as in :func:`pose_at`; the palms are ``d`` apart
+    horizontally and ``dy`` vertically (:func:`wash_schedule`) around a centre
+    that drifts slowly, 0.28-0.31 m in front of the torso; while joined they rub
+    (anti-phase oscillation of ``rub_amp``). Both arms follow by two-link
+    inverse kinematics.
+    """
+    two_pi = 2.0 * math.pi
+    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
+    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
+    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
+    head = np.array([tx, -0.37, tz - 0.02])
+    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    d, dy = wash_schedule(t)
+    crossing = dy / 0.13
+    # 1 while joined (|d| = 0.04 m), fading out by |d| = 0.14 m; no rubbing while crossing
+    joined = min(max(1.0 - (abs(d) - 0.04) / 0.10, 0.0), 1.0) * (1.0 - crossing)
+    rub = joined * w.rub_amp * math.sin(two_pi * t / w.rub_period)
+    cx = tx + w.centre_amp * math.sin(two_pi * t / w.centre_period + w.centre_phase)
+    cy = w.height + w.bob_amp * math.sin(two_pi * t / w.bob_period + w.bob_phase)
+    r_palm = np.array([cx - d / 2.0 + rub, cy - dy / 2.0 - rub, tz - 0.28 - 0.03 * crossing])
+    l_palm = np.array([cx + d / 2.0 - rub, cy + dy / 2.0 + rub, tz - 0.28])
+    hands = []
+    for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
+        to_palm = palm - sh
+        wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
+        hands.append((wr, _elbow(sh, wr, pole)))
+    (r_wr, r_el), (l_wr, l_el) = hands
+    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, r_palm, l_palm)
+
+
+def left_palm_mask(intr: Intrinsics, pose: Pose, clip: bool = True):
+    """The left palm ellipse (two-hand scene): ``(rows, cols, mask, q, du, dv)`` as :func:`ellipse_mask`."""
+    angle = _hand_angle(intr, pose.left_wrist, pose.left_hand)
+    return ellipse_mask(intr, pose.left_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH, angle, clip)
+
+
+def hands_overlap(intr: Intrinsics, pose: Pose) -> float:
+    """Fraction of the right palm's area covered by the left palm's ellipse (two-hand scene)."""
+    rows, cols, mask, *_ = palm_mask(intr, pose, clip=False)
+    area = int(mask.sum())
+    if area == 0:
+        return 0.0
+    angle = _hand_angle(intr, pose.left_wrist, pose.left_hand)
+    cu, cv = project(intr, pose.left_hand)
+    a = PALM_HALF_WIDTH * intr.fx / pose.left_hand[2]
+    b = PALM_HALF_LENGTH * intr.fy / pose.left_hand[2]
+    uu = np.arange(cols.start, cols.stop, dtype=np.float32)[None, :] - np.float32(cu)
+    vv = np.arange(rows.start, rows.stop, dtype=np.float32)[:, None] - np.float32(cv)
+    ca, sa = math.cos(angle), math.sin(angle)
+    q = ((-uu * sa + vv * ca) / a) ** 2 + ((uu * ca + vv * sa) / b) ** 2
+    return float((mask & (q <= 1.0)).sum()) / area
+
+
+def face_centre(pose: Pose) -> np.ndarray:
+    """3-D centre of the face (the skin ellipse of the head), metres."""
+    return pose.head + np.array([0.0, 0.012, -0.02])
+
+
+def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Part]:
+    """Every body part of a two-hand ``pose``, rasterised.
+
+    Both sleeves are pushed up to ``sleeve_fraction`` of the forearm, both
+    palms are ``LABEL_PALM``; the nearer arm is drawn last (on top). Nothing is
+    ``moving`` (the two-hand scene has no motion blur).
+    """
+    x, z = pose.torso[0], pose.torso[2]
+    parts = []
+    for side in (-1.0, 1.0):
+        leg = [np.array([x + side * dx, y, z + 0.02]) for dx, y in
+               ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))]
+        parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
+    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
+    parts.append(_ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2,
+                               0.08, HAIR_RGB, LABEL_CLOTH))
+    parts.append(_ellipse_part(intr, face_centre(pose), 0.074, 0.1, math.pi / 2, 0.07, SKIN_RGB, LABEL_SKIN))
+    arms = []
+    for sh, el, wr, hand in ((pose.right_shoulder, pose.right_elbow, pose.right_wrist, pose.right_hand),
+                             (pose.left_shoulder, pose.left_elbow, pose.left_wrist, pose.left_hand)):
+        edge = wr + sleeve_fraction * (el - wr)
+        arms.append((float(hand[2]), [
+            _capsule_part(intr, sh, el, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+            _capsule_part(intr, el, edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+            _capsule_part(intr, edge, wr, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False),
+            _ellipse_part(intr, hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH, _hand_angle(intr, wr, hand),
+                          PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True),
+        ]))
+    for _, arm in sorted(arms, key=lambda a: -a[0]):
+        parts.extend(arm)
+    return [p for p in parts if p is not None]

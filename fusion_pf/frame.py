@@ -53,6 +53,10 @@ KNOWN_JOINTS = (
 )
 
 
+#: The target whose ground truth is ``Frame.ground_truth`` when a frame has several.
+PRIMARY_TARGET = "right_hand"
+
+
 def _finite(name: str, value: object) -> float:
     try:
         f = float(value)  # type: ignore[arg-type]
@@ -218,6 +222,11 @@ class Frame:
         True palm centre (synthetic recordings only).
     background : bool
         True for an empty-scene frame (no person), used by background models.
+    ground_truths : mapping of str to PalmPoint, or None
+        True centre per target (multi-target synthetic recordings, e.g.
+        ``right_hand``, ``left_hand``, ``head``); None for single-target
+        frames. When given and ``ground_truth`` is None, ``ground_truth``
+        becomes the :data:`PRIMARY_TARGET`'s point (if present).
 
     Notes
     -----
@@ -233,6 +242,7 @@ class Frame:
     joints: Mapping[str, Joint] | None = None
     ground_truth: PalmPoint | None = None
     background: bool = False
+    ground_truths: Mapping[str, PalmPoint] | None = None
 
     def __post_init__(self) -> None:
         for name in ("timestamp_ns", "seq"):
@@ -281,6 +291,16 @@ class Frame:
             raise InputError(
                 f"ground_truth must be a PalmPoint or None, got {type(self.ground_truth).__name__}"
             )
+        if self.ground_truths is not None:
+            truths = dict(self.ground_truths)
+            for name, point in truths.items():
+                if not isinstance(name, str) or not name:
+                    raise InputError(f"ground_truths target names must be non-empty strings, got {name!r}")
+                if not isinstance(point, PalmPoint):
+                    raise InputError(f"ground_truths[{name!r}] must be a PalmPoint, got {type(point).__name__}")
+            object.__setattr__(self, "ground_truths", MappingProxyType(truths))
+            if self.ground_truth is None:
+                object.__setattr__(self, "ground_truth", truths.get(PRIMARY_TARGET))
 
     def __reduce__(self):
         # a mappingproxy cannot be pickled: rebuild from the fields (process pools, Dask workers)

@@ -28,6 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="depth sensor model: realistic stereo artefacts (noise ~ z^2, 1/8 px disparity steps, "
                         "flying pixels and holes at depth steps, speckle holes, range limits), or basic "
                         "(the model recordings/sample.mcap was made with)")
+    p.add_argument("--hands", default="1", metavar="H",
+                   help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
+                        "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)")
     p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
                    help="colour as RawImage rgb8, or CompressedImage jpeg/png")
     p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
@@ -52,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     source = SynthSource.from_options({
         "frames": args.frames, "seed": args.seed, "background_frames": args.background_frames,
-        "size": args.size, "fps": args.fps, "depth_model": args.depth_model,
+        "size": args.size, "fps": args.fps, "depth_model": args.depth_model, "hands": args.hands,
     })
     out: Path = args.output
     check_output(out, force=args.force)

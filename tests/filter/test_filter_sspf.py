@@ -1,0 +1,114 @@
+"""Scatter-search PF (paper 002 §4): convergence, evaluation count, fewer evaluations than a PF."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion_pf.cues.base import Measurement
+from fusion_pf.errors import InputError
+from fusion_pf.filter.pf import ParticleFilter
+from fusion_pf.filter.sspf import JointScatterSearchPF, ScatterSearchCore, ScatterSearchPF, diverse_subset
+from fusion_pf.filter.states import TrackState
+
+T = 200
+FRAME_NS = 33_333_333
+
+
+def scripted(seed=1):
+    """A fast manoeuvring palm (up to ~24 px / frame) and its colour cue (sigma 6 px)."""
+    t = np.arange(T)
+    truth = np.stack([320 + 150 * np.sin(2 * np.pi * t / 40), 200 + 80 * np.sin(2 * np.pi * t / 27)], 1)
+    return truth, truth + np.random.default_rng(seed).normal(0.0, 6.0, (T, 2))
+
+
+def track(f, z, truth):
+    est, evals = [], []
+    for k in range(T):
+        e = f.step(k * FRAME_NS, [Measurement("colour", *z[k])])
+        est.append((e.u, e.v))
+        # a ParticleFilter weighs its N particles once per frame (no re-initialisation here)
+        evals.append(getattr(f, "evaluations", f.n_particles))
+    err = np.hypot(*(np.array(est) - truth).T)[5:]
+    return float(np.sqrt((err ** 2).mean())), float(np.mean(evals))
+
+
+def test_sspf_converges_on_a_scripted_trajectory():
+    truth, z = scripted()
+    f = ScatterSearchPF(n_particles=30, process_noise=(3.0, 1.0), rng=0)
+    r, evals = track(f, z, truth)
+    # about the cue's own error (6 sqrt(2) = 8.5 px) or better
+    assert r < 9.0
+    assert f.total_evaluations == pytest.approx(evals * T)
+    # time-adaptive: more than N evaluations per frame, varying
+    assert 30 < evals < 1000
+    # a PF with the same model loses this target
+    r_pf, _ = track(ParticleFilter(n_particles=1000, process_noise=(3.0, 1.0), rng=0), z, truth)
+    assert r_pf > 5 * r
+
+
+def test_sspf_needs_fewer_evaluations_than_a_pf_for_the_same_rmse():
+    truth, z = scripted()
+    model = {"process_noise": (8.0, 3.0), "noise_px": {"colour": 6.0}}
+    r_ss, e_ss = track(ScatterSearchPF(n_particles=20, rng=0, **model), z, truth)
+    needed = None
+    for n in (50, 100, 200, 400, 800, 1600):
+        r_pf, e_pf = track(ParticleFilter(n_particles=n, rng=0, **model), z, truth)
+        if r_pf <= 1.1 * r_ss:
+            needed = e_pf
+            break
+    assert needed is not None and needed > 2 * e_ss
+
+
+def test_diverse_subset_is_max_min():
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0], [5.0, 0.0], [9.0, 0.0]])
+    # from {0}: the farthest is 10, then the point farthest from both (5)
+    assert diverse_subset(pts, np.array([0]), 2).tolist() == [2, 3]
+
+
+def test_no_measurement_predicts_and_bad_parameters():
+    f = ScatterSearchPF(n_particles=10, prior=(5.0, 5.0), rng=0)
+    e = f.step(0, [])
+    assert f.evaluations == 0 and math.hypot(e.u - 5.0, e.v - 5.0) < 20
+    assert ScatterSearchPF(n_particles=10, rng=0).step(0, []) is None
+    for kwargs, match in (({"n_particles": 1}, "n_particles"), ({"refset_size": 3}, "refset_size"),
+                          ({"refset_size": 12, "n_particles": 10}, "refset_size"),
+                          ({"min_step_px": 5.0, "step_px": 1.0}, "min_step_px"), ({"max_rounds": 0}, "max_rounds")):
+        with pytest.raises(InputError, match=match):
+            ScatterSearchPF(**kwargs)
+
+
+def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
+    core = ScatterSearchCore(3, n_particles=10, refset_size=6, process_noise=(3, 1), step_px=4, min_step_px=0.5,
+                             max_rounds=1, init_spread_px=1, init_velocity_px=1, rng=0)
+    # paper 002 §5: six mixes of two (F, R, L) solutions
+    assert core._masks.shape == (6, 3, 1)
+    t = np.arange(60, dtype=float)
+    a = np.stack([100 + 100 * t / 60, np.full(60, 100.0)], 1)
+    b = np.stack([200 - 100 * t / 60, np.full(60, 130.0)], 1)
+    rng = np.random.default_rng(0)
+    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=0)
+    first = f.step(0, {"a": [Measurement("colour", *a[0])]})  # waits for both targets
+    assert first.evaluations == 0 and first.targets["b"].state == TrackState.UNINITIALISED
+    err = []
+    for k in range(1, 60):
+        e = f.step(k, {"a": [Measurement("colour", *(a[k] + rng.normal(0, 3, 2)))],
+                       "b": [Measurement("colour", *(b[k] + rng.normal(0, 3, 2)))]})
+        assert e.evaluations > 50
+        err.append([np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
+                    np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1])])
+    assert np.max(err[5:]) < 10
+
+
+def test_joint_sspf_target_without_cues_coasts_instead_of_drifting_away():
+    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=1)
+    rng = np.random.default_rng(1)
+    for k in range(40):
+        cues = {"a": [Measurement("colour", *(100 + 2.0 * k + rng.normal(0, 3), 100 + rng.normal(0, 3)))]}
+        if k < 10:
+            cues["b"] = [Measurement("colour", *(200 + rng.normal(0, 3), 150 + rng.normal(0, 3)))]
+        e = f.step(k, cues)
+    # a follows its cue; b, silent for 30 frames, stays near where it was last seen
+    assert np.hypot(e.targets["a"].u - 178.0, e.targets["a"].v - 100.0) < 10
+    assert np.hypot(e.targets["b"].u - 200.0, e.targets["b"].v - 150.0) < 60
+    assert e.targets["b"].state == TrackState.LOST
