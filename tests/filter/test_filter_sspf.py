@@ -12,6 +12,8 @@ from fusion_pf.filter.sspf import JointScatterSearchPF, ScatterSearchCore, Scatt
 from fusion_pf.filter.states import TrackState
 
 T = 200
+#: The filters model the cue as it is simulated: sigma 6 px.
+CUE_NOISE = {"colour": 6.0}
 FRAME_NS = 33_333_333
 
 
@@ -35,7 +37,7 @@ def track(f, z, truth):
 
 def test_sspf_converges_on_a_scripted_trajectory():
     truth, z = scripted()
-    f = ScatterSearchPF(n_particles=30, process_noise=(3.0, 1.0), rng=0)
+    f = ScatterSearchPF(noise_px=CUE_NOISE, n_particles=30, process_noise=(3.0, 1.0), rng=0)
     r, evals = track(f, z, truth)
     # about the cue's own error (6 sqrt(2) = 8.5 px) or better
     assert r < 9.0
@@ -43,7 +45,7 @@ def test_sspf_converges_on_a_scripted_trajectory():
     # time-adaptive: more than N evaluations per frame, varying
     assert 30 < evals < 1000
     # a PF with the same model loses this target
-    r_pf, _ = track(ParticleFilter(n_particles=1000, process_noise=(3.0, 1.0), rng=0), z, truth)
+    r_pf, _ = track(ParticleFilter(noise_px=CUE_NOISE, n_particles=1000, process_noise=(3.0, 1.0), rng=0), z, truth)
     assert r_pf > 5 * r
 
 
@@ -67,10 +69,10 @@ def test_diverse_subset_is_max_min():
 
 
 def test_no_measurement_predicts_and_bad_parameters():
-    f = ScatterSearchPF(n_particles=10, prior=(5.0, 5.0), rng=0)
+    f = ScatterSearchPF(noise_px=CUE_NOISE, n_particles=10, prior=(5.0, 5.0), rng=0)
     e = f.step(0, [])
     assert f.evaluations == 0 and math.hypot(e.u - 5.0, e.v - 5.0) < 20
-    assert ScatterSearchPF(n_particles=10, rng=0).step(0, []) is None
+    assert ScatterSearchPF(noise_px=CUE_NOISE, n_particles=10, rng=0).step(0, []) is None
     for kwargs, match in (({"n_particles": 1}, "n_particles"), ({"refset_size": 3}, "refset_size"),
                           ({"refset_size": 12, "n_particles": 10}, "refset_size"),
                           ({"min_step_px": 5.0, "step_px": 1.0}, "min_step_px"), ({"max_rounds": 0}, "max_rounds")):
