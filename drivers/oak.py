@@ -816,7 +816,8 @@ class OakSource(Source):
                     f"ir_laser={config.ir_laser:g} mA needs an OAK with an IR dot projector (Pro models); "
                     f"{device.getProductName()} has none"
                 )
-            device.setIrLaserDotProjectorIntensity(config.ir_laser / IR_LASER_MAX_MA)
+            if not device.setIrLaserDotProjectorIntensity(config.ir_laser / IR_LASER_MAX_MA):
+                raise DeviceError(f"{device.getProductName()} refused IR dot-projector current {config.ir_laser:g} mA")
         usb = device.getUsbSpeed().name
         rate = stream_bytes_per_s(config.size, config.fps, None if model is None else model.input_size)
         warning = usb_warning(usb, rate)
@@ -863,7 +864,7 @@ class OakSource(Source):
                 "the OAK camera is a live source and can be iterated once; record it and replay the file"
             )
         self._iterated = True
-        yield from frames_from_queue(self._queue, self._converter, self.config.timeout_s)
+        yield from frames_from_queue(self._queue, self._converter, self.config.timeout_s, START_TIMEOUT_S)
 
     def metadata(self) -> dict[str, str]:
         """Provenance for the recording's metadata record (after :meth:`open`).

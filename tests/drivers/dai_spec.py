@@ -31,6 +31,11 @@ from typing import Any
 
 import depthai as dai
 
+#: The real classes, captured at import (tests may put stand-ins on the depthai module).
+REAL_DEVICE = dai.Device
+REAL_PIPELINE = dai.Pipeline
+_REAL = {name: getattr(dai, name) for name in dir(dai) if not name.startswith("_")}
+
 _SIG = re.compile(r"^(?:\d+\. )?(\w+)\((.*)\) -> (.+)$")
 
 
@@ -84,8 +89,9 @@ def overloads(func: Any) -> list[Overload]:
 
 
 def _resolve(path: str) -> Any:
-    obj: Any = dai
-    for part in path.split(".")[1:]:
+    first, *rest = path.split(".")[1:]
+    obj: Any = _REAL[first]
+    for part in rest:
         obj = getattr(obj, part)
     return obj
 
@@ -140,7 +146,7 @@ def check_call(cls: type, name: str, args: tuple, kwargs: dict) -> Overload:
     sigs = overloads(func)
     assert sigs, f"depthai {cls.__name__}.{name} has no parsable signature: {func.__doc__!r}"
     for sig in sigs:
-        params = [p for p in sig.params[1:] if not p.name.startswith("*")]  # self, *args, **kwargs
+        params = [p for p in sig.params if p.name != "self" and not p.name.startswith("*")]
         if any(p.name.startswith("*") for p in sig.params):
             raise AssertionError(f"depthai {cls.__name__}.{name} takes *args/**kwargs; check it by hand")
         if len(args) > len(params):
@@ -263,6 +269,7 @@ class SpecOutput(_Checked):
     def link(self, target: Any) -> None:
         check_call(dai.Node.Output, "link", (target,), {})
         self.owner.pipeline.links.append((self.owner, self.name, target.owner, target.name))
+        self.owner.pipeline.inputs[(target.owner.label, target.name)] = target
         if self.shadow is not None and target.shadow is not None:  # both ends real host nodes: link them
             self.shadow.link(target.shadow)
 
@@ -285,7 +292,20 @@ class SpecPipeline:
     nodes: list[SpecNode] = field(default_factory=list)
     links: list[tuple[SpecNode, str, SpecNode, str]] = field(default_factory=list)
     calls: list[Call] = field(default_factory=list)
-    host: Any = field(default_factory=lambda: dai.Pipeline(False))
+    host: Any = field(default_factory=lambda: REAL_PIPELINE(False))
+    feeds: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def host_fed(self) -> list[tuple[SpecNode, SpecInput]]:
+        """Inputs of real host nodes linked from device stand-ins (nothing real feeds them)."""
+        out = []
+        for src, _output, dst, _name in self.links:
+            if dst.shadow is not None and src.shadow is None:
+                out.append((dst, self.inputs[(dst.label, _name)]))
+        return out
+
+    def __post_init__(self) -> None:
+        self.inputs: dict[tuple[str, str], SpecInput] = {}
 
     def create(self, cls: type) -> SpecNode:
         # Pipeline.create(arg0: object, *args, **kwargs): the class must be a depthai node class
@@ -309,3 +329,86 @@ class SpecPipeline:
 
     def linked(self, out_node: SpecNode, output: str, in_node: SpecNode, input_: str) -> bool:
         return (out_node, output, in_node, input_) in self.links
+
+
+class SpecDevice(_Spec):
+    """Stand-in for an open ``dai.Device``: calls checked against the real class, answers given.
+
+    Parameters
+    ----------
+    answers : dict
+        Method name -> value returned (checked against the method's return
+        type); methods returning None need no answer.
+    close_s : float
+        How long ``close()`` takes (a device that hangs on close).
+    """
+
+    def __init__(self, answers: dict[str, Any], close_s: float = 0.0) -> None:
+        self.spec = REAL_DEVICE
+        self.owner = self  # type: ignore[assignment]
+        self.answers = answers
+        self.close_s = close_s
+        self.calls: list[Call] = []
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            sig = check_call(REAL_DEVICE, name, args, kwargs)
+            self.calls.append(Call("Device", name, args, kwargs))
+            if name == "close":
+                import time
+
+                time.sleep(self.close_s)
+            if sig.returns == "None":
+                return None
+            assert name in self.answers, f"the test gives no answer for Device.{name}"
+            value = self.answers[name]
+            if sig.returns != "object":
+                assert matches(value, sig.returns), f"answer {value!r} for Device.{name} is not a {sig.returns}"
+            return value
+
+        return call
+
+
+def _spec_pipeline_method(name: str) -> Any:
+    def method(self: "SpecPipeline", *args: Any, **kwargs: Any) -> Any:
+        check_call(REAL_PIPELINE, name, args, kwargs)
+        self.calls.append(Call("Pipeline", name, args, kwargs))
+        if name == "start":
+            # host inputs of real host nodes that device stand-ins would feed: the test sends into them
+            for node, inp in self.host_fed:
+                self.feeds[inp.name] = inp.shadow.createInputQueue(maxSize=8, blocking=False)
+            for node in self.nodes:  # the shadows of device nodes (ImageManip, ImageAlign) idle on the host
+                if node.shadow is not None and not node.shadow.runOnHost():
+                    node.shadow.setRunOnHost(True)
+            self.host.start()
+        elif name == "stop":
+            self.host.stop()
+        return None
+
+    return method
+
+
+SpecPipeline.start = _spec_pipeline_method("start")  # type: ignore[attr-defined]
+SpecPipeline.stop = _spec_pipeline_method("stop")  # type: ignore[attr-defined]
+SpecPipeline.setStopOnDeviceLoss = _spec_pipeline_method("setStopOnDeviceLoss")  # type: ignore[attr-defined]
+
+
+def camera_features(colour_fps: float, mono_fps: float, colour_size: tuple[int, int] = (4208, 3120)) -> list:
+    """Real ``dai.CameraFeatures`` of a colour (IMX214) + two mono (OV7251) sensors, one mode each."""
+    out = []
+    for socket, name, size, fps in (
+        (dai.CameraBoardSocket.CAM_A, "IMX214", colour_size, colour_fps),
+        (dai.CameraBoardSocket.CAM_B, "OV7251", (640, 480), mono_fps),
+        (dai.CameraBoardSocket.CAM_C, "OV7251", (640, 480), mono_fps),
+    ):
+        feature = dai.CameraFeatures()
+        feature.socket, feature.sensorName = socket, name
+        feature.width, feature.height = size
+        config = dai.CameraSensorConfig()
+        config.width, config.height, config.minFps, config.maxFps = *size, 1.0, fps
+        feature.configs = [config]
+        out.append(feature)
+    return out

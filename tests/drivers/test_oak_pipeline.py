@@ -30,7 +30,7 @@ from drivers.oak_pipeline import (
 )
 from fusion_pf.errors import DeviceError, InputError
 
-from .dai_spec import SpecPipeline, check_call, matches
+from .dai_spec import SpecPipeline, camera_features, check_call, matches
 
 SIZE = (640, 400)
 FPS = 30.0
@@ -209,30 +209,13 @@ def test_archive_without_input_width_is_a_one_line_input_error(tmp_path: Path) -
     assert "\n" not in message
 
 
-def _features(a_fps: float, mono_fps: float, a_size=(4208, 3120)) -> list:
-    out = []
-    for socket, name, size, fps in (
-        (dai.CameraBoardSocket.CAM_A, "IMX214", a_size, a_fps),
-        (dai.CameraBoardSocket.CAM_B, "OV7251", (640, 480), mono_fps),
-        (dai.CameraBoardSocket.CAM_C, "OV7251", (640, 480), mono_fps),
-    ):
-        feature = dai.CameraFeatures()
-        feature.socket, feature.sensorName = socket, name
-        feature.width, feature.height = size
-        config = dai.CameraSensorConfig()
-        config.width, config.height, config.minFps, config.maxFps = *size, 1.0, fps
-        feature.configs = [config]
-        out.append(feature)
-    return out
-
-
 def test_fps_and_size_are_checked_against_the_sensors() -> None:
-    lite = _features(35.0, 99.0)  # OAK-D Lite: IMX214 colour tops out near 35 fps
+    lite = camera_features(35.0, 99.0)  # OAK-D Lite: IMX214 colour tops out near 35 fps
     check_stream_limits(lite, SIZE, 30.0)
     with pytest.raises(DeviceError, match="oak fps 60 is above the 35 fps maximum of the IMX214 sensor on CAM_A"):
         check_stream_limits(lite, SIZE, 60.0)
     with pytest.raises(DeviceError, match="oak size 1920x1200 is larger than the IMX214 colour sensor \\(1280x800\\)"):
-        check_stream_limits(_features(60.0, 120.0, (1280, 800)), (1920, 1200), 30.0)
+        check_stream_limits(camera_features(60.0, 120.0, (1280, 800)), (1920, 1200), 30.0)
     with pytest.raises(DeviceError, match="no camera on CAM_C .* found CAM_A \\(IMX214\\), CAM_B \\(OV7251\\)"):
         check_stream_limits(lite[:2], SIZE, 30.0)
 
