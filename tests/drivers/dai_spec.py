@@ -294,6 +294,7 @@ class SpecPipeline:
     calls: list[Call] = field(default_factory=list)
     host: Any = field(default_factory=lambda: REAL_PIPELINE(False))
     feeds: dict[str, Any] = field(default_factory=dict)
+    stop_error: Exception | None = None
 
     @property
     def host_fed(self) -> list[tuple[SpecNode, SpecInput]]:
@@ -361,10 +362,14 @@ class SpecDevice(_Spec):
                 import time
 
                 time.sleep(self.close_s)
+            if isinstance(self.answers.get(name), Exception):
+                raise self.answers[name]
             if sig.returns == "None":
                 return None
             assert name in self.answers, f"the test gives no answer for Device.{name}"
             value = self.answers[name]
+            if isinstance(value, Exception):  # what depthai raises
+                raise value
             if sig.returns != "object":
                 assert matches(value, sig.returns), f"answer {value!r} for Device.{name} is not a {sig.returns}"
             return value
@@ -386,6 +391,8 @@ def _spec_pipeline_method(name: str) -> Any:
             self.host.start()
         elif name == "stop":
             self.host.stop()
+            if self.stop_error is not None:
+                raise self.stop_error
         return None
 
     return method

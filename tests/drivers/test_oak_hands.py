@@ -204,3 +204,24 @@ def test_landmark_timeout_and_bad_landmark_output() -> None:
     low.addTensor("Identity_1", np.array([[0.1]], np.float32))
     low.addTensor("Identity_2", np.array([[0.2]], np.float32))
     assert decode_landmarks(low, region, SIDE) is None
+
+
+def test_non_finite_outputs_and_unknown_model() -> None:
+    nn = _palm_nn((300.0, 180.0), 60.0, 0.0)
+    bad = dai.NNData()
+    bad.addTensor("classificators", np.full((1, 896, 1), np.nan, np.float32))
+    bad.addTensor("regressors", np.asarray(nn.getTensor("regressors")))
+    with pytest.raises(InputError, match="palm detection output must be finite"):
+        decode_palms(bad, (W, H), (128, 128))
+    region = PalmRegion(0.9, np.array([[0.0, 0.0], [224.0, 0.0], [224.0, 224.0]]))
+    lm = dai.NNData()
+    lm.addTensor("Identity_1", np.array([[0.9]], np.float32))
+    with pytest.raises(InputError, match="hand landmark output must hold"):
+        decode_landmarks(lm, region, SIDE)
+    lm.addTensor("Identity_dense/BiasAdd/Add", np.full((1, 63), np.inf, np.float32))
+    lm.addTensor("Identity_2", np.array([[0.2]], np.float32))
+    with pytest.raises(InputError, match="hand landmark output must be finite"):
+        decode_landmarks(lm, region, SIDE)
+    with pytest.raises(InputError, match="hands must be none or one of lite, full, sparse, got 'heavy'"):
+        resolve_hand_models("heavy")
+    assert resolve_hand_models("none") is None

@@ -257,3 +257,74 @@ def test_depthai_documents_the_strict_disconnect_semantics() -> None:
     assert "A device is lost for good when its state becomes FAILED - after the reconnection attempts are exhausted" in doc
     assert "To stop as soon as a device disconnects, disable reconnection on the devices (Device::setMaxReconnectionAttempts(0))" in doc
     check_call(REAL_DEVICE, "setMaxReconnectionAttempts", (0,), {})
+
+
+def test_connection_refused_is_one_line(connect, monkeypatch: pytest.MonkeyPatch) -> None:
+    make, _ = connect
+    make(_answers())
+
+    class Busy:
+        getAllAvailableDevices = dai.Device.getAllAvailableDevices
+
+        def __new__(cls, arg):
+            raise RuntimeError("Cannot connect to device with name \"1.3\",\n X_LINK_DEVICE_ALREADY_IN_USE")
+
+    monkeypatch.setattr(dai, "Device", Busy)
+    with pytest.raises(DeviceError, match=r'^cannot connect to OAK device 14442C10D13EABCE00: Cannot connect .* "1.3", X_LINK_DEVICE_ALREADY_IN_USE$'):
+        OakSource().open()
+
+
+def test_depthai_error_while_starting_closes_the_device(connect) -> None:
+    make, _ = connect
+    answers = _answers()
+    answers["readCalibration"] = RuntimeError("EEPROM\nempty")
+    device = make(answers)
+    with pytest.raises(DeviceError, match=r"^OAK device 14442C10D13EABCE00 failed to start the pipeline: EEPROM empty$"):
+        OakSource(OakConfig(pose="none")).open()
+    assert device.calls[-1].name == "close"
+
+
+def test_ir_projector_refusal(connect) -> None:
+    make, _ = connect
+    answers = _answers(ir=[("LM3644", 2, 0x63)])
+    answers["setIrLaserDotProjectorIntensity"] = False
+    device = make(answers)
+    with pytest.raises(DeviceError, match="^OAK-D-PRO refused IR dot-projector current 100 mA$"):
+        OakSource(OakConfig(ir_laser=100.0, pose="none")).open()
+    assert device.calls[-1].name == "close"
+
+
+def test_hands_wire_the_landmark_queues_on_rvc2_and_are_refused_on_rvc4(connect) -> None:
+    make, pipelines = connect
+    make(_answers())
+    with OakSource(OakConfig(pose="none", hands="lite")) as source:
+        assert source.metadata()["oak_hands"] == "lite"
+        tracker = source._converter.hands
+        assert tracker.landmark_in.type == "depthai.InputQueue" and tracker.landmark_out.type == "depthai.MessageQueue"
+        assert "inputs['palm']" in pipelines[0].feeds
+    device = make(_answers(platform="RVC4"))
+    with pytest.raises(DeviceError, match="run on RVC2, but the connected OAK is RVC4; use hands=none"):
+        OakSource(OakConfig(pose="none", hands="lite")).open()
+    assert device.calls[-1].name == "close"
+
+
+def test_close_reports_depthai_errors(connect) -> None:
+    make, pipelines = connect
+    answers = _answers()
+    answers["close"] = RuntimeError("XLink\nerror")
+    make(answers)
+    source = OakSource(OakConfig(pose="none"))
+    source.open()
+    pipelines[0].stop_error = RuntimeError("already stopped")
+    source.close()
+    assert source.stats.notes[-2:] == [
+        "stopping the OAK pipeline failed: already stopped",
+        "closing the OAK device failed: XLink error",
+    ]
+
+
+def test_frame_without_a_valid_transformation_is_refused() -> None:
+    frame = dai.ImgFrame()
+    frame.setCvFrame(np.zeros((H, W, 3), np.uint8), dai.ImgFrame.Type.BGR888i)
+    with pytest.raises(DeviceError, match=r"transformation is invalid or not its size \(0x0 for a 640x400 frame\)"):
+        oak.intrinsics_from_transformation(frame)
