@@ -1,4 +1,4 @@
-"""Live Luxonis OAK camera source (depthai v3): colour + aligned depth + skeleton.
+"""Live Luxonis OAK camera source (depthai v3): colour + aligned depth + skeleton (+ hands).
 
 Three parts, kept apart so the host-side code can be tested without a camera
 (see docs/oak.md):
@@ -869,8 +869,11 @@ class OakSource(Source):
     def metadata(self) -> dict[str, str]:
         """Provenance for the recording's metadata record (after :meth:`open`).
 
-        Keys: ``oak_device_id``, ``oak_device_name``, ``oak_platform``,
-        ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``, ``oak_clock``,
+        Keys: ``oak_device_id``, ``oak_device_name``, ``oak_product``,
+        ``oak_platform``, ``oak_usb_speed``, ``oak_stream_bytes_per_s``,
+        ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``,
+        ``oak_pose_input_type``, ``oak_hands``, ``oak_ir_laser_ma``,
+        ``oak_intrinsics``, ``oak_timestamps``, ``oak_clock``,
         ``oak_wall_offset_ns``, ``oak_hand_extension``, ``depthai_version``.
         """
         if self._converter is None:

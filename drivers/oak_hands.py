@@ -28,9 +28,13 @@ Coordinates: the crop transform is built in continuous image coordinates
 the crop and back exactly (checked in the tests with real ``cv2.warpAffine``
 crops).
 
-On RVC4 the blobs cannot run; the NN archive path would be Luxonis' model zoo
-``luxonis/mediapipe-palm-detection`` and ``luxonis/mediapipe-hand-landmarker``
-archives (RVC4 builds), decoded the same way; not built here (see docs/oak.md).
+On RVC4 the blobs cannot run. The NN-archive path is Luxonis' model zoo:
+``luxonis/mediapipe-palm-detection`` (version ``192x192``) and
+``luxonis/mediapipe-hand-landmarker`` RVC4 archives (used together in
+luxonis/depthai-experiments ``gen3`` hand-pose), input ``BGR888i``; the
+192x192 palm detector has 2016 anchors, which :func:`decode_palms` already
+handles (anchors from the input size). Not built here: no RVC4 archive can be
+fetched or run on this machine, so ``hands=`` is refused on RVC4 (docs/oak.md).
 """
 
 from __future__ import annotations

@@ -1,7 +1,10 @@
-"""Device side of the OAK driver: which pose network to run, and the pipeline.
+"""Device side of the OAK driver: which networks to run, the checks, and the pipeline.
 
-:func:`build_device_pipeline` is the only function here that needs a camera.
-:func:`resolve_pose_model` reads model files on the host only.
+:func:`build_device_pipeline` is the only function here that needs a camera
+(its pipeline is ``dai.Pipeline(device)``; depthai 3 cannot create Camera,
+StereoDepth or NeuralNetwork nodes without one). :func:`resolve_pose_model`
+reads model files on the host only; :func:`check_stream_limits` and
+:func:`usb_warning` judge what the connected device reports.
 
 Pose network options (``pose=`` source option)
 ----------------------------------------------
@@ -14,7 +17,10 @@ Pose network options (``pose=`` source option)
     Any OpenVINO blob whose output holds MoveNet's 51 values (RVC2).
 ``PATH.tar.xz``
     A Luxonis NN archive (RVC2 or RVC4, whichever it was built for) with the
-    same output.
+    same output. Its input frame type is the archive's ``dai_type``
+    (BGR888p for RVC2 builds, BGR888i for RVC4 builds; when absent, that
+    platform default); an archive that declares no input width/height is an
+    :class:`InputError`.
 ``zoo:SLUG``
     A Luxonis model-zoo model taken from the cache directory named by the
     ``DEPTHAI_ZOO_CACHE_PATH`` environment variable (fill it once with
