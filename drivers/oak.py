@@ -434,7 +434,7 @@ class GroupConverter:
         self.stats = stats
         self.gaps = 0
         self.bad_messages = 0
-        self._bad_note: int | None = None
+        self._bad: dict[str, tuple[int, str, int]] = {}
         self._last_seq: int | None = None
         if intrinsics is not None:
             self._set_intrinsics(intrinsics)
@@ -457,14 +457,15 @@ class GroupConverter:
         self._set_intrinsics(intrinsics)
 
     def _bad_message(self, what: str, exc: Exception) -> None:
+        """Count a network message that could not be decoded; one note per kind, kept up to date."""
         self.bad_messages += 1
-        note = f"skipped {self.bad_messages} bad {what} message(s) (those frames have no {what}); first: {_one_line(exc)}"
-        if self._bad_note is None:
-            self._bad_note = len(self.stats.notes)
-            self.stats.notes.append(note)
-        else:
-            first = self.stats.notes[self._bad_note].split("; first: ", 1)[1]
-            self.stats.notes[self._bad_note] = note.split("; first: ", 1)[0] + "; first: " + first
+        count, first, index = self._bad.get(what, (0, _one_line(exc), len(self.stats.notes)))
+        if count == 0:
+            self.stats.notes.append("")
+        self._bad[what] = (count + 1, first, index)
+        self.stats.notes[index] = (
+            f"skipped {count + 1} bad {what} message(s) (those frames have no {what}); first: {first}"
+        )
 
     def convert(self, group: Any) -> Frame:
         """The :class:`Frame` of one message group.

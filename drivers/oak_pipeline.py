@@ -203,29 +203,37 @@ def check_stream_limits(features: list[Any], size: tuple[int, int], fps: float) 
     Raises
     ------
     DeviceError
-        A camera socket the pipeline needs is missing, ``fps`` is above the
-        fastest mode of a sensor (e.g. about 35 fps for OAK-D Lite's mono
-        sensors), or ``size`` is larger than the colour sensor.
+        A camera socket the pipeline needs is missing, the output
+        (``size`` for CAM_A, :data:`STEREO_INPUT_SIZE` for CAM_B / CAM_C) is
+        larger than the sensor, or ``fps`` is above the fastest sensor mode at
+        least as large as that output (e.g. about 35 fps for OAK-D Lite's
+        colour sensor at full field of view).
     """
     import depthai as dai
 
     by_socket = {f.socket: f for f in features}
-    for socket in (dai.CameraBoardSocket.CAM_A, dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C):
+    needs = (
+        (dai.CameraBoardSocket.CAM_A, size),
+        (dai.CameraBoardSocket.CAM_B, STEREO_INPUT_SIZE),
+        (dai.CameraBoardSocket.CAM_C, STEREO_INPUT_SIZE),
+    )
+    for socket, (w, h) in needs:
         feature = by_socket.get(socket)
         if feature is None:
             found = ", ".join(f"{f.socket.name} ({f.sensorName})" for f in features) or "none"
             raise DeviceError(f"the OAK has no camera on {socket.name} (needed for colour + stereo); found {found}")
-        top = max((c.maxFps for c in feature.configs), default=0.0)
+        if w > feature.width or h > feature.height:
+            raise DeviceError(
+                f"oak size {w}x{h} is larger than the {feature.sensorName} sensor on {socket.name} "
+                f"({feature.width}x{feature.height})"
+            )
+        # the output is scaled down from a sensor mode, so only modes at least as large count
+        top = max((c.maxFps for c in feature.configs if c.width >= w and c.height >= h), default=0.0)
         if fps > top:
             raise DeviceError(
-                f"oak fps {fps:g} is above the {top:g} fps maximum of the {feature.sensorName} sensor on {socket.name}"
+                f"oak fps {fps:g} is above the {top:g} fps maximum of the {feature.sensorName} sensor on "
+                f"{socket.name} for a {w}x{h} output"
             )
-    colour = by_socket[dai.CameraBoardSocket.CAM_A]
-    if size[0] > colour.width or size[1] > colour.height:
-        raise DeviceError(
-            f"oak size {size[0]}x{size[1]} is larger than the {colour.sensorName} colour sensor "
-            f"({colour.width}x{colour.height})"
-        )
 
 
 @dataclass(frozen=True)

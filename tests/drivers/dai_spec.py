@@ -403,8 +403,14 @@ SpecPipeline.stop = _spec_pipeline_method("stop")  # type: ignore[attr-defined]
 SpecPipeline.setStopOnDeviceLoss = _spec_pipeline_method("setStopOnDeviceLoss")  # type: ignore[attr-defined]
 
 
-def camera_features(colour_fps: float, mono_fps: float, colour_size: tuple[int, int] = (4208, 3120)) -> list:
-    """Real ``dai.CameraFeatures`` of a colour (IMX214) + two mono (OV7251) sensors, one mode each."""
+def camera_features(
+    colour_fps: float, mono_fps: float, colour_size: tuple[int, int] = (4208, 3120), binned_fps: float | None = None
+) -> list:
+    """Real ``dai.CameraFeatures``: colour (IMX214) + two mono (OV7251) sensors.
+
+    One full-size mode per sensor, plus, with ``binned_fps``, a colour mode of
+    half the size at that rate.
+    """
     out = []
     for socket, name, size, fps in (
         (dai.CameraBoardSocket.CAM_A, "IMX214", colour_size, colour_fps),
@@ -414,8 +420,14 @@ def camera_features(colour_fps: float, mono_fps: float, colour_size: tuple[int, 
         feature = dai.CameraFeatures()
         feature.socket, feature.sensorName = socket, name
         feature.width, feature.height = size
-        config = dai.CameraSensorConfig()
-        config.width, config.height, config.minFps, config.maxFps = *size, 1.0, fps
-        feature.configs = [config]
+        modes = [(size, fps)]
+        if binned_fps is not None and name == "IMX214":
+            modes.append(((size[0] // 2, size[1] // 2), binned_fps))
+        configs = []
+        for (w, h), rate in modes:
+            config = dai.CameraSensorConfig()
+            config.width, config.height, config.minFps, config.maxFps = w, h, 1.0, rate
+            configs.append(config)
+        feature.configs = configs
         out.append(feature)
     return out

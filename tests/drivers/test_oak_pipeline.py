@@ -210,11 +210,18 @@ def test_archive_without_input_width_is_a_one_line_input_error(tmp_path: Path) -
 
 
 def test_fps_and_size_are_checked_against_the_sensors() -> None:
-    lite = camera_features(35.0, 99.0)  # OAK-D Lite: IMX214 colour tops out near 35 fps
+    lite = camera_features(35.0, 99.0)  # OAK-D Lite: IMX214 colour tops out near 35 fps at full size
     check_stream_limits(lite, SIZE, 30.0)
-    with pytest.raises(DeviceError, match="oak fps 60 is above the 35 fps maximum of the IMX214 sensor on CAM_A"):
+    with pytest.raises(DeviceError, match="oak fps 60 is above the 35 fps maximum of the IMX214 sensor on CAM_A for a 640x400 output"):
         check_stream_limits(lite, SIZE, 60.0)
-    with pytest.raises(DeviceError, match="oak size 1920x1200 is larger than the IMX214 colour sensor \\(1280x800\\)"):
+    # a faster binned mode counts only for outputs it is large enough for
+    binned = camera_features(35.0, 99.0, binned_fps=60.0)  # 2104x1560 at 60 fps
+    check_stream_limits(binned, SIZE, 60.0)
+    with pytest.raises(DeviceError, match="above the 35 fps maximum .* for a 2560x1600 output"):
+        check_stream_limits(binned, (2560, 1600), 60.0)
+    with pytest.raises(DeviceError, match="oak fps 100 is above the 99 fps maximum of the OV7251 sensor on CAM_B for a 640x400 output"):
+        check_stream_limits(camera_features(120.0, 99.0), SIZE, 100.0)
+    with pytest.raises(DeviceError, match="oak size 1920x1200 is larger than the IMX214 sensor on CAM_A \\(1280x800\\)"):
         check_stream_limits(camera_features(60.0, 120.0, (1280, 800)), (1920, 1200), 30.0)
     with pytest.raises(DeviceError, match="no camera on CAM_C .* found CAM_A \\(IMX214\\), CAM_B \\(OV7251\\)"):
         check_stream_limits(lite[:2], SIZE, 30.0)
@@ -243,3 +250,51 @@ def test_signature_checker_rejects_wrong_calls() -> None:
     stereo = p.create(dai.node.StereoDepth)
     with pytest.raises(AssertionError, match="has no attribute 'alignInput'"):
         stereo.alignInput  # noqa: B018
+
+
+def _dai_calls(path: Path) -> list[tuple[str, int, tuple[str, ...], int]]:
+    """Calls ``dai.A.B(...)`` in a source file: (dotted name, positional count, keyword names, line)."""
+    import ast
+
+    calls = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.Call):
+            continue
+        parts, target = [], node.func
+        while isinstance(target, ast.Attribute):
+            parts.append(target.attr)
+            target = target.value
+        if isinstance(target, ast.Name) and target.id == "dai" and parts:
+            calls.append((".".join(reversed(parts)), len(node.args), tuple(k.arg for k in node.keywords), node.lineno))
+    return calls
+
+
+def test_every_module_level_depthai_call_in_the_driver_exists_with_its_arguments() -> None:
+    """Static check of the ``dai.X(...)`` calls (constructors, free functions, static methods).
+
+    Methods called on objects (device, pipeline, nodes, frames) are checked at run time by the
+    other tests: device-side ones through dai_spec, host-side ones on real depthai objects.
+    """
+    from .dai_spec import _resolve, overloads
+
+    root = Path(__file__).resolve().parents[2] / "drivers"
+    checked = []
+    for name in ("oak.py", "oak_pipeline.py", "oak_hands.py"):
+        for dotted, n_pos, keywords, line in _dai_calls(root / name):
+            obj = _resolve("depthai." + dotted)
+            func = obj.__init__ if isinstance(obj, type) else obj
+            sigs = overloads(func)
+            assert sigs, f"{name}:{line}: dai.{dotted} has no parsable signature"
+            fits = []
+            for sig in sigs:
+                params = [p for p in sig.params if p.name != "self"]
+                names = [p.name for p in params]
+                required = [p.name for p in params if not p.has_default]
+                bound = names[:n_pos] + list(keywords)
+                if n_pos <= len(params) and all(k in names[n_pos:] for k in keywords) and set(required) <= set(bound):
+                    fits.append(sig)
+            assert fits, f"{name}:{line}: dai.{dotted} with {n_pos} positional and {keywords} keyword arguments fits no overload"
+            checked.append(dotted)
+    # the calls this test must have seen (a refactor that hides them from the scan fails here)
+    for expected in ("Pipeline", "Device", "NNArchive", "OpenVINO.Blob", "NNModelDescription", "getModelFromZoo", "ImgFrame"):
+        assert expected in checked, expected
