@@ -252,16 +252,17 @@ class PoseModel:
         Device platforms the model runs on (``"RVC2"``, ``"RVC4"``).
     frame_type : str
         ``dai.ImgFrame.Type`` name the network takes: the archive's
-        ``dai_type`` (e.g. BGR888p on RVC2, BGR888i on RVC4); ``BGR888p``
-        for a blob (geaxgx's MoveNet blobs take planar BGR, as the RVC2
-        camera's preview gives it).
+        ``dai_type`` (e.g. BGR888p on RVC2, BGR888i on RVC4); ``RGB888p``
+        for a blob: a blob does not say, and geaxgx's MoveNet blobs take
+        planar RGB (depthai_hand_tracker ``HandTrackerBpf.py``: "Movenet takes
+        RGB input", ``setFrameType(RGB888p)``).
     """
 
     kind: str
     path: Path
     input_size: tuple[int, int]
     platforms: tuple[str, ...]
-    frame_type: str = "BGR888p"
+    frame_type: str = "RGB888p"
 
     def check_platform(self, platform: str) -> None:
         """Raise :class:`DeviceError` when the model cannot run on ``platform``.

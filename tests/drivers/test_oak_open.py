@@ -150,7 +150,7 @@ def test_rvc2_open_stream_disconnect_and_close(connect, tmp_path: Path) -> None:
             assert [c.args for c in pipe.calls if c.name == "setStopOnDeviceLoss"] == [(True,)]
             meta = source.metadata()
             assert meta["oak_platform"] == "RVC2" and meta["oak_usb_speed"] == "HIGH"
-            assert meta["oak_pose_input_type"] == "BGR888p" and meta["oak_ir_laser_ma"] == "600"
+            assert meta["oak_pose_input_type"] == "RGB888p" and meta["oak_ir_laser_ma"] == "600"
             assert any("USB2" in n and "38.4 MB/s" in n for n in source.stats.notes)
             feeds = pipe.feeds
             assert sorted(feeds) == ["inputImage", "inputs['colour']", "inputs['depth']", "inputs['skeleton']"]

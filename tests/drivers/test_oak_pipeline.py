@@ -128,10 +128,10 @@ def test_rvc2_aligns_depth_with_input_align_to() -> None:
     assert p.linked(manip, "out", nn, "input")
     assert p.linked(nn, "out", sync, "inputs['skeleton']")
     assert [c.args for c in p.calls_of(nn, "setBlobPath")] == [(builtin_model_path("lightning"),)]
-    # the real ImageManip config: a 192x192 planar BGR letterbox
+    # the real ImageManip config: a 192x192 planar RGB letterbox (geaxgx's MoveNet blobs take RGB)
     manip_calls = {c.name: c.args for c in p.calls_of(manip)}
     assert manip_calls["setOutputSize"] == (192, 192, dai.ImageManipConfig.ResizeMode.LETTERBOX)
-    assert manip_calls["setFrameType"] == (dai.ImgFrame.Type.BGR888p,)
+    assert manip_calls["setFrameType"] == (dai.ImgFrame.Type.RGB888p,)
     assert manip.shadow.inputImage.getBlocking() is False and manip.shadow.inputImage.getMaxSize() == 1
     assert [c.args for c in p.calls_of(nn) if c.name in ("setBlocking", "setMaxSize")] == [(False,), (1,)]
     assert abs(sync.shadow.getSyncThreshold() - datetime.timedelta(seconds=0.5 / FPS)) <= datetime.timedelta(microseconds=1)
@@ -190,8 +190,14 @@ def test_platform_selection() -> None:
 
 
 def test_nn_input_type_comes_from_the_archive(rvc2_archive: Path, tmp_path: Path) -> None:
-    assert resolve_pose_model(str(rvc2_archive), "RVC2").frame_type == "BGR888p"
-    assert resolve_pose_model("lightning", "RVC2").frame_type == "BGR888p"
+    rvc2 = resolve_pose_model(str(rvc2_archive), "RVC2")
+    assert rvc2.frame_type == "BGR888p" and rvc2.platforms == ("RVC2",) and rvc2.input_size == (192, 192)
+    p = _build("RVC2", rvc2)
+    (manip,) = p.of(dai.node.ImageManip)
+    assert {c.name: c.args for c in p.calls_of(manip)}["setFrameType"] == (dai.ImgFrame.Type.BGR888p,)
+    (nn,) = p.of(dai.node.NeuralNetwork)
+    assert len(p.calls_of(nn, "setNNArchive")) == 1 and not p.calls_of(nn, "setBlobPath")
+    assert resolve_pose_model("lightning", "RVC2").frame_type == "RGB888p"
     untyped = make_archive(tmp_path / "untyped.tar.xz", "model.dlc", b"\0" * 64, None, [1, 192, 192, 3], "NHWC")
     assert resolve_pose_model(str(untyped), "RVC4").frame_type == "BGR888i"
     odd = make_archive(tmp_path / "odd.tar.xz", "model.dlc", b"\0" * 64, "RAW16", [1, 192, 192, 3], "NHWC")
