@@ -482,8 +482,10 @@ class GroupConverter:
             Timestamp (middle of the exposure) and sequence number are the
             colour frame's; a group without ``depth`` / ``skeleton`` gives
             ``depth=None`` / ``joints=None``. A pose or hand message that
-            cannot be decoded is skipped (``joints=None`` / ``hands=None``),
-            counted in :attr:`bad_messages` and noted.
+            cannot be decoded, or a landmark answer that does not come in
+            time, is skipped (``joints=None`` / ``hands=None``), counted in
+            :attr:`bad_messages` and noted; a lost device still ends the
+            stream (the Sync queue closes).
 
         Raises
         ------
@@ -521,7 +523,7 @@ class GroupConverter:
         if self.hands is not None and "palm" in names:
             try:
                 hands = self.hands.track(group["palm"], colour, rgb)
-            except InputError as exc:
+            except (InputError, DeviceError) as exc:  # undecodable output, or no landmark answer in time
                 self._bad_message("hand", exc)
         seq = int(colour.getSequenceNum())
         self._count_gap(seq)

@@ -316,6 +316,7 @@ class HandTracker:
             message.setCvFrame(crop, dai.ImgFrame.Type.BGR888p)
             message.setTimestamp(colour.getTimestamp())
             message.setSequenceNum(colour.getSequenceNum())
+            self.landmark_out.tryGetAll()  # a late answer to an earlier crop must not be taken for this one
             self.landmark_in.send(message)
             answer = self._answer()
             hand = decode_landmarks(answer, region, side)

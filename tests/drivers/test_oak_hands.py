@@ -10,6 +10,7 @@ network's place is taken by a real host node behind real depthai queues that
 from __future__ import annotations
 
 import datetime
+import time
 
 import depthai as dai
 import numpy as np
@@ -225,3 +226,35 @@ def test_non_finite_outputs_and_unknown_model() -> None:
     with pytest.raises(InputError, match="hands must be none or one of lite, full, sparse, got 'heavy'"):
         resolve_hand_models("heavy")
     assert resolve_hand_models("none") is None
+
+
+def test_a_missing_landmark_answer_skips_the_frame_and_a_late_one_is_not_reused() -> None:
+    models = resolve_hand_models("lite")
+    rgb, img = _colour_with_dot((310, 150))
+    stats = SourceStats()
+    with dai.Pipeline(False) as pipeline:
+        echo = pipeline.create(_LandmarkEcho)
+        out = echo.out.createOutputQueue()
+        tracker = HandTracker(models, pipeline.create(_LandmarkEcho).input.createInputQueue(), out, timeout_s=0.2)
+        converter = GroupConverter(Intrinsics(W, H, 500.0, 500.0, 319.5, 199.5), ClockMap(0), None, stats, hands=tracker)
+        pipeline.start()
+        group = dai.MessageGroup()
+        group["colour"] = img
+        group["palm"] = _palm_nn((300.0, 180.0), 60.0, 0.0)
+        assert converter.convert(group).hands is None  # no answer: skipped, counted
+        assert stats.notes == [
+            "skipped 1 bad hand message(s) (those frames have no hand); first: the hand landmark network on the "
+            "OAK did not answer within 0.2 s"
+        ]
+        # a stale answer sitting in the queue is discarded before the next crop is sent
+        stale = dai.NNData()
+        stale.addTensor("Identity_dense/BiasAdd/Add", np.zeros((1, 63), np.float32))
+        stale.addTensor("Identity_1", np.array([[0.9]], np.float32))
+        stale.addTensor("Identity_2", np.array([[0.9]], np.float32))
+        echo.out.send(stale)
+        time.sleep(0.1)
+        assert out.has()
+        # (the crop goes to a second echo whose answers nobody reads: only the stale answer could come back)
+        with pytest.raises(DeviceError, match="did not answer"):
+            tracker.track(_palm_nn((300.0, 180.0), 60.0, 0.0), img, rgb)
+        pipeline.stop()
