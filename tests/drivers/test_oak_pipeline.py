@@ -20,6 +20,7 @@ import pytest
 from drivers.oak_hands import resolve_hand_models
 from drivers.oak_pipeline import (
     STEREO_INPUT_SIZE,
+    SYNC_INPUTS,
     build_device_pipeline,
     builtin_model_path,
     check_platform,
@@ -112,6 +113,10 @@ def _check_common(p: SpecPipeline) -> tuple:
     assert not p.calls_of(stereo, "setOutputSize") and not p.calls_of(stereo, "setDepthAlign")
     (sync,) = p.of(dai.node.Sync)
     assert sync.shadow.runOnHost()
+    sync_inputs = {name for _, _, node, name in p.links if node is sync} | {
+        c.inputName for c in p.host.getConnections() if c.inputId == sync.shadow.id
+    }
+    assert {n.removeprefix("inputs['").removesuffix("']") for n in sync_inputs} <= set(SYNC_INPUTS)
     assert p.linked(cams["CAM_A"], "requestOutput#0", sync, "inputs['colour']")
     return cams, stereo, sync
 
