@@ -17,7 +17,7 @@ Decoders raise :class:`~fusion_pf.errors.RecordingError` naming the message
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import cv2
@@ -30,7 +30,7 @@ from google.protobuf.message import DecodeError, Message
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from fusion_pf.errors import InputError, RecordingError
-from fusion_pf.frame import DISTORTION_MODELS, Intrinsics, Joint, PalmPoint
+from fusion_pf.frame import DISTORTION_MODELS, HandObservation, Intrinsics, Joint, PalmPoint
 
 # --------------------------------------------------------------------------- topics
 
@@ -44,6 +44,8 @@ CALIBRATION_TOPIC = "/camera/calibration"
 SKELETON_TOPIC = "/skeleton/joints"
 #: JSON fusion_pf.PalmPoint (synthetic recordings only).
 GROUND_TRUTH_TOPIC = "/ground_truth/palm"
+#: JSON fusion_pf.HandLandmarks (hand-landmark network, e.g. on the OAK).
+HAND_TOPIC = "/hand/landmarks"
 #: JSON fusion_pf.Estimate, written by ``fusion-pf track -o``.
 ESTIMATE_TOPIC = "/tracker/estimate"
 #: JSON fusion_pf.Cues, written by ``fusion-pf track -o``.
@@ -54,7 +56,7 @@ OVERLAY_TOPIC = "/tracker/overlay"
 PARTICLES_TOPIC = "/tracker/particles"
 
 #: Topics :meth:`McapRecorder.write` fills from a frame.
-FRAME_TOPICS = (CALIBRATION_TOPIC, COLOR_TOPIC, DEPTH_TOPIC, SKELETON_TOPIC, GROUND_TRUTH_TOPIC)
+FRAME_TOPICS = (CALIBRATION_TOPIC, COLOR_TOPIC, DEPTH_TOPIC, SKELETON_TOPIC, GROUND_TRUTH_TOPIC, HAND_TOPIC)
 
 #: Name of the MCAP metadata record describing the recording.
 RECORDING_METADATA = "fusion_pf.recording"
@@ -76,6 +78,7 @@ SKELETON_SCHEMA = "fusion_pf.Skeleton"
 PALM_SCHEMA = "fusion_pf.PalmPoint"
 #: Ground truth of one target of a multi-target recording (a PalmPoint plus ``target``).
 TARGET_PALM_SCHEMA = "fusion_pf.TargetPalmPoint"
+HAND_SCHEMA = "fusion_pf.HandLandmarks"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 CUES_SCHEMA = "fusion_pf.Cues"
 
@@ -119,6 +122,46 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
                         "v": {"type": "number", "description": "row, colour pixels"},
                         "depth_mm": {"type": ["number", "null"], "minimum": 0},
                         "confidence": {"type": "number", "minimum": 0, "maximum": 1},
+                    },
+                },
+            }
+        },
+    },
+    HAND_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": HAND_SCHEMA,
+        "description": "Hands found by a hand-landmark network; an empty list when it saw none.",
+        "type": "object",
+        "required": ["hands"],
+        "properties": {
+            "hands": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "required": ["landmarks", "palm", "score", "handedness"],
+                    "properties": {
+                        "landmarks": {
+                            "description": "21 MediaPipe hand landmarks [u, v, z]: u, v full-frame colour "
+                            "pixels, z relative depth in pixel units (MediaPipe) or null",
+                            "type": "array",
+                            "minItems": 21,
+                            "maxItems": 21,
+                            "items": {
+                                "type": "array",
+                                "prefixItems": [_NUMBER, _NUMBER, {"type": ["number", "null"]}],
+                                "minItems": 3,
+                                "maxItems": 3,
+                            },
+                        },
+                        "palm": {
+                            "description": "[u, v], mean of landmarks 0, 5, 9, 13, 17",
+                            "type": "array",
+                            "prefixItems": [_NUMBER, _NUMBER],
+                            "minItems": 2,
+                            "maxItems": 2,
+                        },
+                        "score": {"type": "number", "minimum": 0, "maximum": 1},
+                        "handedness": {"enum": ["left", "right", None]},
                     },
                 },
             }
@@ -566,6 +609,64 @@ def decode_skeleton(obj: Any, where: str = SKELETON_TOPIC) -> dict[str, Joint]:
         except InputError as exc:
             raise RecordingError(f"{where}: joint {name!r}: {exc}") from None
     return joints
+
+
+def encode_hands(hands: Sequence[HandObservation]) -> dict[str, Any]:
+    """The ``fusion_pf.HandLandmarks`` object of a frame's hands (NaN z -> null)."""
+    out = []
+    for hand in hands:
+        rows = [[float(u), float(v), None if np.isnan(z) else float(z)] for u, v, z in hand.landmarks]
+        palm = hand.palm
+        out.append(
+            {"landmarks": rows, "palm": [float(palm[0]), float(palm[1])], "score": hand.score,
+             "handedness": hand.handedness}
+        )
+    return {"hands": out}
+
+
+def decode_hands(obj: Any, where: str = HAND_TOPIC) -> tuple[HandObservation, ...]:
+    """Hands of a ``fusion_pf.HandLandmarks`` object.
+
+    ``palm`` is checked against the mean of landmarks 0, 5, 9, 13, 17 (to
+    1e-6 px + 1e-9 relative); the observation recomputes it.
+
+    Raises
+    ------
+    RecordingError
+        When the object does not follow the schema (the message names the bad
+        hand and field).
+    """
+    if not isinstance(obj, dict) or not isinstance(obj.get("hands"), list):
+        raise RecordingError(f"{where}: expected an object with a 'hands' list, got {str(obj)[:80]!r}")
+    hands = []
+    for k, item in enumerate(obj["hands"]):
+        if not isinstance(item, dict):
+            raise RecordingError(f"{where}: hand {k} must be an object, got {str(item)[:80]!r}")
+        missing = [key for key in ("landmarks", "palm", "score") if key not in item]
+        if missing:
+            raise RecordingError(f"{where}: hand {k} has no {', '.join(map(repr, missing))}")
+        rows = item["landmarks"]
+        if not isinstance(rows, list) or len(rows) != 21 or any(
+            not isinstance(r, list) or len(r) != 3 for r in rows
+        ):
+            raise RecordingError(f"{where}: hand {k} landmarks must be 21 [u, v, z] triples")
+        try:
+            lm = np.array([[r[0], r[1], np.nan if r[2] is None else r[2]] for r in rows], dtype=np.float64)
+            hand = HandObservation(lm, item["score"], item.get("handedness"))
+        except (TypeError, ValueError, InputError) as exc:
+            raise RecordingError(f"{where}: hand {k}: {exc}") from None
+        palm = item["palm"]
+        if (
+            not isinstance(palm, list)
+            or len(palm) != 2
+            or not np.allclose(np.asarray(palm, dtype=np.float64), hand.palm, rtol=1e-9, atol=1e-6)
+        ):
+            raise RecordingError(
+                f"{where}: hand {k} palm {palm!r} is not the mean of landmarks 0, 5, 9, 13, 17 "
+                f"({hand.palm.tolist()})"
+            )
+        hands.append(hand)
+    return tuple(hands)
 
 
 def encode_palm(palm: PalmPoint) -> dict[str, Any]:

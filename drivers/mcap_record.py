@@ -224,7 +224,7 @@ class McapRecorder(Sink):
     # ------------------------------------------------------------------ writing
 
     def write(self, frame: Frame) -> None:
-        """Write one frame: calibration (first frame and when it changes), colour, depth, skeleton, ground truth.
+        """Write one frame: calibration (first frame and when it changes), colour, depth, skeleton, ground truth, hands.
 
         Parameters
         ----------
@@ -263,6 +263,8 @@ class McapRecorder(Sink):
             )
         elif frame.ground_truth is not None:
             messages.append((fmt.GROUND_TRUTH_TOPIC, None, fmt.PALM_SCHEMA, fmt.encode_palm(frame.ground_truth)))
+        if frame.hands is not None:
+            messages.append((fmt.HAND_TOPIC, None, fmt.HAND_SCHEMA, fmt.encode_hands(frame.hands)))
         if not frame.background and not self._foreground:
             self._foreground = True
             self._announce_background(writer)

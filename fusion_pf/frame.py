@@ -191,6 +191,69 @@ class PalmPoint:
         object.__setattr__(self, "v", _finite("palm v", self.v))
 
 
+#: Landmarks whose mean is the palm centre (MediaPipe hand order: wrist and the
+#: index, middle, ring and little finger MCP joints).
+PALM_LANDMARKS = (0, 5, 9, 13, 17)
+
+#: Number of MediaPipe hand landmarks.
+HAND_LANDMARKS = 21
+
+
+@dataclass(frozen=True, eq=False)
+class HandObservation:
+    """One hand seen by a hand-landmark network (topic ``/hand/landmarks``).
+
+    Parameters
+    ----------
+    landmarks : ndarray, shape (21, 3), float64
+        MediaPipe hand landmarks in MediaPipe order: ``u, v`` in full-frame
+        colour pixels, ``z`` relative depth in pixel units (MediaPipe's
+        convention: the wrist's depth as origin, smaller = closer to the
+        camera), NaN when the network gives none. Stored read-only.
+    score : float
+        Palm / hand presence in [0, 1].
+    handedness : str or None
+        ``"left"``, ``"right"`` or None when unknown.
+    """
+
+    landmarks: np.ndarray
+    score: float
+    handedness: str | None = None
+
+    def __post_init__(self) -> None:
+        lm = np.array(self.landmarks, dtype=np.float64)
+        if lm.shape != (HAND_LANDMARKS, 3):
+            raise InputError(f"hand landmarks must have shape (21, 3), got {lm.shape}")
+        if not np.all(np.isfinite(lm[:, :2])):
+            raise InputError("hand landmark u, v must be finite")
+        if np.any(np.isinf(lm[:, 2])):
+            raise InputError("hand landmark z must be finite or NaN (unknown)")
+        lm.flags.writeable = False
+        object.__setattr__(self, "landmarks", lm)
+        score = _finite("hand score", self.score)
+        if not 0.0 <= score <= 1.0:
+            raise InputError(f"hand score must be in [0, 1], got {score}")
+        object.__setattr__(self, "score", score)
+        if self.handedness not in (None, "left", "right"):
+            raise InputError(f"hand handedness must be 'left', 'right' or None, got {self.handedness!r}")
+
+    @property
+    def palm(self) -> np.ndarray:
+        """Palm centre ``(u, v)``, shape (2,): mean of landmarks 0, 5, 9, 13, 17."""
+        return self.landmarks[list(PALM_LANDMARKS), :2].mean(axis=0)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, HandObservation):
+            return NotImplemented
+        return (
+            np.array_equal(self.landmarks, other.landmarks, equal_nan=True)
+            and self.score == other.score
+            and self.handedness == other.handedness
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     if a.flags.writeable:
         a = a.view()
@@ -227,6 +290,9 @@ class Frame:
         ``right_hand``, ``left_hand``, ``head``); None for single-target
         frames. When given and ``ground_truth`` is None, ``ground_truth``
         becomes the :data:`PRIMARY_TARGET`'s point (if present).
+    hands : tuple of HandObservation, or None
+        Hands a hand-landmark network found; None when the source has no hand
+        stream (no ``/hand/landmarks`` topic), ``()`` when it ran and saw no hand.
 
     Notes
     -----
@@ -243,6 +309,7 @@ class Frame:
     ground_truth: PalmPoint | None = None
     background: bool = False
     ground_truths: Mapping[str, PalmPoint] | None = None
+    hands: tuple[HandObservation, ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("timestamp_ns", "seq"):
@@ -287,6 +354,14 @@ class Frame:
                 if not isinstance(joint, Joint):
                     raise InputError(f"joint {name!r} must be a Joint, got {type(joint).__name__}")
             object.__setattr__(self, "joints", MappingProxyType(joints))
+        if self.hands is not None:
+            if isinstance(self.hands, (str, bytes)) or not hasattr(self.hands, "__iter__"):
+                raise InputError(f"hands must be a sequence of HandObservation or None, got {type(self.hands).__name__}")
+            hands = tuple(self.hands)
+            for k, hand in enumerate(hands):
+                if not isinstance(hand, HandObservation):
+                    raise InputError(f"hands[{k}] must be a HandObservation, got {type(hand).__name__}")
+            object.__setattr__(self, "hands", hands)
         if self.ground_truth is not None and not isinstance(self.ground_truth, PalmPoint):
             raise InputError(
                 f"ground_truth must be a PalmPoint or None, got {type(self.ground_truth).__name__}"

@@ -49,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: the source's own, 640x400)")
     p.add_argument("--fps", type=_positive(float), metavar="F",
                    help="frame rate for a camera or synthetic source (default: the source's own, 30)")
+    p.add_argument("--ir-laser", type=float, metavar="MA",
+                   help="OAK Pro IR dot-projector current in mA, 0-1200 (default: off)")
     p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
                    help="colour as RawImage rgb8, or CompressedImage jpeg/png")
     p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
@@ -88,6 +90,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}"
         )
+    if args.ir_laser is not None:
+        if not args.source.lower().startswith("oak"):
+            from fusion_pf.errors import InputError
+
+            raise InputError(f"--ir-laser applies to an OAK camera source, not to {args.source}")
+        overrides["ir_laser"] = args.ir_laser
     source = open_source(args.source, **overrides)
     duration_ns = None if args.duration is None else int(round(args.duration * 1e9))
     failure: BaseException | None = None

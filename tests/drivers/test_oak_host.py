@@ -458,3 +458,22 @@ def test_pulled_cable_mid_recording_leaves_a_complete_mcap(tmp_path: Path) -> No
         np.testing.assert_array_equal(b.depth, a.depth)
         assert b.intrinsics == a.intrinsics
         assert dict(b.joints) == dict(a.joints)
+
+
+def test_bad_pose_messages_are_skipped_counted_and_noted_once() -> None:
+    stats = SourceStats()
+    converter = GroupConverter(INTRINSICS, CLOCK, (NN, NN), stats)
+    joints = []
+    for seq, values in enumerate([_pose(0), np.zeros((1, 1, 17, 2), np.float16), _pose(2), np.full((1, 1, 17, 3), 2.0, np.float16)]):
+        group = dai.MessageGroup()
+        group["colour"] = _img(dai.ImgFrame.Type.BGR888i, _colour(seq), seq, _ts(seq))
+        nn = dai.NNData()
+        nn.addTensor("Identity", values)
+        group["skeleton"] = nn
+        joints.append(converter.convert(group).joints)
+    assert [j is None for j in joints] == [False, True, False, True]
+    assert converter.bad_messages == 2
+    assert stats.notes == [
+        "skipped 2 bad skeleton message(s) (those frames have no skeleton); first: pose network output has "
+        "34 values; expected 51 (MoveNet: 17 keypoints x (y, x, score))"
+    ]

@@ -50,7 +50,9 @@ def test_spec_options_and_typed_overrides() -> None:
         ({"fps": "0.5"}, r"oak fps must be in \[1, 60\], got 0.5"),
         ({"timeout": "0"}, r"oak timeout must be in \(0, 60\] seconds, got 0"),
         ({"pose": "posenet"}, "oak pose must be lightning, thunder, none, .* got 'posenet'"),
-        ({"duration": "10"}, "unknown oak option.* duration; expected: size, fps, pose, device, timeout"),
+        ({"duration": "10"}, "unknown oak option.* duration; expected: size, fps, pose, device, timeout, ir_laser, hands"),
+        ({"ir_laser": "5000"}, r"oak ir_laser must be in \[0, 1200\] mA, got 5000"),
+        ({"hands": "huge"}, "oak hands must be none or one of lite, full, sparse, got 'huge'"),
         ({"device": ""}, "oak device must be a non-empty"),
     ],
 )
@@ -151,3 +153,18 @@ def test_cli_record_without_device_exits_2_with_one_line(tmp_path: Path) -> None
     assert all(re.match(r"^\[[^\]]+\] \[depthai\] \[warning\]", line) for line in lines if not line.startswith("fusion-pf:"))
     assert "Traceback" not in proc.stderr
     assert not out.exists()  # nothing written when there is no camera
+
+
+def test_cli_ir_laser_is_validated_before_looking_for_a_device(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "fusion_pf", "record", "oak", str(tmp_path / "x.mcap"), "--ir-laser", "5000"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "fusion-pf: error: oak ir_laser must be in [0, 1200] mA, got 5000" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_hands_option_reaches_the_config() -> None:
+    src = open_source("oak:hands=full,ir_laser=250")
+    assert (src.config.hands, src.config.ir_laser) == ("full", 250.0)
