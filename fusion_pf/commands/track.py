@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.tracker_topics import TrackerTopics
     from fusion_pf.errors import InputError
     from fusion_pf.geometry import write_roi_ply
-    from fusion_pf.pipeline import TrackCsv, cue_names, track
+    from fusion_pf.pipeline import STATES, TrackCsv, TrackStats, cue_names, track
     from fusion_pf.signals import sigint_deferred
 
     config = config_from_args(args)
@@ -139,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)
     tracked = n_background = 0
+    states = {s: 0 for s in STATES}
     with open_source(args.source) as src, ExitStack() as stack:
         options = _recorder_options(src, args)
         options["metadata"]["tracker"] = json.dumps(config.settings(), sort_keys=True)
@@ -151,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
             tqdm(total=total, unit="frame", desc=src.describe(), disable=True if args.no_progress else None, file=sys.stderr)
         )
         topics = TrackerTopics(recorder, config)
-        for result in track(src, config, background=background):
+        track_stats = TrackStats()
+        for result in track(src, config, background=background, stats=track_stats):
             with sigint_deferred():
                 t0 = time.perf_counter_ns()
                 if args.copy_input:
@@ -168,7 +170,10 @@ def run(args: argparse.Namespace) -> int:
             result.source_frame = None
             n_background += result.background
             tracked += not result.background
+            states[result.state] += not result.background
             bar.update(1)
     print(f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
           + (f", {args.csv}" if args.csv is not None else ""), file=sys.stderr)
+    print(f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
+          f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses", file=sys.stderr)
     return 0

@@ -63,12 +63,20 @@ class CueContext:
         Skeleton joint the skeleton cue reads.
     stages : bool
         Return the stage images too.
+    prior : (float, float) or None
+        Where the palm is expected (full-frame px); blob cues that can see
+        several candidates (skin) take the one nearest to it.
+    search : bool
+        A whole-frame search for a palm (acquisition): regions touching the
+        frame border are kept (an arm enters from the border).
     """
 
     roi: object | None = None
     background: object | None = None
     joint: str = "right_hand"
     stages: bool = False
+    prior: tuple[float, float] | None = None
+    search: bool = False
 
 
 @runtime_checkable

@@ -126,7 +126,7 @@ class ColourCue:
     def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
         """The :class:`~fusion_pf.cues.base.Cue` form: ``frame``'s colour against ``ctx.background``."""
         background = None if ctx.background is None else ctx.background.color
-        return self(frame.color, background, roi=ctx.roi, stages=ctx.stages)
+        return self(frame.color, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search)
 
     def __call__(
         self,
@@ -135,6 +135,7 @@ class ColourCue:
         *,
         roi: Roi | None = None,
         stages: bool = False,
+        keep_border: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``color`` against ``background``.
 
@@ -144,6 +145,9 @@ class ColourCue:
             Current and reference (empty-scene) RGB images.
         roi : Roi, optional
             Window to process; the whole frame when None.
+        keep_border : bool
+            Keep regions touching the window border (a whole-frame search, where
+            the arm enters from the image border).
         stages : bool
             Also return the stage images I_C1 ... I_C9.
 
@@ -169,7 +173,7 @@ class ColourCue:
         c6 = remove_small(open_thin(c5, self.open_radius), self.min_area)  # I_C6 = thin and small removed
         c7 = fill_holes(c6)  # I_C7 = holes filled
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
-        c9 = clear_border(c8) if self.clear_border else c8  # I_C9 = border cleared
+        c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
         m = measure(
             c9, roi.offset, self.source,
             palm_area=roi.palm_area,

@@ -180,7 +180,7 @@ class DepthCue:
         background = None if ctx.background is None else ctx.background.depth
         if frame.depth is None:
             return CueResult(None)
-        return self(frame.depth, background, roi=ctx.roi, stages=ctx.stages)
+        return self(frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search)
 
     def __call__(
         self,
@@ -189,6 +189,7 @@ class DepthCue:
         *,
         roi: Roi | None = None,
         stages: bool = False,
+        keep_border: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -198,6 +199,9 @@ class DepthCue:
             Current and reference depth in mm (0 = invalid).
         roi : Roi, optional
             Window to process; the whole frame when None.
+        keep_border : bool
+            Keep regions touching the window border (a whole-frame search, where
+            the arm enters from the image border).
         stages : bool
             Also return the stage images I_d1 ... I_d10.
 
@@ -245,7 +249,7 @@ class DepthCue:
         d8 = dilate(d7, self.dilate)  # I_d8 = dilation
         moved = bool(d6.any())
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
-        d10 = clear_border(d9) if self.clear_border else d9  # I_d10 = border cleared
+        d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
         m = measure(
             d10, roi.offset, self.source,
             palm_area=roi.palm_area,

@@ -157,11 +157,14 @@ class Region:
         return min(1.0, self.area / (math.pi * side * side / 4.0))
 
 
-def largest_region(mask: np.ndarray, min_area: int = 1) -> Region | None:
+def largest_region(mask: np.ndarray, min_area: int = 1, near: tuple[float, float] | None = None) -> Region | None:
     """The largest 8-connected region and its centroid (paper 003 §3.5.1 steps i-iii).
 
     (i) find all regions in the window, (ii) compute their areas, (iii) take the
     centroid of the largest. Returns None when no region has ``min_area`` pixels.
+    With ``near`` (a point in mask pixels), the region of at least ``min_area``
+    pixels whose centroid is nearest to it is taken instead (so a face next to
+    the tracked hand does not win for being larger).
     """
     if mask.size == 0 or not cv2.countNonZero(mask):
         return None
@@ -169,7 +172,14 @@ def largest_region(mask: np.ndarray, min_area: int = 1) -> Region | None:
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA]  # (ii) area of every region but the background
-    best = int(np.argmax(areas)) + 1  # (iii) the largest region is taken as the hand
+    if near is None:
+        best = int(np.argmax(areas)) + 1  # (iii) the largest region is taken as the hand
+    else:
+        ok = areas >= max(1, min_area)
+        if not ok.any():
+            return None
+        d2 = np.sum((centroids[1:] - np.asarray(near, dtype=np.float64)) ** 2, axis=1)  # squared distance to the prior
+        best = int(np.argmin(np.where(ok, d2, np.inf))) + 1  # the qualifying region nearest the prior
     area = int(stats[best, cv2.CC_STAT_AREA])
     if area < max(1, min_area):
         return None
@@ -203,19 +213,21 @@ def measure(
     palm_area: float,
     min_area: int = 1,
     extras: dict | None = None,
+    near: tuple[float, float] | None = None,
 ):
     """Turn a cue's final mask into a full-frame :class:`Measurement` (or None).
 
-    The centroid of :func:`largest_region` is shifted by the window ``offset``
+    ``near`` (full-frame pixels) picks the region nearest to it instead of the
+    largest (:func:`largest_region`). The centroid is shifted by the window ``offset``
     ``(x0, y0)`` into full-frame pixels; ``quality`` is :func:`region_quality`;
     ``extras`` gets ``area`` (px) and ``bbox`` (full-frame ``[x, y, w, h]``).
     """
     from .base import Measurement
 
-    region = largest_region(final, min_area)
+    x0, y0 = offset
+    region = largest_region(final, min_area, None if near is None else (near[0] - x0, near[1] - y0))
     if region is None:
         return None
-    x0, y0 = offset
     info = dict(extras or {})
     info["area"] = region.area
     info["bbox"] = [region.bbox[0] + x0, region.bbox[1] + y0, region.bbox[2], region.bbox[3]]

@@ -87,6 +87,7 @@ def make_roi(
     extent_mm: float = 250.0,
     palm_radius_mm: float = 55.0,
     min_half: int = 8,
+    pixel_scale: float = 1.0,
 ) -> Roi:
     """The window around the prior ``(u, v)`` in a frame of ``size = (width, height)``.
 
@@ -112,6 +113,11 @@ def make_roi(
         55 mm ~ a 100 x 120 mm palm ellipse), for the expected palm area.
     min_half : int
         Smallest half-size in pixels (1-1000).
+    pixel_scale : float
+        Without depth: the fixed half-size and the expected palm area scale
+        with it (``PAPER_HALF_SIZE * s``, ``DEFAULT_PALM_AREA * s^2``): the
+        pipeline passes the image diagonal over that of 320 x 200, so a hand
+        filling the same fraction of the frame gets the same window.
 
     Returns
     -------
@@ -130,7 +136,8 @@ def make_roi(
         uf, vf = float(u), float(v)
     except (TypeError, ValueError):
         raise InputError(f"ROI prior must be numbers, got ({u!r}, {v!r})") from None
-    palm_area = DEFAULT_PALM_AREA
+    pixel_scale = check_float("pixel_scale", pixel_scale, 0.01, 100.0)
+    palm_area = DEFAULT_PALM_AREA * pixel_scale**2
     scale = None
     if depth_mm is not None and fx is not None:
         z, f = float(depth_mm), float(fx)
@@ -142,7 +149,7 @@ def make_roi(
     elif scale is not None:
         half = max(min_half, int(round(extent_mm * scale)))  # fixed physical size: k * fx / z
     else:
-        half = PAPER_HALF_SIZE
+        half = max(min_half, int(round(PAPER_HALF_SIZE * pixel_scale)))
     if not (math.isfinite(uf) and math.isfinite(vf)) or not (-0.5 <= uf < w - 0.5 and -0.5 <= vf < h - 0.5):
         return Roi(0, 0, 0, 0, palm_area)
     cu, cv_ = int(round(uf)), int(round(vf))

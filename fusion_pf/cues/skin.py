@@ -396,10 +396,12 @@ class SkinCue:
 
     def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
         """The :class:`~fusion_pf.cues.base.Cue` form: skin in ``frame``'s colour image."""
-        return self(frame.color, roi=ctx.roi, stages=ctx.stages)
+        return self(frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior)
 
-    def __call__(self, color: np.ndarray, *, roi: Roi | None = None, stages: bool = False) -> CueResult:
-        """Segment skin in ``color`` (inside ``roi``) and measure the largest skin region."""
+    def __call__(
+        self, color: np.ndarray, *, roi: Roi | None = None, stages: bool = False, near: tuple[float, float] | None = None
+    ) -> CueResult:
+        """Segment skin in ``color`` (inside ``roi``) and measure the skin region nearest ``near`` (else the largest)."""
         t0 = time.perf_counter_ns()
         _check_rgb("colour", color)
         h, w = color.shape[:2]
@@ -416,7 +418,7 @@ class SkinCue:
         m = measure(
             s7, roi.offset, self.source,
             palm_area=roi.palm_area,
-            min_area=self.min_area, extras={"roi": roi.as_list()},
+            min_area=self.min_area, extras={"roi": roi.as_list()}, near=near,
         )
         if stages:
             out = {"I_S1": s1.copy(), "I_S2": self.model.score(s1, color), "I_S3": s3,

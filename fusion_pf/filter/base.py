@@ -33,8 +33,8 @@ class Tracker(abc.ABC):
         """
 
     @abc.abstractmethod
-    def reset(self) -> None:
-        """Forget the state; the next measurement initialises again."""
+    def reset(self, prior=None) -> None:
+        """Forget the state; re-initialise at ``prior`` ``(u, v)`` if given, else from the next measurement."""
 
 
 def check_prior(prior) -> np.ndarray | None:

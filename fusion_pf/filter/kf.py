@@ -75,8 +75,11 @@ class KalmanFilter(Tracker):
         self.frame_period_ns = self._clock.frame_period_ns
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the state; re-initialise from ``prior`` (if any) or the next measurement."""
+    def reset(self, prior=None) -> None:
+        """Forget the state; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
+        constructor's prior, if any) or from the next measurement."""
+        if prior is not None:
+            self.prior = check_prior(prior)
         self._last_ns: int | None = None
         self.x = np.zeros(4)
         self.P = np.eye(4)

@@ -206,8 +206,11 @@ class ParticleFilter(Tracker):
         """Normalised weights of :attr:`particles`, shape (N,) (a view)."""
         return self._w
 
-    def reset(self) -> None:
-        """Forget the particles; re-initialise from ``prior`` (if any) or the next measurement."""
+    def reset(self, prior=None) -> None:
+        """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
+        constructor's prior, if any) or from the next measurement."""
+        if prior is not None:
+            self.prior = check_prior(prior)
         self._last_ns: int | None = None
         self.initialised = False
         if self.prior is not None:

@@ -4,8 +4,10 @@ from .config import DEFAULT_BACKGROUND_K, FILTERS, ROI_PRIORS, TrackConfig
 from .outputs import CSV_COLUMNS, TrackCsv, csv_columns, csv_row, cues_json, estimate_json
 from .run import (
     PATCH_MARGIN,
+    STATES,
     CueRow,
     TrackResult,
+    TrackStats,
     cue_names,
     cue_window,
     extract_cues,
@@ -21,10 +23,12 @@ __all__ = [
     "FILTERS",
     "PATCH_MARGIN",
     "ROI_PRIORS",
+    "STATES",
     "CueRow",
     "TrackConfig",
     "TrackCsv",
     "TrackResult",
+    "TrackStats",
     "csv_columns",
     "csv_row",
     "cue_names",

@@ -89,6 +89,16 @@ def _check_names(label: str, value) -> tuple[str, ...]:
         raise InputError(f"{label}: {exc}") from None
 
 
+def _check_init(label: str, value) -> tuple[float, float]:
+    try:
+        u, v = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{label} must be a pixel position U,V, got {value!r}") from None
+    if not (abs(u) < 1e7 and abs(v) < 1e7):
+        raise InputError(f"{label} must be finite pixels, got {value!r}")
+    return u, v
+
+
 def _path(label: str, value) -> Path:
     return Path(value)
 
@@ -147,6 +157,15 @@ class TrackConfig:
     depth_radius: int = option(DEFAULT_DEPTH_RADIUS, kind="int", lo=0, hi=50, unit="px", help="half-size of the 3-D palm's depth window")
     seed: int = option(0, kind="int", lo=0, hi=2**63 - 1, metavar="S",
                        help="seed of the particle filter and of --cue-noise")
+    init: tuple[float, float] | None = option(None, optional=True, parse=parse_tuple(2), check=_check_init,
+                                              metavar="U,V", help="known palm position in the first tracked frame")
+    scale_noise: bool = option(True, kind="bool",
+                               help="scale --noise, --process-noise and the window without depth with the image "
+                                    "diagonal: the values are px at 320x200")
+    silent_frames: int = option(15, kind="int", lo=1, hi=100_000, metavar="K",
+                                help="the track is lost after K frames in which no fused cue measured anything")
+    max_spread: float = option(0.2, kind="float", lo=0.001, hi=10.0, unit="of the image diagonal",
+                               help="the track is lost when the posterior position std exceeds this")
     cue_options: CueOptions = field(default_factory=CueOptions)
 
     def __post_init__(self) -> None:

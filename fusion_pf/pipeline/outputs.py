@@ -31,6 +31,7 @@ def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
         "x_mm", "y_mm", "z_mm", "ess", "resampled", "n_particles",
         *(f"latency_{stage}_ms" for stage in (*stages(sources), "sinks")),
         *(f"{s}_quality" for s in sources),
+        "state",
     )
 
 
@@ -107,6 +108,7 @@ def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str
     for s in sources:
         m = result.cues.get(s)
         cells.append(_f(m and m.quality, 3))
+    cells.append(result.state)
     return cells
 
 
@@ -126,6 +128,7 @@ def estimate_json(result: TrackResult, config: TrackConfig) -> dict:
         "ess": None if e is None else _finite_or_none(e.ess),
         "resampled": None if e is None else e.resampled,
         "n_particles": 0 if e is None else e.n_particles,
+        "state": result.state,
         "filter": config.filter,
         "likelihood": config.likelihood,
         "latency_ns": {k: int(v) for k, v in result.latency_ns.items()},

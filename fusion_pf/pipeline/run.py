@@ -62,6 +62,7 @@ MCAP, ``drivers.tracker_topics``.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -70,10 +71,13 @@ import numpy as np
 
 from ..cues.background import BackgroundModel
 from ..cues.base import SOURCES, CueContext
+from ..cues.regions import DEFAULT_PALM_AREA
 from ..cues.registry import build_cues
-from ..cues.roi import Roi, make_roi
+from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
+from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2
+from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
 from ..geometry import backproject, depth_at
 from .config import TrackConfig
@@ -82,8 +86,11 @@ __all__ = [
     "PATCH_MARGIN",
     "CueRow",
     "TrackResult",
+    "STATES",
+    "TrackStats",
     "cue_names",
     "cue_window",
+    "pixel_scale",
     "extract_cues",
     "make_tracker",
     "run_filter",
@@ -93,6 +100,19 @@ __all__ = [
 
 #: Pixels the stored depth patch extends beyond the ROI on each side.
 PATCH_MARGIN = 32
+#: The image size the pixel defaults (noise, window, palm area) were tuned at.
+REFERENCE_SIZE = (320, 200)
+#: Track states of the single target (paper 004 §5.2), as written to the outputs.
+STATES = (TrackState.UNINITIALISED.value, TrackState.TRACKING.value, TrackState.LOST.value)
+#: Consecutive frames with a too-wide posterior before the track is lost.
+DEGRADED_FRAMES = 3
+
+
+def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
+    """Image diagonal over the :data:`REFERENCE_SIZE` diagonal (1 with ``config.scale_noise`` off)."""
+    if not config.scale_noise:
+        return 1.0
+    return math.hypot(*size) / math.hypot(*REFERENCE_SIZE)
 
 
 def cue_names(config: TrackConfig) -> tuple[str, ...]:
@@ -171,6 +191,9 @@ class TrackResult:
     ground_truth : PalmPoint or None
     source_frame : Frame or None
         The frame itself (set by :func:`track`, None from :func:`run_filter`).
+    state : str
+        Track state after this frame, one of :data:`STATES` (``lost`` and
+        ``uninitialised`` frames have no estimate).
     """
 
     frame: int
@@ -185,6 +208,7 @@ class TrackResult:
     weights: np.ndarray | None = None
     ground_truth: PalmPoint | None = None
     source_frame: Frame | None = None
+    state: str = TrackState.UNINITIALISED.value
 
 
 # ---------------------------------------------------------------------- background
@@ -257,7 +281,7 @@ def cue_window(frame: Frame, prior: tuple[float, float] | None, config: TrackCon
     z = depth_at(frame.depth, *prior, radius=config.depth_radius) if frame.depth is not None else None
     return make_roi(
         prior[0], prior[1], frame.size, depth_mm=z, fx=frame.intrinsics.fx,
-        half_size=config.roi_half_size, extent_mm=config.roi_extent_mm,
+        half_size=config.roi_half_size, extent_mm=config.roi_extent_mm, pixel_scale=pixel_scale(frame.size, config),
     )
 
 
@@ -301,15 +325,19 @@ class _CueStage:
     def __call__(
         self, index: int, frame: Frame, decode_ns: int, model: BackgroundModel | None, prior: tuple[float, float] | None
     ) -> CueRow:
-        """All cues of one frame; window cues search around ``prior`` (None: no window, no window cue)."""
+        """All cues of one frame: in the window around ``prior``, or over the whole frame without one (acquisition)."""
         lat = {"decode": decode_ns}
-        roi = self.roi(frame, prior)
-        ctx = CueContext(roi=roi, background=model, joint=self.config.joint)
+        search = prior is None
+        if search:
+            s = pixel_scale(frame.size, self.config)
+            roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
+        else:
+            roi = self.roi(frame, prior)
+        ctx = CueContext(roi=roi, background=model, joint=self.config.joint, prior=prior, search=search)
         cues: dict[str, Measurement | None] = {}
         for name, cue in self.cues.items():
             t0 = time.perf_counter_ns()
-            windowed = not cue.needs <= {"skeleton"}
-            cues[name] = None if windowed and (roi is None or model is None) else cue.measure(frame, ctx).measurement
+            cues[name] = cue.measure(frame, ctx).measurement
             lat[name] = time.perf_counter_ns() - t0
         if self.config.cue_noise_px:
             cues = self.add_noise(cues)
@@ -339,34 +367,74 @@ def _background_row(index: int, frame: Frame, decode_ns: int, names: Sequence[st
 # ---------------------------------------------------------------------- filter
 
 
-def make_tracker(config: TrackConfig, rng: np.random.Generator | int | None = None) -> Tracker:
+def make_tracker(
+    config: TrackConfig, rng: np.random.Generator | int | None = None, size: tuple[int, int] | None = None
+) -> Tracker:
     """The filter ``config`` describes: the particle filter (seeded by ``rng``, else ``config.seed``) or Kalman.
 
     Both learn the frame period from the timestamps (``frame_period_ns="auto"``):
     a steady source steps by one frame as in the paper, and a gap left by
-    dropped frames is bridged by as many motion steps.
+    dropped frames is bridged by as many motion steps. For images of ``size``
+    the measurement and process noise and the initial spread are scaled by
+    :func:`pixel_scale`, and the robust likelihood's outlier area is the image.
     """
+    s = 1.0 if size is None else pixel_scale(size, config)
+    noise = {k: v * s for k, v in config.noise_px.items()}
+    process = (config.process_noise[0] * s, config.process_noise[1] * s)
     if config.filter == "kf":
-        return KalmanFilter(process_noise=config.process_noise, noise_px=config.noise_px, frame_period_ns="auto")
+        return KalmanFilter(process_noise=process, noise_px=noise, frame_period_ns="auto", init_spread_px=20.0 * s)
     return ParticleFilter(
-        n_particles=config.particles, process_noise=config.process_noise, noise_px=config.noise_px,
-        likelihood=config.likelihood, resampler="residual", estimator="robust_mean", frame_period_ns="auto",
+        n_particles=config.particles, process_noise=process, noise_px=noise,
+        likelihood=config.likelihood or "robust", resampler="residual", estimator="robust_mean",
+        frame_period_ns="auto", init_spread_px=20.0 * s,
+        outlier_area_px2=DEFAULT_OUTLIER_AREA_PX2 if size is None else float(size[0] * size[1]),
         rng=config.seed if rng is None else rng,
     )
 
 
 class _FilterStage:
-    """The filter over a stream of cue rows, with the prediction used as ROI prior."""
+    """The filter over a stream of cue rows, its track state and the prediction used as ROI prior.
+
+    Initialisation and re-acquisition start the filter at the most trusted
+    measurement (smallest quality-widened noise; ``config.init`` in the first
+    tracked frame when given). Supervision (:func:`fusion_pf.filter.states.step_state`):
+    the track is lost when the estimate leaves the image, when no fused cue
+    measured anything for ``config.silent_frames`` frames, or when the posterior
+    position std stays above ``config.max_spread`` of the image diagonal for
+    :data:`DEGRADED_FRAMES` frames; the filter is then reset, the frame has no
+    estimate, and the next frames search the whole image until a cue finds the
+    palm again (a re-acquisition).
+    """
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
         self.config = config
-        self.tracker = make_tracker(config, rng)
+        self.rng = rng
+        self.tracker: Tracker | None = None
         self.sources = config.sources if config.sources is not None else cue_names(config)
         self._history: list[tuple[int, float, float]] = []
+        self.status = TrackStatus()
+        self.states: StateConfig | None = None
+        self.init = config.init
+        self.reacquisitions = 0
+        self.losses = 0
+
+    def _start(self, size: tuple[int, int]) -> None:
+        self.tracker = make_tracker(self.config, self.rng, size)
+        diag = math.hypot(*size)
+        self.states = StateConfig(max_spread_px=self.config.max_spread * diag, min_likelihood=0.0,
+                                  silent_frames=self.config.silent_frames, degraded_frames=DEGRADED_FRAMES,
+                                  image_size=size, merge_px=1.0, split_px=1.0)
+
+    @property
+    def tracking(self) -> bool:
+        """Whether the track holds (a prediction exists to place the window)."""
+        return self.status.state == TrackState.TRACKING
 
     def prediction(self, timestamp_ns: int) -> tuple[float, float] | None:
-        """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns``."""
-        if not self._history:
+        """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns`` (None when lost)."""
+        if self.init is not None:
+            return self.init
+        if not self._history or not self.tracking:
             return None
         t1, u1, v1 = self._history[-1]
         if len(self._history) == 1:
@@ -375,23 +443,48 @@ class _FilterStage:
         k = (timestamp_ns - t1) / (t1 - t0)
         return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
 
+    def _trust(self, m: Measurement) -> float:
+        # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
+        return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
+
     def __call__(self, row: CueRow) -> TrackResult:
-        """Step the filter with ``row`` (not for background rows) and build the result."""
+        """Step the filter with ``row`` (not for background rows), supervise it and build the result."""
         t0 = time.perf_counter_ns()
-        estimate = self.tracker.step(row.timestamp_ns, row.measurements(self.sources))
+        size = (row.intrinsics.width, row.intrinsics.height)
+        if self.tracker is None:
+            self._start(size)
+        tracker = self.tracker
+        ms = row.measurements(self.sources)
+        if not tracker.initialised and (ms or self.init is not None):
+            best = min(ms, key=self._trust) if ms else None
+            tracker.reset(prior=self.init if self.init is not None else (best.u, best.v))
+        self.init = None
+        estimate = tracker.step(row.timestamp_ns, ms)
+        cov = None if estimate is None else estimate.cov
+        spread = math.nan if cov is None else math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))
+        position = None if estimate is None else (estimate.u, estimate.v)
+        before = self.status.state
+        self.status = step_state(self.status, Evidence(position, spread_px=spread, cues=len(ms)), self.states)
+        if self.status.state == TrackState.LOST and estimate is not None:
+            self.losses += before == TrackState.TRACKING
+            tracker.reset()
+            self._history = []
+            estimate = None
+        elif self.status.state == TrackState.TRACKING and before == TrackState.LOST:
+            self.reacquisitions += 1
         particles = weights = xyz = None
         if estimate is not None:
             self._history = [*self._history[-1:], (row.timestamp_ns, estimate.u, estimate.v)]
             xyz = _xyz(row, estimate.u, estimate.v, self.config.depth_radius)
-            if isinstance(self.tracker, ParticleFilter):
-                particles = self.tracker.particles[:, :2].copy()
-                weights = np.exp(self.tracker.log_weights)
+            if isinstance(tracker, ParticleFilter):
+                particles = tracker.particles[:, :2].copy()
+                weights = np.exp(tracker.log_weights)
         lat = dict(row.latency_ns)
         lat["filter"] = time.perf_counter_ns() - t0
         return TrackResult(
             frame=row.frame, timestamp_ns=row.timestamp_ns, background=False, estimate=estimate,
             cues=dict(row.cues), xyz_mm=xyz, latency_ns=lat, roi=row.roi,
-            particles=particles, weights=weights, ground_truth=row.ground_truth,
+            particles=particles, weights=weights, ground_truth=row.ground_truth, state=self.status.state.value,
         )
 
 
@@ -422,12 +515,29 @@ def _background_result(row: CueRow) -> TrackResult:
 # ---------------------------------------------------------------------- public API
 
 
+@dataclass
+class TrackStats:
+    """Counters of a :func:`track` run, kept up to date frame by frame.
+
+    Attributes
+    ----------
+    losses : int
+        Times the track was lost (supervision, see ``_FilterStage``).
+    reacquisitions : int
+        Times a lost track was found again by the whole-frame search.
+    """
+
+    losses: int = 0
+    reacquisitions: int = 0
+
+
 def track(
     source: Iterable[Frame],
     config: TrackConfig,
     *,
     background: BackgroundModel | None = None,
     rng: np.random.Generator | int | None = None,
+    stats: TrackStats | None = None,
 ) -> Iterator[TrackResult]:
     """Track the palm through ``source``, one :class:`TrackResult` per frame.
 
@@ -441,6 +551,8 @@ def track(
         caller); None: the source's background frames, else the running median.
     rng : numpy.random.Generator, int or None
         The particle filter's random source; None uses ``config.seed``.
+    stats : TrackStats, optional
+        Filled with the run's losses and re-acquisitions.
 
     Yields
     ------
@@ -459,6 +571,8 @@ def track(
             prior = cues.prior(frame, config.roi_prior, filt.prediction(frame.timestamp_ns))
             result = filt(cues(index, frame, dec, model, prior))
             result.latency_ns["total"] = time.perf_counter_ns() - t0
+            if stats is not None:
+                stats.losses, stats.reacquisitions = filt.losses, filt.reacquisitions
         result.source_frame = frame
         yield result
 

@@ -11,7 +11,7 @@ Tracker outputs
       quality}`` or null), keyed by their ``frame`` field.
 
     Both become a :class:`TrackTable` whose ``points`` are keyed by
-    :data:`~fusion_pf.score.metrics.SCORED_SOURCES` (the estimate is
+    the sources the output has (the estimate is
     ``"fused"``).
 
 References
@@ -43,21 +43,21 @@ from pathlib import Path
 import numpy as np
 
 from fusion_pf.errors import InputError
-from fusion_pf.frame import SOURCES
-
-from .metrics import SCORED_SOURCES
 
 #: What the scorer reads from MCAP files, by kind (``drivers.tracker_topics.TOPICS``
 #: maps each kind to its topic of docs/recording-format.md).
 ESTIMATE_TOPIC, CUES_TOPIC, GROUND_TRUTH_TOPIC = "estimate", "cues", "ground_truth"
 
-#: Latency stages of the tracker output, in plot order (docs/architecture.md).
-LATENCY_STAGES = ("decode", "colour", "depth", "skeleton", "filter", "total", "sinks")
+#: Keys of a ``/tracker/cues`` message that are not sources.
+_CUES_FIELDS = ("frame", "timestamp_ns", "roi")
 
-#: CSV columns the scorer needs.
-REQUIRED_CSV_COLUMNS = ("frame", "timestamp_ns", "u", "v") + tuple(
-    f"{s}_{c}" for s in SOURCES for c in ("u", "v")
-)
+#: CSV columns the scorer needs; every ``<source>_u, <source>_v`` pair after them is a cue.
+REQUIRED_CSV_COLUMNS = ("frame", "timestamp_ns", "u", "v")
+
+
+def csv_sources(header: list[str]) -> tuple[str, ...]:
+    """The cue sources of a tracker CSV header: every ``X`` with both ``X_u`` and ``X_v`` columns, in order."""
+    return tuple(c[:-2] for c in header if c.endswith("_u") and c != "u" and c[:-2] + "_v" in header)
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -100,11 +100,14 @@ class TrackTable:
         Frame index of each row, strictly increasing.
     timestamp_ns : ndarray, shape (n,), int64
     points : dict of str to ndarray, shape (n, 2)
-        Per scored source (``colour``, ``depth``, ``skeleton``, ``fused``), the
-        ``(u, v)`` pixels, NaN rows where the source gave nothing.
+        Per scored source (the cues the tracker computed, e.g. ``colour``,
+        ``depth``, ``skeleton``, then the estimate ``fused``), the ``(u, v)``
+        pixels, NaN rows where the source gave nothing.
     latency_ms : dict of str to ndarray, shape (n,)
         Per latency stage with at least one value in the file, milliseconds
         (NaN when unknown).
+    state : ndarray of str, shape (n,), or None
+        Track state per row when the output has one (``tracking``, ``lost``, ``uninitialised``).
     """
 
     path: str
@@ -112,6 +115,7 @@ class TrackTable:
     timestamp_ns: np.ndarray
     points: dict[str, np.ndarray]
     latency_ms: dict[str, np.ndarray]
+    state: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.frame.size == 0:
@@ -226,21 +230,23 @@ def read_tracker_csv(path: str | Path) -> TrackTable:
             f"{path}: line {short[0]} has {len(body[short[0] - 2])} cells, expected {len(header)}"
         )
     cols = {name: [r[i] for r in body] for i, name in enumerate(header)}
-    num = {c: _column(path, c, cols[c], float) for c in REQUIRED_CSV_COLUMNS[2:]}
-    points = {s: _pair(num[f"{s}_u"], num[f"{s}_v"], path, s) for s in SOURCES}
+    sources = csv_sources(header)
+    num = {c: _column(path, c, cols[c], float) for c in ("u", "v", *(f"{s}_{x}" for s in sources for x in "uv"))}
+    points = {s: _pair(num[f"{s}_u"], num[f"{s}_v"], path, s) for s in sources}
     points["fused"] = _pair(num["u"], num["v"], path, "the estimate")
     latency = {
-        stage: _column(path, f"latency_{stage}_ms", cols[f"latency_{stage}_ms"], float)
-        for stage in LATENCY_STAGES
-        if f"latency_{stage}_ms" in cols
+        c[len("latency_"):-len("_ms")]: _column(path, c, cols[c], float)
+        for c in header
+        if c.startswith("latency_") and c.endswith("_ms")
     }
     latency = {k: ms for k, ms in latency.items() if np.isfinite(ms).any()}
     return TrackTable(
         path=path,
         frame=_column(path, "frame", cols["frame"], int),
         timestamp_ns=_column(path, "timestamp_ns", cols["timestamp_ns"], int),
-        points={s: points[s] for s in SCORED_SOURCES},
+        points=points,
         latency_ms=latency,
+        state=np.array(cols["state"], dtype=object) if "state" in cols else None,
     )
 
 
@@ -315,13 +321,16 @@ def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -
     for log_time, msg in cues:
         frame = _frame_of(path, CUES_TOPIC, msg, log_time)
         row = rows.setdefault(frame, {"timestamp_ns": msg.get("timestamp_ns", log_time)})
-        for s in SOURCES:
-            row[s] = _xy(path, CUES_TOPIC, msg.get(s), f"frame {frame} {s}")
+        for s, value in msg.items():
+            if s not in _CUES_FIELDS:
+                row.setdefault("sources", []).append(s)
+                row[s] = _xy(path, CUES_TOPIC, value, f"frame {frame} {s}")
     frames = np.array(sorted(rows), dtype=np.int64)
     ordered = [rows[int(f)] for f in frames]
     nan2 = (math.nan, math.nan)
-    points = {s: np.array([r.get(s, nan2) for r in ordered], dtype=np.float64) for s in SCORED_SOURCES}
-    stages = [s for s in LATENCY_STAGES if any(s in r.get("latency", {}) for r in ordered)]
+    sources = list(dict.fromkeys(s for r in ordered for s in r.get("sources", ())))
+    points = {s: np.array([r.get(s, nan2) for r in ordered], dtype=np.float64) for s in (*sources, "fused")}
+    stages = list(dict.fromkeys(s for r in ordered for s in r.get("latency", {})))
     latency = {
         s: np.array([r.get("latency", {}).get(s, math.nan) for r in ordered], dtype=np.float64)
         for s in stages

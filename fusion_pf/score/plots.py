@@ -27,6 +27,18 @@ SOURCE_STYLE = {
     "fused": {"color": "black", "marker": "o", "label": "fused (DF-PF estimate)"},
 }
 
+#: Colours of scored sources and latency stages without their own style.
+_OTHER_COLOURS = ("tab:red", "tab:cyan", "tab:olive", "tab:pink", "tab:brown", "darkgoldenrod")
+
+
+def _style(table: dict, name: str, marker: bool = True) -> dict:
+    """The style of ``name``: its own, else a colour of :data:`_OTHER_COLOURS` chosen by the name."""
+    if name in table:
+        return table[name]
+    colour = _OTHER_COLOURS[sum(map(ord, name)) % len(_OTHER_COLOURS)]
+    return {"color": colour, "label": name.replace("_", " "), **({"marker": "D"} if marker else {})}
+
+
 #: Colour and label of every latency stage.
 STAGE_STYLE = {
     "decode": {"color": "tab:gray", "label": "decode"},
@@ -81,7 +93,7 @@ def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
     fig, ax = _figure()
     x = np.arange(len(sweep.particle_counts))
     for i, s in enumerate(sweep.sources):
-        st = SOURCE_STYLE[s]
+        st = _style(SOURCE_STYLE, s)
         ax.plot(x, sweep.bestmax[:, run, i], marker=st["marker"], color=st["color"], label=st["label"],
                 linewidth=2.2 if s == "fused" else 1.4)
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])
@@ -112,7 +124,7 @@ def plot_multiexec(sweep, path: str | Path) -> Path:
     width = 0.8 / k
     x = np.arange(len(sweep.particle_counts))
     for i, s in enumerate(sweep.sources):
-        st = SOURCE_STYLE[s]
+        st = _style(SOURCE_STYLE, s)
         ax.bar(x + (i - (k - 1) / 2) * width, mean[:, i], width, yerr=std[:, i], capsize=2,
                color=st["color"], label=st["label"], error_kw={"elinewidth": 0.8})
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])

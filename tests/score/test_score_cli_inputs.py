@@ -99,12 +99,12 @@ def one_line_error(code, out, err):
 
 
 def test_missing_columns(tmp_path, capsys):
-    header = [h for h in HEADER if h not in ("depth_u", "depth_v")]
+    header = [h for h in HEADER if h not in ("u", "v")]
     path = tmp_path / "t.csv"
     with open(path, "w") as f:
         f.write(",".join(header) + "\n")
     msg = one_line_error(*run_cli(capsys, path, "--ground-truth", write_gt(tmp_path / "g.mcap")))
-    assert "missing column(s) depth_u, depth_v" in msg and str(path) in msg
+    assert "missing column(s) u, v" in msg and str(path) in msg
 
 
 def test_frame_count_mismatch(tmp_path, capsys):
