@@ -162,26 +162,30 @@ class MediaPipePeer:
 def run_pass(frames: np.ndarray, frames_path: Path, python: str, num_threads: int) -> dict[str, dict[str, np.ndarray]]:
     """One pass over the frames, MediaPipe and fusion-pf alternating frame by frame (same load for both).
 
-    Per frame: MediaPipe video mode, fusion-pf ``track`` with the previous observation, then the
-    acquisition cost on the same frame: MediaPipe static image mode and fusion-pf ``track``
-    without a previous observation (palm detection + landmarks). Keys ``mediapipe``,
-    ``fusion-pf`` (tracking runs) and ``mediapipe-static``, ``fusion-pf-detect`` (acquisition runs).
+    Per frame: MediaPipe video mode, fusion-pf ``track`` with the previous observation (default
+    options, and ``recentre=None``: MediaPipe's graph exactly), then the acquisition cost on the
+    same frame: MediaPipe static image mode and fusion-pf ``track`` without a previous
+    observation (palm detection + landmarks). Keys ``mediapipe``, ``fusion-pf``,
+    ``fusion-pf-norecentre`` (tracking runs) and ``mediapipe-static``, ``fusion-pf-detect``
+    (acquisition runs).
     """
     from fusion_pf.cues.hand import HandLandmarker
 
     hl = HandLandmarker(num_threads=num_threads)
-    hl.detect(np.full(frames.shape[1:], GREY, np.uint8))  # warm-up: both models once
+    plain = HandLandmarker(num_threads=num_threads, recentre=None)
+    for h in (hl, plain):
+        h.detect(np.full(frames.shape[1:], GREY, np.uint8))  # warm-up: both models once
     peer = MediaPipePeer(python, frames_path)
     n = frames.shape[0]
     out = {name: {"landmarks": np.full((n, 21, 3), np.nan), "ms": np.zeros(n), "acquire": np.zeros(n, bool)}
-           for name in ("mediapipe", "fusion-pf", "mediapipe-static", "fusion-pf-detect")}
+           for name in ("mediapipe", "fusion-pf", "fusion-pf-norecentre", "mediapipe-static", "fusion-pf-detect")}
 
     def put(name: str, i: int, ms: float, lm: np.ndarray | None, acquire: bool) -> None:
         out[name]["ms"][i], out[name]["acquire"][i] = ms, acquire
         if lm is not None:
             out[name]["landmarks"][i] = lm
 
-    prev, had_hand = None, False
+    prev, prev_plain, had_hand = None, None, False
     try:
         for i in range(n):
             ms, lm = peer("video", i)
@@ -191,6 +195,10 @@ def run_pass(frames: np.ndarray, frames_path: Path, python: str, num_threads: in
             prev, mode = hl.track(frames[i], prev)
             put("fusion-pf", i, (time.perf_counter() - t0) * 1e3, None if prev is None else prev.landmarks,
                 mode == "detect")
+            t0 = time.perf_counter()
+            prev_plain, mode = plain.track(frames[i], prev_plain)
+            put("fusion-pf-norecentre", i, (time.perf_counter() - t0) * 1e3,
+                None if prev_plain is None else prev_plain.landmarks, mode == "detect")
             ms, lm = peer("static", i)
             put("mediapipe-static", i, ms, lm, True)
             t0 = time.perf_counter()
@@ -263,13 +271,13 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"frames {DEV_FRAMES.start}-{DEV_FRAMES.stop - 1} (dev), {args.passes} passes alternating per frame, "
           f"load {results['load_before'][0]:.2f} -> {results['load_after'][0]:.2f}")
-    head = (f"{'view':<11} {'tracker':<16} {'cover':>6} {'RMSE':>6} {'median':>6} {'p95':>6} {'max':>6} "
+    head = (f"{'view':<11} {'tracker':<20} {'cover':>6} {'RMSE':>6} {'median':>6} {'p95':>6} {'max':>6} "
             f"{'track ms (n)':>13} {'acq ms (n)':>11}")
     print(head)
     for view, r in results["views"].items():
-        for name in ("mediapipe", "fusion-pf", "mediapipe-static", "fusion-pf-detect"):
+        for name in ("mediapipe", "fusion-pf", "fusion-pf-norecentre", "mediapipe-static", "fusion-pf-detect"):
             s = r[name]
-            print(f"{view:<11} {name:<16} {s['coverage']:6.1%} {s['rmse']:6.1f} {s['median']:6.1f} {s['p95']:6.1f} "
+            print(f"{view:<11} {name:<20} {s['coverage']:6.1%} {s['rmse']:6.1f} {s['median']:6.1f} {s['p95']:6.1f} "
                   f"{s['max']:6.1f} {s['ms_track_median']:6.2f} ({s['n_track']:3d}) {s['ms_acquire_median']:5.1f} "
                   f"({s['n_acquire']:2d})")
         print(f"{view:<11} ms ratio fusion-pf / MediaPipe: tracking frames {r['ratio_track_ms']:.2f}, "

@@ -20,6 +20,15 @@ MediaPipe's graphs:
    landmark box), so a tracked frame costs one landmark call; detection runs
    only when there is no track.
 
+One addition to MediaPipe: **re-centring**. When the hand moved fast, the ROI
+taken from the previous frame is off-centre and can cut the fingers; when the
+ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
+the ROI the model saw, the landmark model runs once more on the new ROI. On
+the hand-graph-cnn development frames (1280 x 720, hand moving up to 158 px per
+frame) this took the palm RMSE from 13.0 to 10.3 px (max 60 -> 25 px) for a
+second call on a quarter of the tracked frames; ``recentre=None`` gives
+MediaPipe's behaviour.
+
 Coordinates are full-frame pixels ``(u, v)`` with pixel centres at integer
 values. The palm centre is the mean of the wrist and the four finger bases
 (landmarks 0, 5, 9, 13, 17).
@@ -366,13 +375,18 @@ class HandLandmarker:
         IoU above which palm detections are merged, (0, 1].
     max_hands : int
         Most hands :meth:`detect` returns (>= 1).
+    recentre : float or None
+        Re-run the landmark model on the ROI of its own landmarks when that ROI's
+        centre is more than ``recentre`` x the ROI side from the ROI it was given
+        (> 0); None = never (MediaPipe).
     model_dir : path or None
         Folder holding ``palm_detection_full.tflite`` and
         ``hand_landmark_full.tflite``; None = the shipped models.
     """
 
     def __init__(self, *, num_threads: int = 2, min_detection: float = 0.5, min_presence: float = 0.5,
-                 nms_iou: float = 0.3, max_hands: int = 2, model_dir: str | Path | None = None) -> None:
+                 nms_iou: float = 0.3, max_hands: int = 2, recentre: float | None = 0.1,
+                 model_dir: str | Path | None = None) -> None:
         if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 1:
             raise InputError(f"num_threads must be an int >= 1, got {num_threads!r}")
         if isinstance(max_hands, bool) or not isinstance(max_hands, (int, np.integer)) or max_hands < 1:
@@ -383,6 +397,9 @@ class HandLandmarker:
         if self.nms_iou == 0.0:
             raise InputError("nms_iou must be in (0, 1], got 0")
         self.max_hands = int(max_hands)
+        if recentre is not None and not (isinstance(recentre, (int, float)) and 0 < recentre < math.inf):
+            raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
+        self.recentre = None if recentre is None else float(recentre)
         self.num_threads = int(num_threads)
         folder = Path(model_dir) if model_dir is not None else Path(str(resources.files("fusion_pf") / "data" / "hand"))
         self._palm = _Model(folder / "palm_detection_full.tflite", self.num_threads, ("Identity", "Identity_1"))
@@ -403,7 +420,18 @@ class HandLandmarker:
         return PalmDetections(det.scores, boxes, kps)
 
     def landmarks(self, rgb: np.ndarray, roi: HandRoi) -> HandObservation | None:
-        """Run the landmark model in ``roi``; None when its presence score is below ``min_presence``."""
+        """Landmarks in ``roi`` (re-centred once, see ``recentre``); None when the hand presence is below ``min_presence``."""
+        obs = self._landmarks(rgb, roi)
+        if obs is None or self.recentre is None:
+            return obs
+        new = landmarks_roi(obs.landmarks)
+        if math.hypot(new.u - roi.u, new.v - roi.v) <= self.recentre * roi.size:
+            return obs
+        again = self._landmarks(rgb, new)
+        return obs if again is None else again
+
+    def _landmarks(self, rgb: np.ndarray, roi: HandRoi) -> HandObservation | None:
+        """One landmark model call in ``roi``."""
         _check_rgb(rgb)
         raw, presence, handed = self._landmark(roi.warp(rgb, LANDMARK_INPUT, zero_border=False))
         score = float(presence.reshape(-1)[0])

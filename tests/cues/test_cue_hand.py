@@ -234,6 +234,21 @@ def test_lost_track_falls_back_to_detection(hl):
     assert np.hypot(*(obs.palm - ref_palm)) < 5.0
 
 
+@pytest.mark.parametrize("angle", [0.0, 1.5, 3.0])
+def test_recentring_recovers_an_off_centre_roi(hl, angle):
+    rgb = load("asl_hand_001.jpg")
+    refs, _ = expected("asl_hand_001.jpg")
+    _, static_tol = expected("hands.jpg")  # MediaPipe's tolerance for a single image (20 px)
+    good = landmarks_roi(refs[0])
+    d = 0.3 * good.size  # the hand moved 30 % of the ROI since the last frame
+    off = HandRoi(good.u + d * math.cos(angle), good.v + d * math.sin(angle), good.size, good.rotation)
+    once = HandLandmarker(recentre=None).landmarks(rgb, off)  # MediaPipe: one call in the stale ROI
+    twice = hl.landmarks(rgb, off)
+    assert once is not None and twice is not None
+    assert np.abs(once.landmarks[:, :2] - refs[0]).max() > 40  # the cut-off hand is badly placed
+    assert np.abs(twice.landmarks[:, :2] - refs[0]).max() < static_tol
+
+
 # ------------------------------------------------------------------ failure
 
 
@@ -300,7 +315,8 @@ def test_bad_roi_hint(hl, hint):
 @pytest.mark.parametrize(
     "kwargs, word",
     [({"num_threads": 0}, "num_threads"), ({"min_detection": 1.5}, "min_detection"),
-     ({"min_presence": -0.1}, "min_presence"), ({"max_hands": 0}, "max_hands"), ({"nms_iou": 0.0}, "nms_iou")],
+     ({"min_presence": -0.1}, "min_presence"), ({"max_hands": 0}, "max_hands"), ({"nms_iou": 0.0}, "nms_iou"),
+     ({"recentre": 0.0}, "recentre"), ({"recentre": "yes"}, "recentre")],
 )
 def test_bad_options(kwargs, word):
     with pytest.raises(InputError, match=word):
