@@ -88,6 +88,12 @@ class HandObservation:
     score: float
     handedness: str | None
 
+    def __post_init__(self) -> None:
+        lm = np.asarray(self.landmarks, dtype=np.float64)
+        if lm.shape != (21, 3):
+            raise InputError(f"hand landmarks must have shape (21, 3), got {lm.shape}")
+        object.__setattr__(self, "landmarks", lm)
+
     @property
     def palm(self) -> np.ndarray:
         """Palm centre ``(2,)`` ``[u, v]``: mean of landmarks 0, 5, 9, 13, 17."""
@@ -230,8 +236,7 @@ def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     lo = np.maximum(box[:2], boxes[:, :2])
     hi = np.minimum(box[2:], boxes[:, 2:])
     inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
-    area = lambda b: np.prod(b[..., 2:] - b[..., :2], axis=-1)  # noqa: E731
-    union = area(box) + area(boxes) - inter
+    union = np.prod(box[2:] - box[:2]) + np.prod(boxes[:, 2:] - boxes[:, :2], axis=1) - inter
     return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
 

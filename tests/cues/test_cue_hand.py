@@ -331,3 +331,8 @@ def test_missing_model_is_an_input_error(tmp_path):
 def test_previous_must_be_an_observation(hl):
     with pytest.raises(InputError, match="HandObservation"):
         hl.track(np.zeros((50, 50, 3), np.uint8), np.zeros((21, 3)))
+
+
+def test_observation_needs_21_landmarks():
+    with pytest.raises(InputError, match=r"\(21, 3\)"):
+        HandObservation(np.zeros((20, 3)), 0.9, "left")
