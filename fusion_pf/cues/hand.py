@@ -337,7 +337,10 @@ def _check_rgb(rgb: np.ndarray) -> None:
 
 
 def _check_unit(name: str, value: float) -> float:
-    f = float(value)
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number in [0, 1], got {value!r}") from None
     if not 0.0 <= f <= 1.0:
         raise InputError(f"{name} must be in [0, 1], got {value!r}")
     return f
@@ -387,6 +390,11 @@ class HandLandmarker:
     model_dir : path or None
         Folder holding ``palm_detection_full.tflite`` and
         ``hand_landmark_full.tflite``; None = the shipped models.
+
+    Notes
+    -----
+    An instance holds two interpreters and is not thread-safe: use one per
+    thread or process.
     """
 
     def __init__(self, *, num_threads: int = 2, min_detection: float = 0.5, min_presence: float = 0.5,
@@ -402,7 +410,8 @@ class HandLandmarker:
         if self.nms_iou == 0.0:
             raise InputError("nms_iou must be in (0, 1], got 0")
         self.max_hands = int(max_hands)
-        if recentre is not None and not (isinstance(recentre, (int, float)) and 0 < recentre < math.inf):
+        if recentre is not None and (isinstance(recentre, bool) or not isinstance(recentre, (int, float))
+                                     or not 0 < recentre < math.inf):
             raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
         self.recentre = None if recentre is None else float(recentre)
         self.num_threads = int(num_threads)
