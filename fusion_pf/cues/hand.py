@@ -131,11 +131,20 @@ class HandRoi:
         return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
 
     def warp(self, rgb: np.ndarray, side: int, *, zero_border: bool) -> np.ndarray:
-        """The ROI resampled to a ``(1, side, side, 3)`` float32 tensor in [0, 1] (bilinear)."""
+        """The ROI resampled to a ``(1, side, side, 3)`` float32 tensor in [0, 1] (bilinear).
+
+        Sampled as MediaPipe's ``ImageToTensorCalculator`` does on the CPU (the
+        models were trained so): the ROI's corners, in pixel-edge coordinates,
+        go to the tensor's corners in OpenCV's pixel-centre coordinates, i.e.
+        tensor pixel ``j`` samples the normalised ROI coordinate ``j / side``.
+        On MediaPipe's own test video this reproduces its landmarks to 0.16 px
+        on average (0.64 px with a pixel-centre-exact sampling).
+        """
         k = self.size / side
         c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
-        h = side / 2 - 0.5  # crop pixel j has normalised coordinate (j + 0.5) / side
-        m = np.array([[c, -s, self.u - c * h + s * h], [s, c, self.v - s * h - c * h]])  # crop px -> frame px
+        h = side / 2
+        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
+        m = np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])  # tensor px -> frame px
         border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
         out = cv2.warpAffine(rgb, m, (side, side), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border)
         return np.multiply(out, np.float32(1 / 255), dtype=np.float32)[None]

@@ -158,10 +158,11 @@ def test_hand_roi_warp_samples_the_rotated_square():
     roi = HandRoi(64.5, 29.5, 40.0, math.pi / 2)  # turned so that image "right" is the crop's "up"
     crop = roi.warp(img, 40, zero_border=True)[0]
     assert crop.shape == (40, 40, 3) and crop.dtype == np.float32
-    # crop pixel (row i, column j) samples frame pixel u = 84 - i, v = 10 + j exactly: the bar's
-    # 10 columns u = 60..69 become rows 24..15, its 20 rows v = 20..39 become columns 10..29
+    # MediaPipe's sampling: crop pixel (row i, column j) samples the frame at pixel-edge coordinates
+    # (65, 30) + (20 - i, j - 20), i.e. pixel u = 85 - i, v = 10 + j: the bar's 10 columns
+    # u = 60..69 become rows 25..16, its 20 rows v = 20..39 become columns 10..29
     expect = np.zeros((40, 40), np.float32)
-    expect[15:25, 10:30] = 1.0
+    expect[16:26, 10:30] = 1.0
     np.testing.assert_array_equal(crop[..., 0], expect)
     np.testing.assert_allclose(roi.corners()[0], roi.to_image(np.array([[0.0, 0.0]]))[0])
 
@@ -198,6 +199,8 @@ def test_track_follows_video_like_mediapipe(hl):
         refs, tol = expected(name)
         assert obs is not None
         assert max(match([obs], refs)) < tol
+        # the same models and graph as the reference: landmarks agree to a fraction of a pixel on average
+        assert np.abs(obs.landmarks[:, :2] - refs[0]).mean() < 1.0
         ref_palm = refs[0][list(PALM_JOINTS)].mean(axis=0)
         assert np.hypot(*(obs.palm - ref_palm)) < 3.0  # palm centres agree to a few px
         prev = obs
@@ -234,19 +237,21 @@ def test_lost_track_falls_back_to_detection(hl):
     assert np.hypot(*(obs.palm - ref_palm)) < 5.0
 
 
-@pytest.mark.parametrize("angle", [0.0, 1.5, 3.0])
+@pytest.mark.parametrize("angle", [0.0, 1.5, 3.0, 4.5])
 def test_recentring_recovers_an_off_centre_roi(hl, angle):
     rgb = load("asl_hand_001.jpg")
     refs, _ = expected("asl_hand_001.jpg")
     _, static_tol = expected("hands.jpg")  # MediaPipe's tolerance for a single image (20 px)
     good = landmarks_roi(refs[0])
-    d = 0.3 * good.size  # the hand moved 30 % of the ROI since the last frame
+    d = 0.25 * good.size  # the hand moved a quarter of the ROI since the last frame
     off = HandRoi(good.u + d * math.cos(angle), good.v + d * math.sin(angle), good.size, good.rotation)
     once = HandLandmarker(recentre=None).landmarks(rgb, off)  # MediaPipe: one call in the stale ROI
     twice = hl.landmarks(rgb, off)
     assert once is not None and twice is not None
-    assert np.abs(once.landmarks[:, :2] - refs[0]).max() > 40  # the cut-off hand is badly placed
-    assert np.abs(twice.landmarks[:, :2] - refs[0]).max() < static_tol
+    once_err = np.abs(once.landmarks[:, :2] - refs[0]).max()
+    twice_err = np.abs(twice.landmarks[:, :2] - refs[0]).max()
+    assert twice_err < static_tol
+    assert once_err > 2 * twice_err  # the hand cut by the stale ROI is placed much worse
 
 
 # ------------------------------------------------------------------ failure
