@@ -25,9 +25,10 @@ taken from the previous frame is off-centre and can cut the fingers; when the
 ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
 the ROI the model saw, the landmark model runs once more on the new ROI. On
 the hand-graph-cnn development frames (1280 x 720, hand moving up to 158 px per
-frame) this took the palm RMSE from 13.0 to 10.3 px (max 60 -> 25 px) for a
-second call on a quarter of the tracked frames; ``recentre=None`` gives
-MediaPipe's behaviour.
+frame) this took the palm RMSE from 12.9 to 9.9 px (p95 17.7 -> 16.2, max 60 ->
+25 px) for a second call on a quarter of the tracked frames; on the 256 x 256
+crops it changed nothing that matters (5.93 -> 5.96 px, 3 second calls).
+``recentre=None`` gives MediaPipe's behaviour.
 
 Coordinates are full-frame pixels ``(u, v)`` with pixel centres at integer
 values. The palm centre is the mean of the wrist and the four finger bases
