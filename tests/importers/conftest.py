@@ -1,0 +1,170 @@
+"""Shared pieces of the importer tests: source frames, a ROS 2 bag writer, the CLI.
+
+* ``synth_frames(n, size)`` -> list of Frame from the synthetic scene (the content every
+  written-here test file carries, so imports can be compared with it).
+* ``write_ros2_bag(folder, frames, ...)`` -> Path of the ``.mcap`` file: a ROS 2 bag written
+  by ``rosbags`` (its MCAP storage plugin, the ROS 2 Humble message definitions), topics
+  as realsense2_camera publishes them with ``align_depth.enable:=true``.
+* ``fusion_pf(*args)`` runs the CLI in a subprocess; ``error_line(proc)`` its one error line.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers import open_source
+
+CLI = [sys.executable, "-m", "fusion_pf"]
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+
+
+
+def fusion_pf(*args, timeout=300):
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+def error_line(proc):
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = [x for x in proc.stderr.splitlines() if x.startswith("fusion-pf: error:")]
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+def synth_frames(n, size=(320, 240), seed=5):
+    w, h = size
+    with open_source(f"synth:frames={n},seed={seed},size={w}x{h},background_frames=0") as src:
+        return list(src)
+
+
+def _header(typestore, stamp_ns, frame_id):
+    Header = typestore.types["std_msgs/msg/Header"]
+    Time = typestore.types["builtin_interfaces/msg/Time"]
+    return Header(stamp=Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000), frame_id=frame_id)
+
+
+def _camera_info(typestore, stamp_ns, k, frame_id):
+    CameraInfo = typestore.types["sensor_msgs/msg/CameraInfo"]
+    RegionOfInterest = typestore.types["sensor_msgs/msg/RegionOfInterest"]
+    K = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64)
+    return CameraInfo(
+        header=_header(typestore, stamp_ns, frame_id), height=k.height, width=k.width,
+        distortion_model="plumb_bob", d=np.zeros(5), k=K, r=np.eye(3).ravel(),
+        p=np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], np.float64),
+        binning_x=0, binning_y=0,
+        roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
+
+
+def _image(typestore, stamp_ns, frame_id, array, encoding):
+    Image = typestore.types["sensor_msgs/msg/Image"]
+    h, w = array.shape[:2]
+    data = np.ascontiguousarray(array).view(np.uint8).ravel()
+    return Image(header=_header(typestore, stamp_ns, frame_id), height=h, width=w, encoding=encoding,
+                 is_bigendian=0, step=data.size // h, data=data)
+
+
+def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset_ns=2_000_000,
+                   compressed=True, unaligned=True, images=True, ros1=False):
+    """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2) or .bag (ROS 1) path.
+
+    Colour ``rgb8`` on /camera/color/image_raw (stamp = frame time), aligned depth on
+    /camera/aligned_depth_to_color/image_raw (``16UC1`` mm or ``32FC1`` m, NaN for no depth)
+    ``depth_offset_ns`` later, camera info on both namespaces, a JPEG
+    /camera/color/image_raw/compressed, and an unaligned /camera/depth/image_rect_raw of
+    another size. Frames listed in ``drop_depth`` get no aligned depth message.
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    folder = Path(folder)
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        typestore = get_typestore(Stores.ROS1_NOETIC)
+        writer, serialize = Writer(folder.with_suffix(".bag")), typestore.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        typestore = get_typestore(Stores.ROS2_HUMBLE)
+        writer = Writer(folder, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+        serialize = typestore.serialize_cdr
+    topics = {
+        "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
+        "/camera/aligned_depth_to_color/camera_info": "sensor_msgs/msg/CameraInfo",
+        "/tf_static": "tf2_msgs/msg/TFMessage",
+    }
+    if images:
+        topics.update({"/camera/color/image_raw": "sensor_msgs/msg/Image",
+                       "/camera/aligned_depth_to_color/image_raw": "sensor_msgs/msg/Image"})
+        if compressed:
+            topics["/camera/color/image_raw/compressed"] = "sensor_msgs/msg/CompressedImage"
+        if unaligned:
+            topics["/camera/depth/image_rect_raw"] = "sensor_msgs/msg/Image"
+    with writer:
+        conns = {t: writer.add_connection(t, ty, typestore=typestore) for t, ty in topics.items()}
+        CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
+
+        def put(topic, msg, log_ns):
+            if ros1:
+                msg = _ros1(typestore, msg)
+            writer.write(conns[topic], log_ns, serialize(msg, topics[topic]))
+
+        for i, f in enumerate(frames):
+            t = f.timestamp_ns
+            log = t + 5_000_000
+            put("/camera/color/camera_info", _camera_info(typestore, t, f.intrinsics, "camera_color_optical_frame"), log)
+            put("/camera/aligned_depth_to_color/camera_info",
+                _camera_info(typestore, t, f.intrinsics, "camera_color_optical_frame"), log)
+            if not images:
+                continue
+            put("/camera/color/image_raw", _image(typestore, t, "camera_color_optical_frame", f.color, "rgb8"), log)
+            if compressed:
+                ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(f.color, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+                put("/camera/color/image_raw/compressed",
+                    CompressedImage(header=_header(typestore, t, "camera_color_optical_frame"),
+                                    format="rgb8; jpeg compressed bgr8", data=jpg.ravel()), log)
+            if i not in drop_depth:
+                td = t + depth_offset_ns
+                if depth == "16UC1":
+                    array = f.depth
+                else:
+                    array = np.where(f.depth > 0, f.depth.astype(np.float32) / 1000, np.nan).astype(np.float32)
+                put("/camera/aligned_depth_to_color/image_raw",
+                    _image(typestore, td, "camera_color_optical_frame", array, depth), log + 1)
+            if unaligned:
+                other = cv2.resize(f.depth, (f.depth.shape[1] + 40, f.depth.shape[0]), interpolation=cv2.INTER_NEAREST)
+                put("/camera/depth/image_rect_raw", _image(typestore, t, "camera_depth_optical_frame", other, "16UC1"),
+                    log + 2)
+    if ros1:
+        return folder.with_suffix(".bag")
+    return next(folder.glob("*.mcap"))
+
+
+def _ros1(typestore, msg):
+    """The ROS 1 (noetic) form of a ROS 2 message built above (K/D/R/P, header seq)."""
+    name = type(msg).__name__
+    hdr = typestore.types["std_msgs/msg/Header"]
+    Time = typestore.types["builtin_interfaces/msg/Time"]
+    header = hdr(seq=0, stamp=Time(sec=msg.header.stamp.sec, nanosec=msg.header.stamp.nanosec),
+                 frame_id=msg.header.frame_id)
+    cls = typestore.types[f"sensor_msgs/msg/{name.split('__')[-1]}"]
+    if name.endswith("CameraInfo"):
+        return cls(header=header, height=msg.height, width=msg.width, distortion_model=msg.distortion_model,
+                   D=msg.d, K=msg.k, R=msg.r, P=msg.p, binning_x=0, binning_y=0,
+                   roi=typestore.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                                           do_rectify=False))
+    if name.endswith("CompressedImage"):
+        return cls(header=header, format=msg.format, data=msg.data)
+    return cls(header=header, height=msg.height, width=msg.width, encoding=msg.encoding,
+               is_bigendian=msg.is_bigendian, step=msg.step, data=msg.data)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return synth_frames(8)
