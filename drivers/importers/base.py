@@ -406,7 +406,7 @@ def write_recording(
             frames.close()
         summary.frames = recorder.frames_written
         summary.bytes = recorder.bytes_written
-        summary.report = list(src.report) + list(src.stats.notes)
+    summary.report = list(source.report) + list(source.stats.notes)
     summary.seconds = time.perf_counter() - started
     return summary
 
