@@ -46,18 +46,22 @@ def synth_frames(n, size=(320, 240), seed=5):
 def _header(typestore, stamp_ns, frame_id):
     Header = typestore.types["std_msgs/msg/Header"]
     Time = typestore.types["builtin_interfaces/msg/Time"]
-    return Header(stamp=Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000), frame_id=frame_id)
+    stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    if "seq" in Header.__dataclass_fields__:  # ROS 1
+        return Header(seq=0, stamp=stamp, frame_id=frame_id)
+    return Header(stamp=stamp, frame_id=frame_id)
 
 
 def _camera_info(typestore, stamp_ns, k, frame_id):
     CameraInfo = typestore.types["sensor_msgs/msg/CameraInfo"]
     RegionOfInterest = typestore.types["sensor_msgs/msg/RegionOfInterest"]
-    K = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64)
+    arrays = {"d": np.zeros(5), "k": np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64),
+              "r": np.eye(3).ravel(), "p": np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], np.float64)}
+    if "K" in CameraInfo.__dataclass_fields__:  # ROS 1 names
+        arrays = {name.upper(): value for name, value in arrays.items()}
     return CameraInfo(
         header=_header(typestore, stamp_ns, frame_id), height=k.height, width=k.width,
-        distortion_model="plumb_bob", d=np.zeros(5), k=K, r=np.eye(3).ravel(),
-        p=np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], np.float64),
-        binning_x=0, binning_y=0,
+        distortion_model="plumb_bob", **arrays, binning_x=0, binning_y=0,
         roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
     )
 
@@ -97,8 +101,9 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
     topics = {
         "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
         "/camera/aligned_depth_to_color/camera_info": "sensor_msgs/msg/CameraInfo",
-        "/tf_static": "tf2_msgs/msg/TFMessage",
     }
+    if not ros1:
+        topics["/tf_static"] = "tf2_msgs/msg/TFMessage"
     if images:
         topics.update({"/camera/color/image_raw": "sensor_msgs/msg/Image",
                        "/camera/aligned_depth_to_color/image_raw": "sensor_msgs/msg/Image"})
@@ -111,8 +116,6 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
         CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
 
         def put(topic, msg, log_ns):
-            if ros1:
-                msg = _ros1(typestore, msg)
             writer.write(conns[topic], log_ns, serialize(msg, topics[topic]))
 
         for i, f in enumerate(frames):
@@ -144,25 +147,6 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
     if ros1:
         return folder.with_suffix(".bag")
     return next(folder.glob("*.mcap"))
-
-
-def _ros1(typestore, msg):
-    """The ROS 1 (noetic) form of a ROS 2 message built above (K/D/R/P, header seq)."""
-    name = type(msg).__name__
-    hdr = typestore.types["std_msgs/msg/Header"]
-    Time = typestore.types["builtin_interfaces/msg/Time"]
-    header = hdr(seq=0, stamp=Time(sec=msg.header.stamp.sec, nanosec=msg.header.stamp.nanosec),
-                 frame_id=msg.header.frame_id)
-    cls = typestore.types[f"sensor_msgs/msg/{name.split('__')[-1]}"]
-    if name.endswith("CameraInfo"):
-        return cls(header=header, height=msg.height, width=msg.width, distortion_model=msg.distortion_model,
-                   D=msg.d, K=msg.k, R=msg.r, P=msg.p, binning_x=0, binning_y=0,
-                   roi=typestore.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
-                                                                           do_rectify=False))
-    if name.endswith("CompressedImage"):
-        return cls(header=header, format=msg.format, data=msg.data)
-    return cls(header=header, height=msg.height, width=msg.width, encoding=msg.encoding,
-               is_bigendian=msg.is_bigendian, step=msg.step, data=msg.data)
 
 
 @pytest.fixture(scope="module")

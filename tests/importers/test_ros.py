@@ -1,0 +1,107 @@
+"""ROS bag import: a realsense2_camera-style ROS 2 bag written by rosbags, read with mcap-ros2-support.
+
+The bag carries the synthetic scene's frames, so every imported frame can be compared with
+the frame it came from: colour exact (rgb8) or close (JPEG), depth exact (16UC1) or to the
+millimetre (32FC1 metres), intrinsics from the camera info, timestamps from header.stamp.
+"""
+
+import numpy as np
+import pytest
+
+from drivers.importers import open_import
+from drivers.importers.base import pair_nearest
+from drivers.mcap_replay import McapReplay
+
+from .conftest import error_line, fusion_pf, write_ros2_bag
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory, frames):
+    return write_ros2_bag(tmp_path_factory.mktemp("ros") / "bag", frames, drop_depth=(3,))
+
+
+def replay(path):
+    with McapReplay(path) as r:
+        return r.info(), list(r)
+
+
+def test_auto_topics_pairing_and_contents(tmp_path, bag, frames):
+    out = tmp_path / "out.mcap"
+    proc = fusion_pf("import", bag, out, "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert "colour: /camera/color/image_raw (sensor_msgs/msg/Image, 320x240)" in proc.stdout
+    assert "depth: /camera/aligned_depth_to_color/image_raw" in proc.stdout
+    assert "7 of 8 colour frames paired with depth within half a frame period, 1 without depth" in proc.stdout
+    assert "intrinsics from /camera/color/camera_info" in proc.stdout
+    assert "/camera/color/image_raw/compressed, /camera/depth/image_rect_raw" in proc.stdout
+    info, got = replay(out)
+    assert info.frames == 8 and info.missing_depth == 1 and info.missing_skeleton == 8
+    assert "/skeleton/joints" not in {t.topic for t in info.topics}
+    assert info.metadata["imported_from"] == "ros"
+    for a, b in zip(frames, got, strict=True):
+        assert b.timestamp_ns == a.timestamp_ns  # header.stamp, not the later log time
+        assert np.array_equal(a.color, b.color) and b.intrinsics == a.intrinsics
+    assert got[3].depth is None
+    assert all(np.array_equal(a.depth, b.depth) for i, (a, b) in enumerate(zip(frames, got)) if i != 3)
+    track = fusion_pf("track", out, "-o", tmp_path / "tracked.mcap", "--no-progress")
+    assert track.returncode == 0, track.stderr
+
+
+def test_compressed_colour_and_float_depth(tmp_path, frames):
+    bag = write_ros2_bag(tmp_path / "bag", frames, depth="32FC1", unaligned=False)
+    out = tmp_path / "out.mcap"
+    proc = fusion_pf("import", bag, out, "--color-topic", "/camera/color/image_raw/compressed", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert "sensor_msgs/msg/CompressedImage" in proc.stdout
+    _, got = replay(out)
+    for a, b in zip(frames, got, strict=True):
+        assert np.abs(a.color.astype(int) - b.color).mean() < 3.0  # JPEG quality 95
+        assert np.abs(a.depth.astype(int) - b.depth).max() <= 1  # metres in float32 back to mm
+        assert np.array_equal(a.depth == 0, b.depth == 0)  # NaN = no depth
+
+
+def test_bag_folder_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
+    for source in (bag.parent, write_ros2_bag(tmp_path / "ros1", frames, ros1=True, compressed=False)):
+        out = tmp_path / f"{source.name}.mcap"
+        proc = fusion_pf("import", source, out, "--no-progress")
+        assert proc.returncode == 0, proc.stderr
+        _, got = replay(out)
+        assert len(got) == 8 and all(np.array_equal(a.color, b.color) for a, b in zip(frames, got))
+        assert sum(f.depth is not None for f in got) == (7 if source == bag.parent else 8)
+
+
+def test_depth_topic_override_and_errors(tmp_path, bag, frames):
+    line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--depth-topic", "/camera/depth/image_rect_raw"))
+    assert "depth topic /camera/depth/image_rect_raw is 360x240 but colour topic /camera/color/image_raw is 320x240" in line
+    line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--color-topic", "/camera/infra1/image_rect_raw"))
+    assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line and "/camera/color/image_raw (" in line
+    proc = fusion_pf("import", bag, tmp_path / "c.mcap", "--depth-topic", "none", "--no-progress")
+    assert proc.returncode == 0 and "depth: none (colour only)" in proc.stdout
+    empty = write_ros2_bag(tmp_path / "noimages", frames, images=False)
+    line = error_line(fusion_pf("import", empty, tmp_path / "y.mcap"))
+    assert "has no colour image topic (sensor_msgs Image or CompressedImage); found" in line
+    assert "/camera/color/camera_info (sensor_msgs/msg/CameraInfo, 8)" in line and "/tf_static (tf2_msgs/msg/TFMessage, 0)" in line
+    line = error_line(fusion_pf("import", bag, tmp_path / "z.mcap", "--fps", "10"))
+    assert "--fps does not apply to ROS bags" in line
+
+
+def test_fusion_pf_recording_is_not_a_ros_bag(tmp_path):
+    rec = tmp_path / "synth.mcap"
+    assert fusion_pf("record", "synth:frames=2,size=64x48", rec).returncode == 0
+    line = error_line(fusion_pf("import", rec, tmp_path / "x.mcap"))
+    assert "is not a ROS 2 bag" in line and "already a fusion-pf recording" in line
+
+
+def test_pair_nearest_is_one_to_one_within_half_a_period():
+    color = np.arange(10) * 100
+    depth = np.array([3, 140, 310, 330, 900, 1000])
+    pairs = pair_nearest(color, depth, 100)
+    # depth 140 is nearest to colour 100 (40) and 200 (60): 100 keeps it, 200 gets none; 900 goes to 900, not 800
+    assert pairs.tolist() == [0, 1, -1, 2, 3, -1, -1, -1, -1, 4]
+    assert pair_nearest(color, np.empty(0, np.int64), 50).tolist() == [-1] * 10
+
+
+def test_direct_replay_of_a_bag(bag, frames):
+    with open_import(bag) as src:
+        got = list(src)
+    assert src.total == 8 and len(got) == 8 and got[3].depth is None
