@@ -12,7 +12,8 @@ Colour and depth are paired by file name once the ``color``/``depth`` word is re
 their natural sort order (``2.png`` before ``10.png``). Depth images hold counts of
 ``depth_unit`` (``"1mm"`` by default; ``"0.125mm"`` for an Intel SR300/SR305, ``"0.2mm"``
 for TUM RGB-D) and must be registered to colour already (same size). A folder with depth
-images only gets a grey colour image rendered from the depth (near = bright), said so in
+images only gets a grey colour image rendered from the depth (near = bright, 32-255; 0 = no
+depth), said so in
 :attr:`ImportSource.report`. Frames are ``1 / fps`` apart.
 """
 
@@ -210,7 +211,7 @@ class ImageFolderSource(ImportSource):
             lo, hi = (np.percentile(valid, [1, 99]) if valid.size else (0.0, 1.0))
             self._grey_range = (float(lo), float(max(hi, lo + 1.0)))
         lo, hi = self._grey_range
-        grey = np.clip(255.0 * (hi - depth_mm.astype(np.float32)) / (hi - lo), 0, 255).astype(np.uint8)
+        grey = np.clip(32.0 + 223.0 * (hi - depth_mm.astype(np.float32)) / (hi - lo), 32, 255).astype(np.uint8)
         grey[depth_mm == 0] = 0
         return np.repeat(grey[:, :, None], 3, axis=2)
 

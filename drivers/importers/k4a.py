@@ -301,7 +301,7 @@ class AzureKinectSource(ImportSource):
         times: dict[int, list[int]] = {color.index: [], depth.index: []}
         for packet in self._container.demux(color, depth):
             if packet.size and packet.pts is not None:
-                times[packet.stream.index].append(int(packet.pts * Fraction(packet.time_base) * 1_000_000_000))
+                times[packet.stream.index].append(round(packet.pts * Fraction(packet.time_base) * 1_000_000_000))
         c, d = (np.asarray(times[s.index], np.int64) for s in (color, depth))
         if not len(c):
             raise InputError(f"{self.path}: the COLOR track holds no frames")

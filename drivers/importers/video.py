@@ -92,7 +92,7 @@ class VideoSource(ImportSource):
                 rate = self.fps or (float(stream.average_rate) if stream.average_rate else 30.0)
                 t = int(round(i * 1e9 / rate))
             else:
-                ns = int(vf.pts * Fraction(vf.time_base) * 1_000_000_000)
+                ns = round(vf.pts * Fraction(vf.time_base) * 1_000_000_000)
                 first = ns if first is None else first
                 t = ns - first
             if last is not None and t <= last:
