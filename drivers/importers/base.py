@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from fusion_pf.errors import InputError
+from fusion_pf.errors import FusionPFError, InputError
 from fusion_pf.frame import DISTORTION_MODELS, Frame, Intrinsics
 
 from ..base import Source
@@ -402,6 +402,10 @@ def write_recording(
                     bar.update()
                     if max_frames is not None and recorder.frames_written >= max_frames:
                         break
+        except FusionPFError as exc:
+            raise type(exc)(
+                f"{exc} (after {recorder.frames_written} frames; {output} is finalised and keeps them)"
+            ) from None
         finally:
             frames.close()
         summary.frames = recorder.frames_written

@@ -402,7 +402,8 @@ class RosBagSource(ImportSource):
                 lines.append(
                     f"depth: {self.depth_topic} ({bag.topics[self.depth_topic]}); {paired} of "
                     f"{len(self._pairing)} colour frames paired with depth within half a frame period, "
-                    f"{len(self._pairing) - paired} without depth"
+                    f"{len(self._pairing) - paired} without depth; {len(self._depth_rank) - paired} depth "
+                    "message(s) unpaired (skipped)"
                 )
                 if "aligned" not in self.depth_topic.lower():
                     lines.append(f"warning: depth topic {self.depth_topic} is not named aligned: its pixels are "

@@ -27,17 +27,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", type=Path, metavar="SRC", help="recording, folder or video to import")
     p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
     ros = p.add_argument_group("ROS bags")
-    ros.add_argument("--color-topic", metavar="TOPIC", help="colour image topic (default: chosen by type and name)")
+    ros.add_argument("--color-topic", metavar="TOPIC", help="colour image topic; if absent, chosen by type and name")
     ros.add_argument("--depth-topic", metavar="TOPIC",
-                     help="depth image topic, 16UC1 mm or 32FC1 m (default: aligned_depth_to_color if present)")
+                     help="depth image topic, 16UC1 mm or 32FC1 m, or 'none'; if absent, chosen by type and name "
+                          "(aligned_depth_to_color first)")
     ros.add_argument("--info-topic", metavar="TOPIC",
-                     help="CameraInfo topic of the colour camera (default: the one next to the colour topic)")
+                     help="CameraInfo topic of the colour camera; if absent, the one next to the colour topic")
     folder = p.add_argument_group("image folders and videos")
     folder.add_argument("--depth-unit", metavar="UNIT",
-                        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES} "
-                             "(default 1mm)")
+                        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}; "
+                             "if absent, 1mm")
     folder.add_argument("--fps", type=_positive(float), metavar="F",
-                        help="frame rate for the timestamps (folders: default 30; videos: replaces the file's)")
+                        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the file's own)")
     folder.add_argument("--intrinsics", type=Path, metavar="FILE",
                         help="colour intrinsics, JSON or YAML: width, height, fx, fy, cx, cy; a ROS camera_info "
                              "YAML; or an Open3D intrinsic JSON")

@@ -113,6 +113,20 @@ def test_errors(tmp_path, frames):
     assert "does not exist" in line
 
 
+def test_failure_mid_import_keeps_the_frames_written(tmp_path, frames):
+    src = tmp_path / "src"
+    src.mkdir()
+    for i, f in enumerate(frames):
+        write_png(src / f"{i}_color.png", f.color)
+        depth = np.dstack([f.depth] * 3) if i == 5 else f.depth  # a 16-bit RGB "depth" image
+        write_png(src / f"{i}_depth.png", depth)
+    out = tmp_path / "out.mcap"
+    line = error_line(fusion_pf("import", src, out))
+    assert f"5_depth.png has 3 channels; expected one channel (after 5 frames; {out} is finalised" in line
+    info, got = replay(out)
+    assert info.frames == 5 and not info.truncated
+
+
 def test_depth_units():
     assert parse_depth_unit("0.125mm") == 0.125 and parse_depth_unit("1mm") == 1.0
     assert parse_depth_unit("m") == 1000.0 and parse_depth_unit("0.2 mm") == 0.2 and parse_depth_unit("1cm") == 10.0
