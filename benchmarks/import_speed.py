@@ -102,7 +102,8 @@ def time_k4a(out: Path, n: int, compression: str) -> tuple[int, int, float, floa
     from drivers.mcap_record import McapRecorder
 
     started = time.perf_counter()
-    with AzureKinectSource(ROOT / "tests/fixtures/k4a_recording.mkv") as src, McapRecorder(out, compression=compression) as rec:
+    fixture = ROOT / "tests/fixtures/k4a_recording.mkv"
+    with AzureKinectSource(fixture) as src, McapRecorder(out, compression=compression) as rec:
         setup = time.perf_counter() - started
         started = time.perf_counter()
         for k in range(n):

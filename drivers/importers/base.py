@@ -137,7 +137,9 @@ def intrinsics_from_mapping(doc: Mapping[str, Any], where: str) -> Intrinsics:
     if model == "plumb_bob" and not any(coeffs):
         model, coeffs = "none", ()
     if model not in DISTORTION_MODELS:
-        raise InputError(f"{where}: distortion_model {model!r} is not supported; expected one of {sorted(DISTORTION_MODELS)}")
+        raise InputError(
+            f"{where}: distortion_model {model!r} is not supported; expected one of {sorted(DISTORTION_MODELS)}"
+        )
     try:
         return Intrinsics(width, height, fx, fy, cx, cy, model, coeffs)
     except InputError as exc:

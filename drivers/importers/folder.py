@@ -167,7 +167,7 @@ class ImageFolderSource(ImportSource):
             return pairs
         if len(colors) == len(depths):
             self.report.append(f"paired {len(colors)} colour and depth images by sorted file name")
-            return list(zip(colors, depths))
+            return list(zip(colors, depths, strict=True))
         raise InputError(
             f"{self.path}: cannot pair {len(colors)} colour images (e.g. {colors[0].name}) with "
             f"{len(depths)} depth images (e.g. {depths[0].name}): names do not match and the counts differ"

@@ -92,7 +92,8 @@ class K4aCalibration:
         try:
             cameras = json.loads(text)["CalibrationInformation"]["Cameras"]
             by_purpose = {c["Purpose"]: c for c in cameras}
-            depth, color = by_purpose["CALIBRATION_CameraPurposeDepth"], by_purpose["CALIBRATION_CameraPurposePhotoVideo"]
+            depth = by_purpose["CALIBRATION_CameraPurposeDepth"]
+            color = by_purpose["CALIBRATION_CameraPurposePhotoVideo"]
         except (ValueError, KeyError, TypeError) as exc:
             raise RecordingError(f"{where} is not an Azure Kinect calibration ({type(exc).__name__}: {exc})") from None
         for cam in (depth, color):

@@ -252,7 +252,7 @@ def intrinsics_from_camera_info(msg: Any, where: str) -> Intrinsics:
 
 def _common_prefix(a: str, b: str) -> int:
     n = 0
-    for x, y in zip(a.split("/"), b.split("/")):
+    for x, y in zip(a.split("/"), b.split("/"), strict=False):
         if x != y:
             break
         n += 1
@@ -320,7 +320,8 @@ class RosBagSource(ImportSource):
                         "image_raw" in low, -len(t), t)
             self.color_topic = max(colors, key=colour_score)
         if req["depth"] is not None:
-            self.depth_topic = None if req["depth"] == "none" else self._check_topic("depth", req["depth"], _IMAGE_TYPES)
+            self.depth_topic = (None if req["depth"] == "none"
+                                else self._check_topic("depth", req["depth"], _IMAGE_TYPES))
         else:
             depths = [t for t in images if t != self.color_topic and ("depth" in t.lower() or "stereo" in t.lower())]
             def depth_score(t: str) -> tuple:
@@ -414,7 +415,9 @@ class RosBagSource(ImportSource):
                 k = intrinsics_from_camera_info(self._decoded(self.info_topic, first_info), self.info_topic)
                 if (k.width, k.height) != (w, h):
                     if k.width == 0 or abs(k.width / k.height - w / h) > 1e-3:
-                        raise InputError(f"camera info {self.info_topic} is for {k.width}x{k.height}, colour is {w}x{h}")
+                        raise InputError(
+                            f"camera info {self.info_topic} is for {k.width}x{k.height}, colour is {w}x{h}"
+                        )
                     k = k.scaled(w, h)
                 self._intrinsics = k
                 lines.append(f"intrinsics from {self.info_topic} (fx={k.fx:.1f}, fy={k.fy:.1f}, "

@@ -38,7 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}; "
                              "if absent, 1mm")
     folder.add_argument("--fps", type=_positive(float), metavar="F",
-                        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the file's own)")
+                        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the "
+                             "file's own)")
     folder.add_argument("--intrinsics", type=Path, metavar="FILE",
                         help="colour intrinsics, JSON or YAML: width, height, fx, fy, cx, cy; a ROS camera_info "
                              "YAML; or an Open3D intrinsic JSON")

@@ -121,9 +121,9 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
         for i, f in enumerate(frames):
             t = f.timestamp_ns
             log = t + 5_000_000
-            put("/camera/color/camera_info", _camera_info(typestore, t, f.intrinsics, "camera_color_optical_frame"), log)
-            put("/camera/aligned_depth_to_color/camera_info",
-                _camera_info(typestore, t, f.intrinsics, "camera_color_optical_frame"), log)
+            info = _camera_info(typestore, t, f.intrinsics, "camera_color_optical_frame")
+            put("/camera/color/camera_info", info, log)
+            put("/camera/aligned_depth_to_color/camera_info", info, log)
             if not images:
                 continue
             put("/camera/color/image_raw", _image(typestore, t, "camera_color_optical_frame", f.color, "rgb8"), log)

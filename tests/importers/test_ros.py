@@ -43,7 +43,7 @@ def test_auto_topics_pairing_and_contents(tmp_path, bag, frames):
         assert b.timestamp_ns == a.timestamp_ns  # header.stamp, not the later log time
         assert np.array_equal(a.color, b.color) and b.intrinsics == a.intrinsics
     assert got[3].depth is None
-    assert all(np.array_equal(a.depth, b.depth) for i, (a, b) in enumerate(zip(frames, got)) if i != 3)
+    assert all(np.array_equal(a.depth, b.depth) for i, (a, b) in enumerate(zip(frames, got, strict=True)) if i != 3)
     track = fusion_pf("track", out, "-o", tmp_path / "tracked.mcap", "--no-progress")
     assert track.returncode == 0, track.stderr
 
@@ -67,21 +67,24 @@ def test_bag_folder_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
         proc = fusion_pf("import", source, out, "--no-progress")
         assert proc.returncode == 0, proc.stderr
         _, got = replay(out)
-        assert len(got) == 8 and all(np.array_equal(a.color, b.color) for a, b in zip(frames, got))
+        assert len(got) == 8 and all(np.array_equal(a.color, b.color) for a, b in zip(frames, got, strict=True))
         assert sum(f.depth is not None for f in got) == (7 if source == bag.parent else 8)
 
 
 def test_depth_topic_override_and_errors(tmp_path, bag, frames):
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--depth-topic", "/camera/depth/image_rect_raw"))
-    assert "depth topic /camera/depth/image_rect_raw is 360x240 but colour topic /camera/color/image_raw is 320x240" in line
+    assert ("depth topic /camera/depth/image_rect_raw is 360x240 but colour topic /camera/color/image_raw "
+            "is 320x240") in line
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--color-topic", "/camera/infra1/image_rect_raw"))
-    assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line and "/camera/color/image_raw (" in line
+    assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line
+    assert "/camera/color/image_raw (" in line
     proc = fusion_pf("import", bag, tmp_path / "c.mcap", "--depth-topic", "none", "--no-progress")
     assert proc.returncode == 0 and "depth: none (colour only)" in proc.stdout
     empty = write_ros2_bag(tmp_path / "noimages", frames, images=False)
     line = error_line(fusion_pf("import", empty, tmp_path / "y.mcap"))
     assert "has no colour image topic (sensor_msgs Image or CompressedImage); found" in line
-    assert "/camera/color/camera_info (sensor_msgs/msg/CameraInfo, 8)" in line and "/tf_static (tf2_msgs/msg/TFMessage, 0)" in line
+    assert "/camera/color/camera_info (sensor_msgs/msg/CameraInfo, 8)" in line
+    assert "/tf_static (tf2_msgs/msg/TFMessage, 0)" in line
     line = error_line(fusion_pf("import", bag, tmp_path / "z.mcap", "--fps", "10"))
     assert "--fps does not apply to ROS bags" in line
 

@@ -36,7 +36,7 @@ def test_import_video(tmp_path, frames, name, fourcc, fps):
         got = list(replay)
     assert info.frames == len(frames) and info.missing_depth == len(frames) and (info.width, info.height) == (320, 240)
     assert [f.timestamp_ns for f in got] == [round(i * 1e9 / fps) for i in range(len(frames))]
-    for a, b in zip(frames, got):
+    for a, b in zip(frames, got, strict=True):
         assert np.abs(a.color.astype(int) - b.color).mean() < 8.0  # lossy codecs, same picture
     track = fusion_pf("track", out, "-o", tmp_path / "tracked.mcap", "--no-progress")
     assert track.returncode == 0, track.stderr
