@@ -76,6 +76,27 @@ def test_colour_and_depth_layouts(tmp_path, frames, layout):
         assert b.depth is None if i == 2 else np.array_equal(a.depth, b.depth)
 
 
+def test_unmatched_names_pair_by_sorted_order(tmp_path, frames):
+    # TUM RGB-D layout: rgb/ and depth/ named by their own capture times, depth in 1/5000 m
+    src = tmp_path / "tum"
+    (src / "rgb").mkdir(parents=True)
+    (src / "depth").mkdir()
+    for i, f in enumerate(frames[:4]):
+        write_png(src / "rgb" / f"1305031102.{175304 + 33333 * i}.png", f.color)
+        counts = (f.depth.astype(np.uint32) * 5).astype(np.uint16)
+        write_png(src / "depth" / f"1305031102.{160407 + 33333 * i}.png", counts)
+    out = tmp_path / "out.mcap"
+    proc = fusion_pf("import", src, out, "--depth-unit", "0.2mm", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert "paired 4 colour and depth images by sorted file name" in proc.stdout
+    _, got = replay(out)
+    for a, b in zip(frames[:4], got, strict=True):
+        assert np.array_equal(a.color, b.color) and np.array_equal(a.depth, b.depth)
+    (src / "depth" / "1305031102.999999.png").write_bytes((src / "depth" / "1305031102.160407.png").read_bytes())
+    line = error_line(fusion_pf("import", src, out, "--force"))
+    assert "cannot pair 4 colour images (e.g. 1305031102.175304.png) with 5 depth images" in line
+
+
 def test_colour_only_folder_states_the_assumed_intrinsics(tmp_path, frames):
     src = tmp_path / "jpegs"
     src.mkdir()

@@ -89,6 +89,8 @@ def test_import_end_to_end(tmp_path, calibration):
     assert 150 < np.median(mug[mug > 0]) < 450  # a mug a hand's length in front of the camera
     wall = frame.depth[100:300, 350:500]
     assert np.median(wall[wall > 0]) > 2 * np.median(mug[mug > 0])
+    info_cmd = fusion_pf("info", out)
+    assert info_cmd.returncode == 0 and "1280x720" in info_cmd.stdout and "rational_polynomial" in info_cmd.stdout
     track = fusion_pf("track", out, "-o", tmp_path / "tracked.mcap", "--no-progress")
     assert track.returncode == 0, track.stderr
 

@@ -78,8 +78,12 @@ def test_depth_topic_override_and_errors(tmp_path, bag, frames):
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--color-topic", "/camera/infra1/image_rect_raw"))
     assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line
     assert "/camera/color/image_raw (" in line
-    proc = fusion_pf("import", bag, tmp_path / "c.mcap", "--depth-topic", "none", "--no-progress")
+    proc = fusion_pf("import", bag, tmp_path / "c.mcap", "--depth-topic", "none", "--no-progress",
+                     "--info-topic", "/camera/aligned_depth_to_color/camera_info")
     assert proc.returncode == 0 and "depth: none (colour only)" in proc.stdout
+    assert "intrinsics from /camera/aligned_depth_to_color/camera_info" in proc.stdout
+    line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--info-topic", "/camera/color/image_raw"))
+    assert "camera info topic /camera/color/image_raw has type sensor_msgs/msg/Image" in line
     empty = write_ros2_bag(tmp_path / "noimages", frames, images=False)
     line = error_line(fusion_pf("import", empty, tmp_path / "y.mcap"))
     assert "has no colour image topic (sensor_msgs Image or CompressedImage); found" in line
