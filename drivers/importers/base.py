@@ -307,7 +307,7 @@ class ImportSource(Source):
     """
 
     live = False
-    #: Short format name (``"ros2"``, ``"k4a"``, ``"folder"``, ``"video"``).
+    #: Short format name (``"ros"``, ``"k4a"``, ``"folder"``, ``"video"``).
     kind = "import"
 
     def __init__(self, path: str | Path) -> None:

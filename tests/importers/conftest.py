@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -74,15 +75,34 @@ def _image(typestore, stamp_ns, frame_id, array, encoding):
                  is_bigendian=0, step=data.size // h, data=data)
 
 
+#: Inverse-depth quantisation of 32FC1 compressedDepth messages: stored = A / depth_m + B.
+QUANT_A, QUANT_B = 3000.0, -1.0
+
+
+def _compressed_depth(depth_mm, encoding):
+    """compressed_depth_image_transport payload: config header (format 0 = PNG, A, B) + 16-bit PNG."""
+    if encoding == "16UC1":
+        stored, a, b = depth_mm, 0.0, 0.0
+    else:
+        with np.errstate(divide="ignore"):
+            stored = np.where(depth_mm > 0, np.rint(QUANT_A / (depth_mm / 1000.0) + QUANT_B), 0).astype(np.uint16)
+        a, b = QUANT_A, QUANT_B
+    png = cv2.imencode(".png", stored)[1].tobytes()
+    return np.frombuffer(struct.pack("<iff", 0, a, b) + png, np.uint8)
+
+
 def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset_ns=2_000_000,
-                   compressed=True, unaligned=True, images=True, ros1=False):
+                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False):
     """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2) or .bag (ROS 1) path.
 
     Colour ``rgb8`` on /camera/color/image_raw (stamp = frame time), aligned depth on
     /camera/aligned_depth_to_color/image_raw (``16UC1`` mm or ``32FC1`` m, NaN for no depth)
     ``depth_offset_ns`` later, camera info on both namespaces, a JPEG
     /camera/color/image_raw/compressed, and an unaligned /camera/depth/image_rect_raw of
-    another size. Frames listed in ``drop_depth`` get no aligned depth message.
+    another size. Frames listed in ``drop_depth`` get no aligned depth message. With
+    ``compressed_depth``, the aligned depth also goes to .../image_raw/compressedDepth as
+    compressed_depth_image_transport publishes it (12-byte config header, then a 16-bit PNG of
+    millimetres for 16UC1 or of quantised inverse metres for 32FC1).
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -111,6 +131,8 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
             topics["/camera/color/image_raw/compressed"] = "sensor_msgs/msg/CompressedImage"
         if unaligned:
             topics["/camera/depth/image_rect_raw"] = "sensor_msgs/msg/Image"
+        if compressed_depth:
+            topics["/camera/aligned_depth_to_color/image_raw/compressedDepth"] = "sensor_msgs/msg/CompressedImage"
     with writer:
         conns = {t: writer.add_connection(t, ty, typestore=typestore) for t, ty in topics.items()}
         CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
@@ -140,6 +162,11 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
                     array = np.where(f.depth > 0, f.depth.astype(np.float32) / 1000, np.nan).astype(np.float32)
                 put("/camera/aligned_depth_to_color/image_raw",
                     _image(typestore, td, "camera_color_optical_frame", array, depth), log + 1)
+                if compressed_depth:
+                    put("/camera/aligned_depth_to_color/image_raw/compressedDepth",
+                        CompressedImage(header=_header(typestore, td, "camera_color_optical_frame"),
+                                        format=f"{depth}; compressedDepth png",
+                                        data=_compressed_depth(f.depth, depth)), log + 1)
             if unaligned:
                 other = cv2.resize(f.depth, (f.depth.shape[1] + 40, f.depth.shape[0]), interpolation=cv2.INTER_NEAREST)
                 put("/camera/depth/image_rect_raw", _image(typestore, t, "camera_depth_optical_frame", other, "16UC1"),

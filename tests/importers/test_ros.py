@@ -12,7 +12,7 @@ from drivers.importers import open_import
 from drivers.importers.base import pair_nearest
 from drivers.mcap_replay import McapReplay
 
-from .conftest import error_line, fusion_pf, write_ros2_bag
+from .conftest import QUANT_A, error_line, fusion_pf, write_ros2_bag
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +59,24 @@ def test_compressed_colour_and_float_depth(tmp_path, frames):
         assert np.abs(a.color.astype(int) - b.color).mean() < 3.0  # JPEG quality 95
         assert np.abs(a.depth.astype(int) - b.depth).max() <= 1  # metres in float32 back to mm
         assert np.array_equal(a.depth == 0, b.depth == 0)  # NaN = no depth
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_compressed_depth_topic(tmp_path, frames, encoding):
+    bag = write_ros2_bag(tmp_path / "bag", frames, depth=encoding, compressed_depth=True, unaligned=False)
+    out = tmp_path / "out.mcap"
+    proc = fusion_pf("import", bag, out, "--no-progress",
+                     "--depth-topic", "/camera/aligned_depth_to_color/image_raw/compressedDepth")
+    assert proc.returncode == 0, proc.stderr
+    assert "depth: /camera/aligned_depth_to_color/image_raw/compressedDepth" in proc.stdout
+    _, got = replay(out)
+    for a, b in zip(frames, got, strict=True):
+        assert np.array_equal(a.depth == 0, b.depth == 0)
+        if encoding == "16UC1":
+            assert np.array_equal(a.depth, b.depth)
+        else:  # one quantisation step of A / d is d^2 / A metres
+            step_mm = (a.depth / 1000.0) ** 2 / QUANT_A * 1000.0
+            assert np.all(np.abs(a.depth.astype(float) - b.depth) <= step_mm + 1.0)
 
 
 def test_bag_folder_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
