@@ -131,3 +131,40 @@ def test_direct_replay_of_a_bag(bag, frames):
     with open_import(bag) as src:
         got = list(src)
     assert src.total == 8 and len(got) == 8 and got[3].depth is None
+
+
+def _image_msg(array, encoding, *, pad=0, bigendian=False):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    h, w = array.shape[:2]
+    rows = np.ascontiguousarray(array).astype(array.dtype.newbyteorder(">" if bigendian else "<"))
+    rows = rows.view(np.uint8).reshape(h, -1)
+    data = np.hstack([rows, np.zeros((h, pad), np.uint8)]).ravel()
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    return ts.types["sensor_msgs/msg/Image"](
+        header=Header(stamp=Time(sec=1, nanosec=0), frame_id="c"), height=h, width=w, encoding=encoding,
+        is_bigendian=int(bigendian), step=rows.shape[1] + pad, data=data)
+
+
+def test_image_encodings(frames):
+    from drivers.importers.ros import decode_color, decode_depth
+    from fusion_pf.errors import InputError
+
+    rgb, depth = frames[0].color, frames[0].depth
+    assert np.array_equal(decode_color(_image_msg(rgb[:, :, ::-1], "bgr8", pad=7), False, "t"), rgb)
+    rgba = np.dstack([rgb, np.full(rgb.shape[:2], 9, np.uint8)])
+    assert np.array_equal(decode_color(_image_msg(rgba, "rgba8"), False, "t"), rgb)
+    grey = rgb[:, :, 1]
+    assert np.array_equal(decode_color(_image_msg(grey, "mono8"), False, "t"), np.dstack([grey] * 3))
+    yuyv = np.full((4, 8, 2), 128, np.uint8)  # BT.601 video range: Y = 16 black, Y = 235 white, U = V = 128
+    yuyv[:2, :, 0], yuyv[2:, :, 0] = 16, 235
+    out = decode_color(_image_msg(yuyv, "yuyv"), False, "t").astype(int)
+    assert out[:2].max() <= 1 and out[2:].min() >= 254
+    assert np.array_equal(decode_depth(_image_msg(depth, "16UC1", pad=4, bigendian=True), False, "t"), depth)
+    metres = np.where(depth > 0, depth / 1000.0, np.nan).astype(np.float32)
+    assert np.array_equal(decode_depth(_image_msg(metres, "32FC1"), False, "t"), depth)
+    with pytest.raises(InputError, match="colour encoding 'bayer_rggb8' is not supported"):
+        decode_color(_image_msg(grey, "bayer_rggb8"), False, "t")
+    with pytest.raises(InputError, match="depth encoding '8UC1' is not supported"):
+        decode_depth(_image_msg(grey, "8UC1"), False, "t")
