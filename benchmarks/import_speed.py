@@ -91,10 +91,10 @@ def make_video(path: Path, frames: list) -> Path:
     return path
 
 
-def time_k4a(out: Path, n: int, compression: str) -> tuple[int, int, float, float]:
+def time_k4a(out: Path, n: int, compression: str) -> tuple[int, int, float, float, float]:
     """Open the Azure Kinect fixture (calibration, ray table), then decode, register and write its capture n times.
 
-    Returns (frames, with depth, setup seconds, per-frame seconds).
+    Returns (frames, with depth, setup seconds, seconds, CPU seconds) of the n frames.
     """
     from dataclasses import replace
 
@@ -105,11 +105,12 @@ def time_k4a(out: Path, n: int, compression: str) -> tuple[int, int, float, floa
     fixture = ROOT / "tests/fixtures/k4a_recording.mkv"
     with AzureKinectSource(fixture) as src, McapRecorder(out, compression=compression) as rec:
         setup = time.perf_counter() - started
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         for k in range(n):
             for frame in src:
                 rec.write(replace(frame, timestamp_ns=frame.timestamp_ns + k * 33_333_333))
-        return rec.frames_written, src.stats.frames - src.stats.missing_depth, setup, time.perf_counter() - started
+        return (rec.frames_written, src.stats.frames - src.stats.missing_depth, setup, time.perf_counter() - started,
+                time.process_time() - cpu)
 
 
 def main() -> None:
@@ -132,14 +133,16 @@ def main() -> None:
               f"output compression {args.compression}")
         for name, (path, options) in inputs.items():
             out = work / f"{name}.mcap"
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), time.process_time()
             summary = write_recording(open_import(path, **options), out, progress=False, compression=args.compression)
-            seconds = time.perf_counter() - started
+            seconds, cpu = time.perf_counter() - started, time.process_time() - cpu
             print(f"{name:7s} {summary.frames:4d} frames 640x480, {summary.with_depth:4d} with depth: "
-                  f"{summary.frames / seconds:6.1f} frames/s ({seconds:.1f} s)")
-        n, with_depth, setup, seconds = time_k4a(work / "k4a.mcap", max(1, args.frames // 3), args.compression)
+                  f"{summary.frames / seconds:6.1f} frames/s ({seconds:.1f} s; {summary.frames / cpu:6.1f} frames per "
+                  "CPU second)")
+        n, with_depth, setup, seconds, cpu = time_k4a(work / "k4a.mcap", max(1, args.frames // 3), args.compression)
         print(f"k4a     {n:4d} frames 1280x720, {with_depth:4d} with depth: {n / seconds:6.1f} frames/s "
-              f"({seconds:.1f} s, after {setup:.1f} s of set-up: calibration and depth ray table)")
+              f"({seconds:.1f} s; {n / cpu:6.1f} frames per CPU second; after {setup:.1f} s of set-up: "
+              "calibration and depth ray table)")
         print(f"load average {os.getloadavg()[0]:.2f} after")
 
 
