@@ -92,8 +92,8 @@ def _compressed_depth(depth_mm, encoding):
 
 
 def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset_ns=2_000_000,
-                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False):
-    """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2) or .bag (ROS 1) path.
+                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False, sqlite=False):
+    """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2), bag folder (sqlite) or .bag path.
 
     Colour ``rgb8`` on /camera/color/image_raw (stamp = frame time), aligned depth on
     /camera/aligned_depth_to_color/image_raw (``16UC1`` mm or ``32FC1`` m, NaN for no depth)
@@ -116,7 +116,8 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         typestore = get_typestore(Stores.ROS2_HUMBLE)
-        writer = Writer(folder, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+        writer = Writer(folder, version=Writer.VERSION_LATEST,
+                        storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
         serialize = typestore.serialize_cdr
     topics = {
         "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
@@ -173,7 +174,7 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
                     log + 2)
     if ros1:
         return folder.with_suffix(".bag")
-    return next(folder.glob("*.mcap"))
+    return folder if sqlite else next(folder.glob("*.mcap"))
 
 
 @pytest.fixture(scope="module")

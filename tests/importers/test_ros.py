@@ -79,14 +79,15 @@ def test_compressed_depth_topic(tmp_path, frames, encoding):
             assert np.all(np.abs(a.depth.astype(float) - b.depth) <= step_mm + 1.0)
 
 
-def test_bag_folder_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
-    for source in (bag.parent, write_ros2_bag(tmp_path / "ros1", frames, ros1=True, compressed=False)):
+def test_bag_folders_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
+    sqlite = write_ros2_bag(tmp_path / "sqlite", frames, sqlite=True, drop_depth=(3,))
+    for source in (bag.parent, sqlite, write_ros2_bag(tmp_path / "ros1", frames, ros1=True, compressed=False)):
         out = tmp_path / f"{source.name}.mcap"
         proc = fusion_pf("import", source, out, "--no-progress")
         assert proc.returncode == 0, proc.stderr
         _, got = replay(out)
         assert len(got) == 8 and all(np.array_equal(a.color, b.color) for a, b in zip(frames, got, strict=True))
-        assert sum(f.depth is not None for f in got) == (7 if source == bag.parent else 8)
+        assert sum(f.depth is not None for f in got) == (8 if source.suffix == ".bag" else 7)
 
 
 def test_depth_topic_override_and_errors(tmp_path, bag, frames):
