@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from drivers.importers import detect, open_import
-from drivers.importers.k4a import AzureKinectSource, DepthRegistration, K4aCalibration
+from drivers.importers.k4a import AzureKinectSource, K4aCalibration
+from drivers.importers.registration import DepthRegistration
 from drivers.mcap_replay import McapReplay
 
 from .conftest import FIXTURES, error_line, fusion_pf
