@@ -29,15 +29,18 @@ from typing import Any, Callable, Iterator
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import Frame, Intrinsics
 
 from .base import ImportSource, IntrinsicsOption, frame_of, frame_period_ns, merge_paired, pair_nearest, to_millimetres
+from .registration import DepthRegistration, DepthToColor
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 _IMAGE_TYPES = (IMAGE, COMPRESSED)
 _NOT_COLOR = ("depth", "infra", "/ir", "_ir", "stereo", "disparity", "confidence", "mono", "left", "right")
 _COLOR_CODES = {
@@ -259,6 +262,28 @@ def _common_prefix(a: str, b: str) -> int:
     return n
 
 
+def _transform(tree: dict[str, tuple[str, np.ndarray, np.ndarray]], target: str,
+               source: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(R, t)`` with ``p_target = R @ p_source + t`` from a tf tree ``{child: (parent, R, t)}``, or None."""
+    def to_root(frame: str) -> tuple[str, np.ndarray, np.ndarray]:
+        rotation, translation = np.eye(3), np.zeros(3)
+        seen = {frame}
+        while frame in tree:
+            parent, r, t = tree[frame]
+            rotation, translation = r @ rotation, r @ translation + t
+            frame = parent
+            if frame in seen:
+                break
+            seen.add(frame)
+        return frame, rotation, translation
+
+    root_s, r_s, t_s = to_root(source)
+    root_t, r_t, t_t = to_root(target)
+    if root_s != root_t:
+        return None
+    return r_t.T @ r_s, r_t.T @ (t_s - t_t)
+
+
 class RosBagSource(ImportSource):
     """Colour + registered depth frames from a ROS bag.
 
@@ -288,6 +313,7 @@ class RosBagSource(ImportSource):
         self._color_keep: dict[int, int] = {}
         self._depth_rank: dict[int, int] = {}
         self._pairing = np.empty(0, np.int64)
+        self._registration: DepthRegistration | None = None
 
     # ------------------------------------------------------------------ topic choice
 
@@ -350,8 +376,9 @@ class RosBagSource(ImportSource):
                             self.color_topic)
 
     def _depth(self, data: bytes) -> np.ndarray:
-        return decode_depth(self._decoded(self.depth_topic, data), self._bag.topics[self.depth_topic] == COMPRESSED,
-                            self.depth_topic)
+        depth = decode_depth(self._decoded(self.depth_topic, data), self._bag.topics[self.depth_topic] == COMPRESSED,
+                             self.depth_topic)
+        return depth if self._registration is None else self._registration(depth)
 
     def _scan(self) -> tuple[bytes, bytes | None, bytes | None]:
         """Pass 1: stamps of every colour and depth message; the first message of each topic."""
@@ -380,51 +407,100 @@ class RosBagSource(ImportSource):
         self._pairing = pair_nearest(self._color_ns, d[order], period // 2)
         return firsts[self.color_topic], firsts.get(self.depth_topic), firsts.get(self.info_topic)
 
+    def _color_intrinsics(self, first_info: bytes | None, w: int, h: int) -> str:
+        if first_info is None:
+            self._intrinsics, origin = self.intrinsics_option.resolve(w, h)
+            return f"no CameraInfo topic; intrinsics {origin}"
+        k = intrinsics_from_camera_info(self._decoded(self.info_topic, first_info), self.info_topic)
+        if (k.width, k.height) != (w, h):
+            if k.width == 0 or abs(k.width / k.height - w / h) > 1e-3:
+                raise InputError(f"camera info {self.info_topic} is for {k.width}x{k.height}, colour is {w}x{h}")
+            k = k.scaled(w, h)
+        self._intrinsics = k
+        return (f"intrinsics from {self.info_topic} (fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
+                f"{k.distortion_model})")
+
+    def _depth_geometry(self, color_frame: str, depth_frame: str) -> tuple[DepthToColor | None, str]:
+        """Depth-to-colour geometry from the depth camera info and /tf_static, or None and why not."""
+        bag = self._bag
+        infos = [t for t, ty in bag.topics.items() if ty == CAMERA_INFO and t != self.info_topic]
+        info = max(infos, key=lambda t: _common_prefix(t, self.depth_topic), default=None)
+        if info is None or _common_prefix(info, self.depth_topic) <= _common_prefix(info, self.color_topic):
+            return None, "no CameraInfo topic next to the depth topic"
+        tf_topics = [t for t, ty in bag.topics.items() if ty == TF_MESSAGE and "static" in t]
+        if not tf_topics:
+            return None, "no /tf_static topic"
+        tree: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
+        first_info = None
+        for topic, _, data in bag.raw([info, *tf_topics]):
+            if topic == info:
+                first_info = first_info or bytes(data)
+                continue
+            for tf in self._decoded(topic, bytes(data)).transforms:
+                q, v = tf.transform.rotation, tf.transform.translation
+                rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+                tree[tf.child_frame_id.lstrip("/")] = (tf.header.frame_id.lstrip("/"), rotation,
+                                                       1000.0 * np.array([v.x, v.y, v.z]))
+        if first_info is None:
+            return None, f"{info} holds no messages"
+        moved = _transform(tree, color_frame.lstrip("/"), depth_frame.lstrip("/"))
+        if moved is None:
+            return None, f"/tf_static does not connect {depth_frame!r} to {color_frame!r}"
+        k_depth = intrinsics_from_camera_info(self._decoded(info, first_info), info)
+        return DepthToColor(k_depth, self._intrinsics, *moved), f"depth intrinsics from {info}"
+
+    def _setup_depth(self, first_color: bytes, first_depth: bytes | None, w: int, h: int) -> list[str]:
+        bag = self._bag
+        if first_depth is None:
+            raise InputError(f"depth topic {self.depth_topic} of {self.path} holds no messages")
+        depth = self._depth(first_depth)
+        paired = int((self._pairing >= 0).sum())
+        lines = [
+            f"depth: {self.depth_topic} ({bag.topics[self.depth_topic]}); {paired} of "
+            f"{len(self._pairing)} colour frames paired with depth within half a frame period, "
+            f"{len(self._pairing) - paired} without depth; {len(self._depth_rank) - paired} depth "
+            "message(s) unpaired (skipped)"
+        ]
+        if "aligned" in self.depth_topic.lower():
+            if depth.shape != (h, w):
+                raise InputError(f"aligned depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but "
+                                 f"colour topic {self.color_topic} is {w}x{h}")
+            return lines
+        color_frame = self._decoded(self.color_topic, first_color).header.frame_id
+        depth_frame = self._decoded(self.depth_topic, first_depth).header.frame_id
+        geometry, why = self._depth_geometry(color_frame, depth_frame)
+        if geometry is not None and (geometry.depth.width, geometry.depth.height) == depth.shape[::-1]:
+            self._registration = DepthRegistration(geometry)
+            t = geometry.translation_mm
+            lines.append(
+                f"depth registered to colour (z-buffered): {why}, {depth_frame} to {color_frame} from /tf_static "
+                f"(translation {t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f} mm)"
+            )
+        elif depth.shape == (h, w):
+            lines.append(f"warning: depth topic {self.depth_topic} is not aligned and cannot be registered ({why}): "
+                         "its pixels are taken as registered to colour")
+        else:
+            raise InputError(
+                f"depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but colour topic "
+                f"{self.color_topic} is {w}x{h} and cannot be registered to it ({why}): record "
+                "aligned_depth_to_color, pass --depth-topic with an aligned topic, or --depth-topic none"
+            )
+        return lines
+
     def open(self) -> None:
         self._bag = _open_bag(self.path)
         try:
             self._choose()
             first_color, first_depth, first_info = self._scan()
-            color = self._color(first_color)
-            h, w = color.shape[:2]
+            h, w = self._color(first_color).shape[:2]
             bag = self._bag
             lines = [f"colour: {self.color_topic} ({bag.topics[self.color_topic]}, {w}x{h})"]
+            intrinsics_line = self._color_intrinsics(first_info, w, h)
             if self.depth_topic is not None:
-                if first_depth is None:
-                    raise InputError(f"depth topic {self.depth_topic} of {self.path} holds no messages")
-                depth = self._depth(first_depth)
-                if depth.shape != (h, w):
-                    raise InputError(
-                        f"depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but colour topic "
-                        f"{self.color_topic} is {w}x{h}: depth must be registered to colour (record "
-                        "aligned_depth_to_color, pass --depth-topic with an aligned topic, or --depth-topic none)"
-                    )
-                paired = int((self._pairing >= 0).sum())
-                lines.append(
-                    f"depth: {self.depth_topic} ({bag.topics[self.depth_topic]}); {paired} of "
-                    f"{len(self._pairing)} colour frames paired with depth within half a frame period, "
-                    f"{len(self._pairing) - paired} without depth; {len(self._depth_rank) - paired} depth "
-                    "message(s) unpaired (skipped)"
-                )
-                if "aligned" not in self.depth_topic.lower():
-                    lines.append(f"warning: depth topic {self.depth_topic} is not named aligned: its pixels are "
-                                 "assumed to be registered to colour")
+                lines += self._setup_depth(first_color, first_depth, w, h)
             else:
                 lines.append("depth: none (colour only)")
-            if first_info is not None:
-                k = intrinsics_from_camera_info(self._decoded(self.info_topic, first_info), self.info_topic)
-                if (k.width, k.height) != (w, h):
-                    if k.width == 0 or abs(k.width / k.height - w / h) > 1e-3:
-                        raise InputError(
-                            f"camera info {self.info_topic} is for {k.width}x{k.height}, colour is {w}x{h}"
-                        )
-                    k = k.scaled(w, h)
-                self._intrinsics = k
-                lines.append(f"intrinsics from {self.info_topic} (fx={k.fx:.1f}, fy={k.fy:.1f}, "
-                             f"cx={k.cx:.1f}, cy={k.cy:.1f}, {k.distortion_model})")
-            else:
-                self._intrinsics, origin = self.intrinsics_option.resolve(w, h)
-                lines.append(f"no CameraInfo topic; intrinsics {origin}")
+            lines.append(intrinsics_line)
             others = sorted(t for t, ty in bag.topics.items()
                             if ty in _IMAGE_TYPES and t not in (self.color_topic, self.depth_topic))
             if others:

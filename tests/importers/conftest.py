@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from drivers import open_source
+from fusion_pf.frame import Intrinsics
 
 CLI = [sys.executable, "-m", "fusion_pf"]
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -75,6 +76,62 @@ def _image(typestore, stamp_ns, frame_id, array, encoding):
                  is_bigendian=0, step=data.size // h, data=data)
 
 
+#: Colour camera origin in the depth camera's optical frame (mm): 15 mm to the left.
+COLOR_IN_DEPTH_MM = np.array([-15.0, 0.0, 0.0])
+
+
+def depth_intrinsics(color):
+    """Intrinsics of the test bags' depth camera: 360x270, a slightly wider view than colour's."""
+    return Intrinsics(360, 270, 0.95 * color.fx, 0.95 * color.fy, 179.5, 134.5)
+
+
+def depth_camera_view(depth_c, kc, kd):
+    """What a depth camera with intrinsics ``kd`` at :data:`COLOR_IN_DEPTH_MM` from the colour camera sees.
+
+    Backward warping, independent of the importer's forward splatting: each depth pixel's ray
+    is intersected with the colour-aligned depth map by fixed-point iteration (z -> the
+    colour depth where the point at z projects); pixels that do not settle (depth edges,
+    outside the colour view) get 0.
+    """
+    vd, ud = np.mgrid[0:kd.height, 0:kd.width].astype(np.float64)
+    rx, ry = (ud - kd.cx) / kd.fx, (vd - kd.cy) / kd.fy
+    t = -COLOR_IN_DEPTH_MM  # p_c = p_d + t
+
+    def sample(z):
+        uc = np.rint(kc.fx * (rx * z + t[0]) / (z + t[2]) + kc.cx).astype(int)
+        vc = np.rint(kc.fy * (ry * z + t[1]) / (z + t[2]) + kc.cy).astype(int)
+        inside = (uc >= 0) & (uc < kc.width) & (vc >= 0) & (vc < kc.height)
+        return np.where(inside, depth_c[np.clip(vc, 0, kc.height - 1), np.clip(uc, 0, kc.width - 1)], 0).astype(float)
+
+    z = np.full(rx.shape, 1000.0)
+    for _ in range(6):
+        s = sample(z)
+        z = np.where(s > 0, s, z)
+    settled = (sample(z) > 0) & (np.abs(sample(z) - z) < 0.5)
+    return np.where(settled, z, 0).astype(np.uint16)
+
+
+def _tf_static(typestore, stamp_ns):
+    """realsense2_camera's static transforms: camera_link -> {depth, color}_frame -> *_optical_frame."""
+    T = typestore.types
+    optical = T["geometry_msgs/msg/Quaternion"](x=-0.5, y=0.5, z=-0.5, w=0.5)
+    identity = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+
+    def stamped(parent, child, xyz, q):
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=_header(typestore, stamp_ns, parent), child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](
+                x=xyz[0], y=xyz[1], z=xyz[2]), rotation=q))
+
+    # the colour camera 15 mm to the left (+y of camera_link, -x of the optical frames)
+    return T["tf2_msgs/msg/TFMessage"](transforms=[
+        stamped("camera_link", "camera_depth_frame", (0.0, 0.0, 0.0), identity),
+        stamped("camera_depth_frame", "camera_depth_optical_frame", (0.0, 0.0, 0.0), optical),
+        stamped("camera_link", "camera_color_frame", (0.0, 0.015, 0.0), identity),
+        stamped("camera_color_frame", "camera_color_optical_frame", (0.0, 0.0, 0.0), optical),
+    ])
+
+
 #: Inverse-depth quantisation of 32FC1 compressedDepth messages: stored = A / depth_m + B.
 QUANT_A, QUANT_B = 3000.0, -1.0
 
@@ -92,14 +149,17 @@ def _compressed_depth(depth_mm, encoding):
 
 
 def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset_ns=2_000_000,
-                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False, sqlite=False):
+                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False, sqlite=False,
+                   tf=True):
     """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2), bag folder (sqlite) or .bag path.
 
     Colour ``rgb8`` on /camera/color/image_raw (stamp = frame time), aligned depth on
     /camera/aligned_depth_to_color/image_raw (``16UC1`` mm or ``32FC1`` m, NaN for no depth)
     ``depth_offset_ns`` later, camera info on both namespaces, a JPEG
-    /camera/color/image_raw/compressed, and an unaligned /camera/depth/image_rect_raw of
-    another size. Frames listed in ``drop_depth`` get no aligned depth message. With
+    /camera/color/image_raw/compressed, and the unaligned /camera/depth/image_rect_raw
+    (:func:`depth_camera_view`, 360x270, its /camera/depth/camera_info) with the camera's
+    /tf_static (``tf=True``, realsense2_camera's frames: the colour camera 15 mm to the left
+    of the depth camera). Frames listed in ``drop_depth`` get no aligned depth message. With
     ``compressed_depth``, the aligned depth also goes to .../image_raw/compressedDepth as
     compressed_depth_image_transport publishes it (12-byte config header, then a 16-bit PNG of
     millimetres for 16UC1 or of quantised inverse metres for 32FC1).
@@ -132,6 +192,7 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
             topics["/camera/color/image_raw/compressed"] = "sensor_msgs/msg/CompressedImage"
         if unaligned:
             topics["/camera/depth/image_rect_raw"] = "sensor_msgs/msg/Image"
+            topics["/camera/depth/camera_info"] = "sensor_msgs/msg/CameraInfo"
         if compressed_depth:
             topics["/camera/aligned_depth_to_color/image_raw/compressedDepth"] = "sensor_msgs/msg/CompressedImage"
     with writer:
@@ -141,6 +202,8 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
         def put(topic, msg, log_ns):
             writer.write(conns[topic], log_ns, serialize(msg, topics[topic]))
 
+        if images and unaligned and tf and not ros1:
+            put("/tf_static", _tf_static(typestore, frames[0].timestamp_ns), frames[0].timestamp_ns)
         for i, f in enumerate(frames):
             t = f.timestamp_ns
             log = t + 5_000_000
@@ -169,9 +232,11 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
                                         format=f"{depth}; compressedDepth png",
                                         data=_compressed_depth(f.depth, depth)), log + 1)
             if unaligned:
-                other = cv2.resize(f.depth, (f.depth.shape[1] + 40, f.depth.shape[0]), interpolation=cv2.INTER_NEAREST)
+                kd = depth_intrinsics(f.intrinsics)
+                other = depth_camera_view(f.depth, f.intrinsics, kd)
                 put("/camera/depth/image_rect_raw", _image(typestore, t, "camera_depth_optical_frame", other, "16UC1"),
                     log + 2)
+                put("/camera/depth/camera_info", _camera_info(typestore, t, kd, "camera_depth_optical_frame"), log + 2)
     if ros1:
         return folder.with_suffix(".bag")
     return folder if sqlite else next(folder.glob("*.mcap"))

@@ -48,6 +48,22 @@ def test_auto_topics_pairing_and_contents(tmp_path, bag, frames):
     assert track.returncode == 0, track.stderr
 
 
+def test_unaligned_depth_registered_with_tf_static(tmp_path, bag, frames):
+    out = tmp_path / "out.mcap"
+    proc = fusion_pf("import", bag, out, "--depth-topic", "/camera/depth/image_rect_raw", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert ("depth registered to colour (z-buffered): depth intrinsics from /camera/depth/camera_info, "
+            "camera_depth_optical_frame to camera_color_optical_frame from /tf_static "
+            "(translation 15.0, 0.0, 0.0 mm)") in proc.stdout
+    _, got = replay(out)
+    for a, b in zip(frames, got, strict=True):
+        # the depth camera's view was made by backward warping (tests/importers/conftest.py): registering it
+        # forward must give back the colour-aligned depth, except along depth edges
+        both = (a.depth > 0) & (b.depth > 0)
+        assert both.sum() > 0.9 * (a.depth > 0).sum()
+        assert np.mean(np.abs(a.depth.astype(int) - b.depth)[both] <= 2) > 0.95
+
+
 def test_compressed_colour_and_float_depth(tmp_path, frames):
     bag = write_ros2_bag(tmp_path / "bag", frames, depth="32FC1", unaligned=False)
     out = tmp_path / "out.mcap"
@@ -91,9 +107,11 @@ def test_bag_folders_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
 
 
 def test_depth_topic_override_and_errors(tmp_path, bag, frames):
-    line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--depth-topic", "/camera/depth/image_rect_raw"))
-    assert ("depth topic /camera/depth/image_rect_raw is 360x240 but colour topic /camera/color/image_raw "
-            "is 320x240") in line
+    no_tf = write_ros2_bag(tmp_path / "notf", frames[:2], tf=False)
+    line = error_line(fusion_pf("import", no_tf, tmp_path / "x.mcap", "--depth-topic", "/camera/depth/image_rect_raw"))
+    assert ("depth topic /camera/depth/image_rect_raw is 360x270 but colour topic /camera/color/image_raw "
+            "is 320x240 and cannot be registered to it (/tf_static does not connect 'camera_depth_optical_frame' "
+            "to 'camera_color_optical_frame')") in line
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--color-topic", "/camera/infra1/image_rect_raw"))
     assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line
     assert "/camera/color/image_raw (" in line
