@@ -11,8 +11,10 @@ Topics are chosen by type and name unless given:
   depth/infrared, raw ``Image`` preferred to ``CompressedImage``;
 * depth: an image topic named ``depth`` (or ``stereo``), ``aligned_depth_to_color``
   preferred (realsense2_camera with ``align_depth.enable:=true``); ``16UC1`` millimetres,
-  ``32FC1`` metres, ``compressedDepth`` PNG; it must have the colour image's size
-  (registered to colour); a depth topic not named aligned is imported with a warning;
+  ``32FC1`` metres, ``compressedDepth`` PNG. A depth topic not named aligned is registered
+  to colour (:mod:`.registration`) with the CameraInfo next to it and the depth-to-colour
+  transform of ``/tf_static`` (realsense2_camera publishes both); without them it must
+  already have the colour size and is imported with a warning;
 * camera info: the ``CameraInfo`` topic sharing the longest name prefix with the colour
   topic (``/camera/color/camera_info`` for ``/camera/color/image_raw``).
 
