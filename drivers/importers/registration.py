@@ -106,7 +106,11 @@ class DepthRegistration:
         hd, wd = depth.shape
         z = depth.ravel().astype(np.float64)
         valid = (z > 0) & np.isfinite(self.rays[:, 0])
-        cam = self.rays[valid] * z[valid, None] @ c.rotation.T + c.translation_mm
+        px, py, pz = (self.rays[valid] * z[valid, None]).T
+        # p_c = R p_d + t written out per component: a (N, 3) @ (3, 3) product goes through BLAS
+        # threads that cost more CPU than the arithmetic
+        cam = np.column_stack([r[0] * px + r[1] * py + r[2] * pz + t
+                               for r, t in zip(c.rotation, c.translation_mm, strict=True)])
         front = cam[:, 2] > 0
         idx = np.flatnonzero(valid)[front]
         cam = cam[front]
