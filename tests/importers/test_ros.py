@@ -130,6 +130,11 @@ def test_depth_topic_override_and_errors(tmp_path, bag, frames):
     assert "--fps does not apply to ROS bags" in line
 
 
+def test_replaying_a_bag_points_to_import(tmp_path, bag):
+    line = error_line(fusion_pf("info", bag))
+    assert "has no /camera/color topic" in line and "(a ROS 2 bag: convert it with fusion-pf import)" in line
+
+
 def test_fusion_pf_recording_is_not_a_ros_bag(tmp_path):
     rec = tmp_path / "synth.mcap"
     assert fusion_pf("record", "synth:frames=2,size=64x48", rec).returncode == 0
