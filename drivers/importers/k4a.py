@@ -172,6 +172,10 @@ class AzureKinectSource(ImportSource):
             f"intrinsics from calibration.json: fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
             "rational_polynomial",
         ])
+        others = [s.metadata.get("title", f"stream {s.index}") for s in self._container.streams
+                  if s.type in ("video", "subtitle", "audio", "data") and s not in (color, depth)]
+        if others:
+            self.report.append(f"tracks not imported: {', '.join(others)}")
 
     def _scan(self, color: Any, depth: Any) -> tuple[np.ndarray, np.ndarray]:
         times: dict[int, list[int]] = {color.index: [], depth.index: []}

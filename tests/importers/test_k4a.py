@@ -75,6 +75,7 @@ def test_import_end_to_end(tmp_path, calibration):
     proc = fusion_pf("import", MKV, out, "--no-progress")
     assert proc.returncode == 0, proc.stderr
     assert "depth track NFOV_UNBINNED 640x576 registered to colour" in proc.stdout
+    assert "tracks not imported: IR, IMU" in proc.stdout
     coverage = float(proc.stdout.split("registered depth covers ")[1].split(" %")[0])
     print(f"registered-depth coverage of the colour image: {coverage:.1f} %")
     assert 45.0 < coverage < 75.0  # the depth camera's NFOV hexagon inside the 720p colour view
