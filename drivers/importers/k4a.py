@@ -173,7 +173,7 @@ class AzureKinectSource(ImportSource):
             "rational_polynomial",
         ])
         others = [s.metadata.get("title", f"stream {s.index}") for s in self._container.streams
-                  if s.type in ("video", "subtitle", "audio", "data") and s not in (color, depth)]
+                  if s.type in ("video", "subtitle", "audio", "data") and s.index not in (color.index, depth.index)]
         if others:
             self.report.append(f"tracks not imported: {', '.join(others)}")
 

@@ -74,7 +74,7 @@ class VideoSource(ImportSource):
             f"video stream {stream.index} ({stream.codec_context.name}, {width}x{height}"
             f"{f', {float(rate):.3g} fps' if rate else ''}), colour only, no depth; intrinsics {origin}"
         )
-        others = [f"{s.type} {s.index}" for s in container.streams if s is not stream]
+        others = [f"{s.type} {s.index}" for s in container.streams if s.index != stream.index]
         if others:
             self.report.append(f"streams not imported: {', '.join(others)}")
 
