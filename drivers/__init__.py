@@ -17,8 +17,12 @@ __all__ = ["open_source", "Source", "ReplaySource", "Sink", "SourceStats", "SOUR
 SOURCE_SPECS = (
     "FILE.mcap (replay a recording), "
     "synth[:seed=S,frames=N,size=WxH,background_frames=K] (synthetic scene), "
-    "oak[:size=WxH,fps=F] (live Luxonis OAK camera, needs the 'oak' extra)"
+    "oak[:size=WxH,fps=F] (live Luxonis OAK camera, needs the 'oak' extra), "
+    "FOLDER of images, VIDEO file, Azure Kinect .mkv or ROS 1 .bag (read on the fly; "
+    "see fusion-pf import for options and ROS 2 bags)"
 )
+#: Suffixes of files :func:`open_source` reads through :mod:`drivers.importers`.
+IMPORT_SUFFIXES = (".mp4", ".m4v", ".avi", ".mov", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".mkv", ".bag")
 
 
 def _parse_options(text: str, spec: str) -> dict[str, str]:
@@ -37,7 +41,9 @@ def open_source(spec: str | Path, **overrides: object) -> Source:
     Parameters
     ----------
     spec : str or Path
-        ``path/to/file.mcap``, ``synth:seed=3,frames=200`` or ``oak[:...]``.
+        ``path/to/file.mcap``, ``synth:seed=3,frames=200``, ``oak[:...]``, or a folder
+        of images, a video, an Azure Kinect ``.mkv`` or a ROS 1 ``.bag``
+        (:func:`drivers.importers.open_import`).
     **overrides
         Keyword options given to the driver, overriding those in ``spec``.
 
@@ -57,6 +63,14 @@ def open_source(spec: str | Path, **overrides: object) -> Source:
         from .mcap_replay import McapReplay
 
         return McapReplay(Path(text), **overrides)
+    path = Path(text)
+    if path.is_dir() or path.suffix.lower() in IMPORT_SUFFIXES:
+        from .importers import open_import
+
+        unknown = sorted(set(overrides) - {"fps"})
+        if unknown:
+            raise InputError(f"{', '.join(unknown)} cannot be set for {text}; it is read as it was recorded")
+        return open_import(path, **overrides)
     if kind == "synth":
         from .synth import SynthSource
 

@@ -550,6 +550,8 @@ class McapReplay(ReplaySource):
         topics = sorted({c.topic for c in self._channels.values()})
         listed = ", ".join(topics) if topics else "none"
         extra = " (the file is truncated)" if self._truncated else ""
+        if any(c.message_encoding == "cdr" for c in self._channels.values()):
+            extra += " (a ROS 2 bag: convert it with fusion-pf import)"
         return f"topics present: {listed}{extra}"
 
     def _finish_index(self) -> None:
