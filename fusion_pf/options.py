@@ -195,7 +195,7 @@ def option_help(f: dataclasses.Field) -> str:
     elif spec.unit:
         text += f" ({spec.unit})"
     default = _default_of(f)
-    if default is not dataclasses.MISSING and spec.kind != "bool":
+    if default is not dataclasses.MISSING:
         text += f" [default: {_show(spec, default)}]"
     return text.replace("%", "%%")
 
@@ -227,7 +227,7 @@ def add_options(
         flag = _flag(f, spec)
         if spec.kind == "bool":
             target.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction,
-                                default=argparse.SUPPRESS, help=option_help(f) + f" [default: {_show(spec, _default_of(f))}]")
+                                default=argparse.SUPPRESS, help=option_help(f))
             continue
         metavar = spec.metavar or ("|".join(map(str, spec.choices)) if spec.choices else f.name.upper())
         target.add_argument(flag, dest=f.name, default=argparse.SUPPRESS, metavar=metavar, help=option_help(f))

@@ -76,7 +76,8 @@ def test_help_shows_the_real_defaults(command):
                 default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
                 spec = f.metadata["spec"]
                 shown = spec.show(default) if spec.show else (
-                    "none" if default is None else f"{default:g}" if isinstance(default, float) else str(default))
+                    "none" if default is None else ("on" if default else "off") if isinstance(default, bool)
+                    else f"{default:g}" if isinstance(default, float) else str(default))
                 assert f"[default: {shown}]" in helps[f.name], (f.name, helps[f.name])
                 seen += 1
     assert seen >= (10 if command == "track" else 8)
