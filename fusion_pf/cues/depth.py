@@ -113,6 +113,11 @@ class DepthCue:
         Use the previous frame's I_d5 (paper); False skips the subtraction.
     clear_border : bool
         Remove regions touching the window border (I_d10).
+    invalid_far : bool
+        A background pixel without depth (0: out of range, e.g. a wall beyond
+        a ToF sensor's reach, 77-82 % of the pixels of a RealSense SR305 scene)
+        counts as infinitely far, so a valid pixel in front of it is
+        foreground; False: the paper's reading, invalid is never foreground.
     source : str
         Measurement source name.
     """
@@ -129,6 +134,7 @@ class DepthCue:
         open_radius: int = 2,
         temporal: bool = True,
         clear_border: bool = True,
+        invalid_far: bool = True,
         source: str = "depth",
     ) -> None:
         try:
@@ -146,6 +152,7 @@ class DepthCue:
         self.open_radius = check_int("depth open_radius", open_radius, 0, 20)
         self.temporal = bool(temporal)
         self.clear_border = bool(clear_border)
+        self.invalid_far = bool(invalid_far)
         self.source = str(source)
         self._prev: tuple[np.ndarray, Roi, tuple[int, int]] | None = None
 
@@ -227,7 +234,9 @@ class DepthCue:
             return CueResult(None, out, time.perf_counter_ns() - t0)
         d1 = roi.crop(depth)
         b1 = roi.crop(background)
-        valid = (d1 > 0) & (b1 > 0)  # invalid depth never counts as foreground
+        if self.invalid_far:
+            b1 = np.where(b1 > 0, b1, np.uint16(65535))  # no background depth: as far as can be
+        valid = (d1 > 0) & (b1 > 0)  # invalid current depth never counts as foreground
         d2 = np.where(valid & (b1 > d1), b1 - d1, 0).astype(np.uint16)  # I_d2 = max(B - D, 0)
         lo, hi = self.range_mm
         d3 = np.clip((d2.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)  # I_d3: 8-bit

@@ -68,6 +68,9 @@ class CueOptions:
                               help="depth cue: upper threshold on I_d3 (I_d4B)")
     depth_nearest_mm: int = option(_default(DepthCue, "nearest_mm"), kind="int", lo=0, hi=65535, unit="mm",
                                    help="depth cue: keep the slab this deep behind the nearest surface; 0 = the paper's band only")
+    depth_invalid_far: bool = option(_default(DepthCue, "invalid_far"), kind="bool",
+                                     help="depth cue: background pixels without depth count as far (a hand in "
+                                          "front of an out-of-range wall is foreground)")
     min_area: int = option(_default(ColourCue, "min_area"), kind="int", lo=0, hi=100_000, unit="px",
                            help="smallest region the colour, depth and skin cues keep")
     skin_model: Path | None = option(None, optional=True, check=_path_or_none, metavar="MODEL.npz",
@@ -113,7 +116,7 @@ def _colour(o: CueOptions) -> Cue:
 @register("depth", DepthCue.needs, "paper 003 §3.5.2: background subtraction on depth")
 def _depth(o: CueOptions) -> Cue:
     return DepthCue(range_mm=o.depth_range_mm, lower=o.depth_lower, upper=o.depth_upper, min_area=o.min_area,
-                    nearest_mm=o.depth_nearest_mm or None)
+                    nearest_mm=o.depth_nearest_mm or None, invalid_far=o.depth_invalid_far)
 
 
 @register("skeleton", SkeletonCue.needs, "the camera's skeleton joint (paper 003's K)")

@@ -152,6 +152,10 @@ class TrackConfig:
                                        "off a biased skeleton joint inside the window)")
     background: Path | None = option(None, optional=True, check=_path, metavar="FILE.mcap",
                                      help="empty-scene recording for the background model (read by the command)")
+    background_mode: str = option("adaptive", choices=("adaptive", "median"),
+                                  help="without empty-scene frames: learn the background from the stream "
+                                       "(MOG2 colour, farthest depth; warmed up on the first --background-k "
+                                       "frames) or the median of those frames")
     background_k: int = option(DEFAULT_BACKGROUND_K, kind="int", lo=1, hi=10_000, metavar="K",
                                help="frames of the running-median background when there is no empty scene")
     depth_radius: int = option(DEFAULT_DEPTH_RADIUS, kind="int", lo=0, hi=50, unit="px", help="half-size of the 3-D palm's depth window")

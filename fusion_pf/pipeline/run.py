@@ -41,9 +41,12 @@ Background model (colour and depth cues)
     2. else the source's own leading background frames (``Frame.background``,
        announced by the MCAP metadata ``fusion_pf.recording``
        ``background_frames``);
-    3. else the running median of the first ``background_k`` frames of the
-       stream (default :data:`~fusion_pf.pipeline.config.DEFAULT_BACKGROUND_K`): those frames are read
-       ahead, the median built, then they are tracked like every other frame.
+    3. else a model learnt from the stream: the first ``background_k`` frames
+       (default :data:`~fusion_pf.pipeline.config.DEFAULT_BACKGROUND_K`) are
+       read ahead to warm it up, then tracked like every other frame;
+       ``background_mode="adaptive"`` (default) keeps learning
+       (:class:`~fusion_pf.cues.background.AdaptiveBackground`: MOG2 colour,
+       farthest depth), ``"median"`` is their fixed per-pixel median.
     Background frames of the source are never tracked: they give a
     :class:`TrackResult` with ``background=True``, no cues and no estimate (the
     filter is not stepped), and the outputs skip them.
@@ -69,7 +72,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..cues.background import BackgroundModel
+from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.base import SOURCES, CueContext
 from ..cues.regions import DEFAULT_PALM_AREA
 from ..cues.registry import build_cues
@@ -255,14 +258,22 @@ def _with_background(
                     ahead.append(item)
                     if len(ahead) >= config.background_k:
                         break
-                model = BackgroundModel.from_frames(f for _, f, _ in ahead)
+                warm = [f for _, f, _ in ahead]
+                if config.background_mode == "median":
+                    model = BackgroundModel.from_frames(warm)
+                else:
+                    model = AdaptiveBackground(warm, history=10 * config.background_k)
                 _check_size(model, index, frame)
                 for i, f, d in ahead:
                     yield i, f, d, model
+                    if isinstance(model, AdaptiveBackground):
+                        model.adapt(f)
                 continue
             empties.clear()
         _check_size(model, index, frame)
         yield index, frame, dec, model
+        if isinstance(model, AdaptiveBackground):
+            model.adapt(frame)
 
 
 def _check_size(model: BackgroundModel, index: int, frame: Frame) -> None:
