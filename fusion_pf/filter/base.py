@@ -9,6 +9,7 @@ log space). A source missing from a frame contributes nothing.
 from __future__ import annotations
 
 import abc
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -31,6 +32,17 @@ class Tracker(abc.ABC):
         Returns None while the filter is not initialised (no measurement and no
         prior yet).
         """
+
+    noise_px: dict[str, float]
+
+    def set_noise(self, source: str, sigma_px: float) -> None:
+        """Change the measurement noise of ``source`` from the next step on (sigma in px, > 0)."""
+        if source not in self.noise_px:
+            raise InputError(f"unknown source {source!r}; the filter fuses {', '.join(self.noise_px)}")
+        s = float(sigma_px)
+        if not (math.isfinite(s) and s > 0.0):
+            raise InputError(f"noise of {source} must be a finite number > 0 px, got {sigma_px!r}")
+        self.noise_px[source] = s
 
     @abc.abstractmethod
     def reset(self, prior=None) -> None:

@@ -109,6 +109,8 @@ REFERENCE_SIZE = (320, 200)
 STATES = (TrackState.UNINITIALISED.value, TrackState.TRACKING.value, TrackState.LOST.value)
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
+#: Weight of one frame in the online noise estimate (a time constant of 20 frames).
+NOISE_RATE = 0.05
 
 
 def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
@@ -428,9 +430,13 @@ class _FilterStage:
         self.init = config.init
         self.reacquisitions = 0
         self.losses = 0
+        self._base: dict[str, float] = {}
+        self._var: dict[str, float] = {}
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
+        self._base = dict(self.tracker.noise_px)
+        self._var = {s: v * v for s, v in self._base.items()}
         diag = math.hypot(*size)
         self.states = StateConfig(max_spread_px=self.config.max_spread * diag, min_likelihood=0.0,
                                   silent_frames=self.config.silent_frames, degraded_frames=DEGRADED_FRAMES,
@@ -454,6 +460,17 @@ class _FilterStage:
         k = (timestamp_ns - t1) / (t1 - t0)
         return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
 
+    def _adapt(self, ms: Sequence[Measurement], predicted: tuple[float, float]) -> None:
+        """Learn each cue's noise from its innovation ``z - x_pred`` (exponential average, bounded influence)."""
+        for m in ms:
+            base, var = self._base[m.source], self._var[m.source]
+            # per-axis innovation variance, winsorised at 3 sigma: one outlier moves sigma by a bounded step
+            sample = min(((m.u - predicted[0]) ** 2 + (m.v - predicted[1]) ** 2) / 2.0, 9.0 * var)
+            # sigma^2 <- (1 - a) sigma^2 + a e^2, kept in [(base / 4)^2, (4 base)^2]
+            var = min(max((1.0 - NOISE_RATE) * var + NOISE_RATE * sample, base * base / 16.0), 16.0 * base * base)
+            self._var[m.source] = var
+            self.tracker.set_noise(m.source, math.sqrt(var))
+
     def _trust(self, m: Measurement) -> float:
         # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
         return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
@@ -466,6 +483,9 @@ class _FilterStage:
             self._start(size)
         tracker = self.tracker
         ms = row.measurements(self.sources)
+        predicted = self.prediction(row.timestamp_ns) if self.config.adapt_noise and len(self._history) == 2 else None
+        if predicted is not None:
+            self._adapt(ms, predicted)
         if not tracker.initialised and (ms or self.init is not None):
             best = min(ms, key=self._trust) if ms else None
             tracker.reset(prior=self.init if self.init is not None else (best.u, best.v))

@@ -121,8 +121,10 @@ def bestmax_points(errors: Mapping[str, object], tie_tol: float = TIE_TOL_PX) ->
     Returns
     -------
     dict of str to ndarray, shape (n,), int64
-        1 where the source won (or tied for) the frame, else 0. A frame where
-        every source is NaN gives nobody a point.
+        1 where the source won (or tied for) the frame, else 0. Only frames
+        where at least two sources compete give points: a source that is
+        alone in a frame did not beat anybody (those frames are counted by
+        :func:`uncontested_frames`).
     """
     if not errors:
         raise InputError("bestmax needs at least one source, got none")
@@ -136,8 +138,17 @@ def bestmax_points(errors: Mapping[str, object], tie_tol: float = TIE_TOL_PX) ->
     e = np.stack(arrays)
     present = np.isfinite(e)
     best = np.min(np.where(present, e, np.inf), axis=0)
-    won = present & (e <= best + tie_tol)
+    # a point needs a contest: at least two sources in the frame
+    won = present & (e <= best + tie_tol) & (present.sum(axis=0) >= 2)
     return {k: won[i].astype(np.int64) for i, k in enumerate(names)}
+
+
+def uncontested_frames(errors: Mapping[str, object]) -> dict[str, int]:
+    """Frames where each source was the only one with an error (no BestMax point: nobody to beat)."""
+    names = list(errors)
+    present = np.isfinite(np.stack([np.asarray(errors[k], dtype=np.float64) for k in names]))
+    alone = present & (present.sum(axis=0) == 1)
+    return {k: int(alone[i].sum()) for i, k in enumerate(names)}
 
 
 def bestmax(errors: Mapping[str, object], tie_tol: float = TIE_TOL_PX) -> dict[str, int]:
@@ -178,7 +189,10 @@ class SourceScore:
     n_scored : int
         Frames where both the source and the reference exist.
     bestmax : int
-        BestMax points (paper 003 §4.4; ties give each tied source a point).
+        BestMax points (paper 003 §4.4; ties give each tied source a point;
+        frames with one source give none).
+    uncontested : int
+        Frames where this source was the only one present (no BestMax point).
     rmse_occluded, rmse_visible : float
         RMSE over occluded / visible reference frames (NaN when unknown or empty).
     """
@@ -190,6 +204,7 @@ class SourceScore:
     coverage: float
     n_scored: int
     bestmax: int
+    uncontested: int
     rmse_occluded: float
     rmse_visible: float
 
@@ -278,6 +293,7 @@ def score(
         occ = flags & has_ref
     errors = {k: frame_errors(_points(f"{k} points", p, n), ref) for k, p in points.items()}
     won = bestmax_points(errors, tie_tol)
+    alone = uncontested_frames(errors)
     stack = np.stack([won[k] for k in errors])
     n_ref = int(has_ref.sum())
     summary = {}
@@ -292,6 +308,7 @@ def score(
             coverage=float(ok.sum() / n_ref) if n_ref else math.nan,
             n_scored=int(ok.sum()),
             bestmax=int(won[k].sum()),
+            uncontested=alone[k],
             rmse_occluded=rmse(e[occ]) if occ is not None else math.nan,
             rmse_visible=rmse(e[has_ref & ~occ]) if occ is not None else math.nan,
         )

@@ -61,15 +61,15 @@ def score_markdown(result: Score, tracker: str, reference: str, reference_kind: 
         + (f", {result.n_occluded} occluded in {len(result.occlusion_episodes)} episodes" if occ else "")
         + ").",
         "",
-        "| source | RMSE (px) | mean (px) | p95 (px) | max (px) | coverage | BestMax |"
+        "| source | RMSE (px) | mean (px) | p95 (px) | max (px) | coverage | BestMax | alone |"
         + (" RMSE occluded (px) | RMSE visible (px) |" if occ else ""),
-        "|---|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if occ else ""),
+        "|---|---:|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if occ else ""),
     ]
     for s in result.sources:
         m = result.summary[s]
         row = (
             f"| {_LABELS.get(s, s)} | {_num(m.rmse)} | {_num(m.mean)} | {_num(m.p95)} | {_num(m.max)} "
-            f"| {_num(100 * m.coverage, '.1f')} % | {m.bestmax} |"
+            f"| {_num(100 * m.coverage, '.1f')} % | {m.bestmax} | {m.uncontested} |"
         )
         if occ:
             row += f" {_num(m.rmse_occluded)} | {_num(m.rmse_visible)} |"
@@ -77,9 +77,11 @@ def score_markdown(result: Score, tracker: str, reference: str, reference_kind: 
     lines += [
         "",
         f"BestMax (paper 003 §4.4): in each of the {result.n_bestmax_frames} frames with a reference "
-        f"and at least one source, the source(s) with the smallest error score a point; sources within "
+        f"and at least two sources, the source(s) with the smallest error score a point; sources within "
         f"{result.tie_tol:g} px of the best tie and each get a point ({result.n_ties} tied frames); "
-        "a missing source cannot score. Coverage = share of reference frames where the source gave a point.",
+        "a missing source cannot score, and a source alone in a frame scores nothing (column 'alone'). "
+        "Coverage = share of reference frames where the source gave a point; frames without an estimate "
+        "(lost, uninitialised) count as missing.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -160,6 +162,7 @@ def score_json(
                 "coverage": json_number(m.coverage),
                 "n_scored": m.n_scored,
                 "bestmax": m.bestmax,
+                "uncontested": m.uncontested,
                 "rmse_occluded_px": json_number(m.rmse_occluded),
                 "rmse_visible_px": json_number(m.rmse_visible),
             }

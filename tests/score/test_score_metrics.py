@@ -8,7 +8,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fusion_pf.errors import InputError
-from fusion_pf.score.metrics import bestmax, bestmax_points, frame_errors, occlusion_episodes, rmse, score
+from fusion_pf.score.metrics import (
+    bestmax,
+    bestmax_points,
+    frame_errors,
+    occlusion_episodes,
+    rmse,
+    score,
+    uncontested_frames,
+)
 
 NAN = math.nan
 
@@ -78,10 +86,11 @@ def test_score_without_occlusion_flags_reports_nan_split():
 def test_bestmax_ties_tolerance_and_all_missing_frame():
     errors = {"a": [1.0, NAN, 2.0], "b": [1.0 + 1e-9, NAN, NAN]}
     # Frame 0: within the default 1e-6 px tolerance -> a point each; frame 1: nobody
-    # present -> nobody scores; frame 2: b missing, a scores alone.
-    assert bestmax(errors) == {"a": 2, "b": 1}
-    assert bestmax(errors, tie_tol=0.0) == {"a": 2, "b": 0}
+    # present -> nobody scores; frame 2: b missing, a is alone -> no contest, no point.
+    assert bestmax(errors) == {"a": 1, "b": 1}
+    assert bestmax(errors, tie_tol=0.0) == {"a": 1, "b": 0}
     np.testing.assert_array_equal(bestmax_points(errors)["b"], [1, 0, 0])
+    assert uncontested_frames(errors) == {"a": 1, "b": 0}
 
 
 def test_rmse_empty_is_nan_and_metrics_nan_without_frames():
@@ -131,5 +140,5 @@ def test_bestmax_awards_exactly_the_minimal_present_sources(rows):
     for t, r in enumerate(rows):
         present = [x for x in r if x is not None]
         for i, k in enumerate(names):
-            expected = r[i] is not None and r[i] == min(present)
+            expected = r[i] is not None and r[i] == min(present) and len(present) >= 2
             assert points[k][t] == expected

@@ -56,6 +56,8 @@ def expected_from_csv(path):
     wins = {s: 0 for s in errors}
     for frame in gt:
         present = {s: e[frame] for s, e in errors.items() if frame in e}
+        if len(present) < 2:  # nobody to beat: no point
+            continue
         best = min(present.values())
         for s, e in present.items():
             wins[s] += e <= best + 1e-6

@@ -1,0 +1,123 @@
+"""Tracking real-footage situations: no skeleton, loss and re-acquisition, no empty scene, invalid depth."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from drivers.synth import SynthSource
+from fusion_pf.cues.registry import CueOptions
+from fusion_pf.frame import Frame, Intrinsics, PalmPoint
+from fusion_pf.pipeline import TrackConfig, track
+
+SIZE = (160, 120)
+SKIN = np.array([225, 172, 140], np.uint8)
+
+
+def disc_frames(path, *, depth=None, start_ns=0):
+    """A skin-coloured palm disc (radius 9 px) on a textured wall, following ``path`` ((n, 2), NaN = out of view)."""
+    w, h = SIZE
+    rng = np.random.default_rng(0)
+    wall = rng.integers(40, 90, (h, w, 3), dtype=np.uint8)
+    yy, xx = np.mgrid[:h, :w]
+    intr = Intrinsics(fx=150.0, fy=150.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+    frames = []
+    for k, (u, v) in enumerate(path):
+        color = wall.copy()
+        d = None if depth is None else depth[0].copy()
+        truth = None
+        if np.isfinite(u):
+            disc = (xx - u) ** 2 + (yy - v) ** 2 <= 81
+            color[disc] = SKIN
+            if d is not None:
+                d[disc] = depth[1]
+            truth = PalmPoint(float(u), float(v))
+        frames.append(Frame(start_ns + k * 33_333_333, k, color, d, intr, ground_truth=truth))
+    return frames
+
+
+def circle(n, *, leave=None):
+    t = np.arange(n)
+    path = np.stack([80 + 40 * np.cos(2 * np.pi * t / 60), 60 + 30 * np.sin(2 * np.pi * t / 60)], 1)
+    if leave is not None:
+        path[leave] = np.nan
+    return path
+
+
+def errors(results, frames):
+    out = []
+    for r, f in zip(results, frames):
+        if r.estimate is not None and f.ground_truth is not None:
+            out.append(math.hypot(r.estimate.u - f.ground_truth.u, r.estimate.v - f.ground_truth.v))
+    return np.array(out)
+
+
+def test_acquisition_without_skeleton_or_prior():
+    frames = disc_frames(circle(60))
+    results = list(track(frames, TrackConfig(cues=("skin_rgb",), background_mode="median")))
+    assert results[0].estimate is not None and results[0].state == "tracking"
+    e = errors(results, frames)
+    assert len(e) == 60 and np.median(e) < 2.0
+
+
+def test_a_palm_that_leaves_is_lost_and_found_again():
+    frames = disc_frames(circle(90, leave=slice(30, 55)))
+    config = TrackConfig(cues=("skin_rgb",), silent_frames=5)
+    results = list(track(frames, config))
+    states = [r.state for r in results]
+    assert states[:30] == ["tracking"] * 30
+    assert states[30:35] == ["tracking"] * 5  # coasting while the cue is silent
+    assert set(states[36:55]) == {"lost"} and all(r.estimate is None for r in results[36:55])
+    assert states[55] == "tracking" and set(states[55:]) == {"tracking"}
+    w, h = SIZE
+    for r in results:
+        if r.estimate is not None:
+            assert -0.5 <= r.estimate.u <= w - 0.5 and -0.5 <= r.estimate.v <= h - 0.5
+    after = errors(results[55:], frames[55:])
+    assert len(after) == 35 and after.max() < 3.0
+
+
+def test_sample_without_skeleton_tracks_nearly_as_well():
+    src = SynthSource(frames=90, seed=2, size=(320, 200), background_frames=10, depth_model="basic")
+    frames = list(src)
+    bare = [dataclasses.replace(f, joints=None) for f in frames]
+    config = TrackConfig()
+    with_skeleton = list(track(frames, config))
+    without = list(track(bare, config))
+    person = [f for f in frames if not f.background]
+    e_with = errors([r for r in with_skeleton if not r.background], person)
+    e_without = errors([r for r in without if not r.background], person)
+    assert len(e_without) >= 0.95 * sum(f.ground_truth is not None for f in person)
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    assert rms(e_without) < 2.0 * rms(e_with), (rms(e_without), rms(e_with))
+
+
+@pytest.mark.parametrize("mode", ["adaptive", "median"])
+def test_no_empty_scene_the_hand_in_view_from_the_first_frame(mode):
+    frames = list(SynthSource(frames=80, seed=4, size=(320, 200), background_frames=0, depth_model="basic"))
+    results = list(track(frames, TrackConfig(background_mode=mode)))
+    e = errors(results, frames)
+    assert len(e) >= 0.95 * sum(f.ground_truth is not None for f in frames)
+    assert np.median(e) < 5.0
+
+
+def test_depth_cue_sees_a_hand_in_front_of_an_invalid_background():
+    w, h = SIZE
+    wall = np.zeros((h, w), np.uint16)  # out of range: no depth anywhere behind the hand
+    wall[:10] = 2500
+    frames = disc_frames(circle(30), depth=(wall, 600))
+    grey = [dataclasses.replace(f, color=np.full_like(f.color, 60)) for f in frames]  # colour gives nothing
+    found = list(track(grey, TrackConfig(cues=("depth",), background_mode="median")))
+    e = errors(found, frames)
+    assert len(e) == 30 and np.median(e) < 2.0
+    paper = TrackConfig(cues=("depth",), background_mode="median", cue_options=CueOptions(depth_invalid_far=False))
+    assert all(r.estimate is None for r in track(grey, paper))
+
+
+def test_init_starts_the_filter_at_the_given_point():
+    frames = disc_frames(circle(10))
+    first = next(iter(track(frames, TrackConfig(cues=("skin_rgb",), init=(120.0, 60.0), particles=500))))
+    assert math.hypot(first.estimate.u - 120.0, first.estimate.v - 60.0) < 5.0
