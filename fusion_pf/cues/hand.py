@@ -46,6 +46,7 @@ the anchors computed here with its ``generate_handtracker_anchors``.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -54,7 +55,8 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .base import Measurement
+from ..frame import HandObservation
+from .base import CueResult, Measurement
 
 #: Landmark indices of the wrist and the four finger bases (index, middle, ring, little MCP).
 PALM_JOINTS = (0, 5, 9, 13, 17)
@@ -67,38 +69,6 @@ LANDMARK_INPUT = 224  # landmark model input side, px
 PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
 MODES = ("detect", "track", "hint")
-
-
-@dataclass(frozen=True)
-class HandObservation:
-    """One hand seen by the landmark model.
-
-    Parameters
-    ----------
-    landmarks : ndarray, shape (21, 3), float64
-        MediaPipe hand landmarks ``(u, v, z)`` in full-frame pixels (``z``:
-        depth relative to the wrist, in pixel units, smaller = nearer).
-    score : float
-        Hand presence score of the landmark model, in [0, 1].
-    handedness : str or None
-        ``"right"`` or ``"left"``: the person's hand in an unmirrored image
-        (MediaPipe's own label assumes a mirrored selfie image and is the opposite).
-    """
-
-    landmarks: np.ndarray
-    score: float
-    handedness: str | None
-
-    def __post_init__(self) -> None:
-        lm = np.asarray(self.landmarks, dtype=np.float64)
-        if lm.shape != (21, 3):
-            raise InputError(f"hand landmarks must have shape (21, 3), got {lm.shape}")
-        object.__setattr__(self, "landmarks", lm)
-
-    @property
-    def palm(self) -> np.ndarray:
-        """Palm centre ``(2,)`` ``[u, v]``: mean of landmarks 0, 5, 9, 13, 17."""
-        return self.landmarks[list(PALM_JOINTS), :2].mean(axis=0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -529,3 +499,60 @@ class HandLandmarker:
             raise InputError(f"roi_hint must be finite (u, v, size) with size > 0, got {roi_hint!r}")
         rot = landmarks_roi(previous.landmarks).rotation if previous is not None else 0.0
         return HandRoi(u, v, size, rot)
+
+
+class HandCue:
+    """The learned hand cue as a :class:`~fusion_pf.cues.base.Cue` (source ``"hand"``).
+
+    When the frame carries hands from the camera (``Frame.hands``: the OAK's
+    on-device palm detection and landmarks, recorded on ``/hand/landmarks``),
+    those are the measurement, so a replay gives what the device saw: the hand
+    nearest the prior (the most confident without one). Otherwise
+    :class:`HandLandmarker` runs on the host in MediaPipe's video mode: the
+    previous landmarks' ROI, then a window around the prior (the filter's
+    prediction, sized like the cue window), then whole-frame palm detection.
+
+    Parameters
+    ----------
+    landmarker : HandLandmarker, optional
+        Default: a new one with its defaults.
+    """
+
+    #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
+    needs = frozenset({"color"})
+    name = "hand"
+
+    def __init__(self, landmarker: HandLandmarker | None = None) -> None:
+        self._landmarker = landmarker
+        self.previous: HandObservation | None = None
+
+    @property
+    def landmarker(self) -> HandLandmarker:
+        """The host landmarker (built on first use: camera-recorded hands need none)."""
+        if self._landmarker is None:
+            self._landmarker = HandLandmarker()
+        return self._landmarker
+
+    def reset(self) -> None:
+        """Forget the tracked hand."""
+        self.previous = None
+
+    def measure(self, frame, ctx) -> CueResult:
+        """The palm centre of the tracked hand in ``frame`` (None when no hand is seen)."""
+        t0 = time.perf_counter_ns()
+        if frame.hands is not None:
+            if not frame.hands:
+                return CueResult(None, {}, time.perf_counter_ns() - t0)
+            if ctx.prior is not None:
+                obs = min(frame.hands, key=lambda h: float(np.hypot(*(h.palm - np.asarray(ctx.prior)))))
+            else:
+                obs = max(frame.hands, key=lambda h: h.score)
+            return CueResult(hand_measurement(obs, "detect"), {}, time.perf_counter_ns() - t0)
+        hint = None
+        roi = ctx.roi
+        if ctx.prior is not None and roi is not None and not ctx.search:
+            hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
+        obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+        self.previous = obs
+        m = None if obs is None else hand_measurement(obs, mode)
+        return CueResult(m, {}, time.perf_counter_ns() - t0)

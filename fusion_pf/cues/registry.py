@@ -22,6 +22,7 @@ from ..options import option, parse_tuple, validate
 from .base import Cue
 from .colour import ColourCue
 from .depth import DepthCue
+from .hand import HandCue
 from .skeleton import SkeletonCue
 from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
 
@@ -122,6 +123,11 @@ def _depth(o: CueOptions) -> Cue:
 @register("skeleton", SkeletonCue.needs, "the camera's skeleton joint (paper 003's K)")
 def _skeleton(o: CueOptions) -> Cue:
     return SkeletonCue()
+
+
+@register("hand", HandCue.needs, "learned palm detector + hand landmarks (MediaPipe models on LiteRT), or the camera's")
+def _hand(o: CueOptions) -> Cue:
+    return HandCue()
 
 
 @register("skin_rgb", SkinCue.needs, "paper 002 eq. 4: explicit RGB skin rule")

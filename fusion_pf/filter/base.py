@@ -34,6 +34,11 @@ class Tracker(abc.ABC):
         """
 
     noise_px: dict[str, float]
+    process_noise: tuple[float, float]
+
+    @abc.abstractmethod
+    def set_process_noise(self, process_noise: tuple[float, float]) -> None:
+        """Change the process noise ``(pos px, vel px/frame)`` from the next step on."""
 
     def set_noise(self, source: str, sigma_px: float) -> None:
         """Change the measurement noise of ``source`` from the next step on (sigma in px, > 0)."""

@@ -75,6 +75,10 @@ class KalmanFilter(Tracker):
         self.frame_period_ns = self._clock.frame_period_ns
         self.reset()
 
+    def set_process_noise(self, process_noise: tuple[float, float]) -> None:
+        """Change the process noise ``(pos px, vel px/frame)`` from the next step on."""
+        self.process_noise = check_process_noise(process_noise)
+
     def reset(self, prior=None) -> None:
         """Forget the state; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
         constructor's prior, if any) or from the next measurement."""

@@ -206,6 +206,11 @@ class ParticleFilter(Tracker):
         """Normalised weights of :attr:`particles`, shape (N,) (a view)."""
         return self._w
 
+    def set_process_noise(self, process_noise: tuple[float, float]) -> None:
+        """Change the eq. 4 noise ``(pos px, vel px/frame)`` from the next step on."""
+        self.process_noise = check_process_noise(process_noise)
+        self._std_unit = noise_std(self.process_noise, 1.0)
+
     def reset(self, prior=None) -> None:
         """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
         constructor's prior, if any) or from the next measurement."""

@@ -52,7 +52,7 @@ from fusion_pf.rng import as_rng
 from .base import Estimate, Tracker
 from .estimate import weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
-from .motion import FrameClock, check_process_noise, noise_std
+from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std
 from .multi import MultiEstimate, TargetEstimate, _check_measurements, _check_targets, cluster_spread, membership
 from .pf import check_prior, check_timestamp, fused_position
 from .resample import systematic
@@ -282,7 +282,7 @@ class ScatterSearchPF(Tracker):
         *,
         n_particles: int = 100,
         refset_size: int = 6,
-        process_noise: tuple[float, float] = (3.0, 1.0),
+        process_noise: tuple[float, float] = DEFAULT_PROCESS_NOISE,
         noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
         step_px: float = 4.0,
         min_step_px: float = 0.5,
@@ -299,6 +299,7 @@ class ScatterSearchPF(Tracker):
             init_velocity_px=init_velocity_px, rng=rng,
         )
         self.n_particles = self._core.n
+        self.process_noise = check_process_noise(process_noise)
         self._like = JointLikelihood(noise_px)
         self.noise_px = self._like.noise_px
         self.prior = check_prior(prior)
@@ -320,8 +321,15 @@ class ScatterSearchPF(Tracker):
         """Fitness evaluations since construction."""
         return self._core.total_evaluations
 
-    def reset(self) -> None:
-        """Forget the particles; re-initialise from ``prior`` or the next measurement."""
+    def set_process_noise(self, process_noise: tuple[float, float]) -> None:
+        """Change the process noise ``(pos px, vel px/frame)`` from the next step on."""
+        self.process_noise = check_process_noise(process_noise)
+        self._core.std_unit = noise_std(self.process_noise, 1.0)
+
+    def reset(self, prior=None) -> None:
+        """Forget the particles; re-initialise at ``prior`` (else the constructor's) or from the next measurement."""
+        if prior is not None:
+            self.prior = check_prior(prior)
         self._last_ns: int | None = None
         self._core.x = None
         self.initialised = False
@@ -385,7 +393,7 @@ class JointScatterSearchPF:
         *,
         n_particles: int = 100,
         refset_size: int = 6,
-        process_noise: tuple[float, float] = (3.0, 1.0),
+        process_noise: tuple[float, float] = DEFAULT_PROCESS_NOISE,
         noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
         step_px: float = 4.0,
         min_step_px: float = 0.5,
@@ -402,6 +410,7 @@ class JointScatterSearchPF:
             init_velocity_px=init_velocity_px, rng=rng,
         )
         self.n_particles = self._core.n
+        self.process_noise = check_process_noise(process_noise)
         self._like = JointLikelihood(noise_px)
         self.noise_px = self._like.noise_px
         self._fsm = TrackStateMachine(self.targets, states or StateConfig())

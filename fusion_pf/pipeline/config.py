@@ -167,8 +167,8 @@ class TrackConfig:
                                help="scale --noise, --process-noise and the window without depth with the image "
                                     "diagonal: the values are px at 320x200")
     adapt_noise: bool = option(True, kind="bool",
-                               help="learn each cue's noise online from its innovations (|cue - prediction|), "
-                                    "between a quarter and four times its --noise")
+                               help="learn each cue's noise online (its spread around the most trusted cue, between "
+                                    "a quarter and four times --noise) and widen the process noise for fast motion")
     silent_frames: int = option(15, kind="int", lo=1, hi=100_000, metavar="K",
                                 help="the track is lost after K frames in which no fused cue measured anything")
     max_spread: float = option(0.2, kind="float", lo=0.001, hi=10.0, unit="of the image diagonal",

@@ -109,8 +109,10 @@ REFERENCE_SIZE = (320, 200)
 STATES = (TrackState.UNINITIALISED.value, TrackState.TRACKING.value, TrackState.LOST.value)
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
-#: Weight of one frame in the online noise estimate (a time constant of 20 frames).
+#: Weight of one frame in the online measurement-noise estimate (a time constant of 20 frames).
 NOISE_RATE = 0.05
+#: Weight of one frame in the online process-noise estimate (a time constant of 5 frames).
+MOTION_RATE = 0.2
 
 
 def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
@@ -437,6 +439,8 @@ class _FilterStage:
         self.tracker = make_tracker(self.config, self.rng, size)
         self._base = dict(self.tracker.noise_px)
         self._var = {s: v * v for s, v in self._base.items()}
+        self._process = self.tracker.process_noise
+        self._q_scale, self._eps = 1.0, 1.0
         diag = math.hypot(*size)
         self.states = StateConfig(max_spread_px=self.config.max_spread * diag, min_likelihood=0.0,
                                   silent_frames=self.config.silent_frames, degraded_frames=DEGRADED_FRAMES,
@@ -460,16 +464,41 @@ class _FilterStage:
         k = (timestamp_ns - t1) / (t1 - t0)
         return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
 
-    def _adapt(self, ms: Sequence[Measurement], predicted: tuple[float, float]) -> None:
-        """Learn each cue's noise from its innovation ``z - x_pred`` (exponential average, bounded influence)."""
+    def _adapt(self, ms: Sequence[Measurement], predicted: tuple[float, float] | None) -> None:
+        """Learn the cues' noise and the motion's process noise online (exponential averages, rate :data:`NOISE_RATE`).
+
+        Measurement noise, relative to the most trusted cue of the frame
+        (smallest default noise): ``var(z_s - z_ref) = sigma_s^2 + sigma_ref^2`` per
+        axis, so ``sigma_s^2 = E|z_s - z_ref|^2 / 2 - sigma_ref^2``, kept in
+        ``[(base / 4)^2, (4 base)^2]``; a biased or wandering cue (a forearm
+        blob, a face) is trusted less in this recording, an exact one more.
+        Process noise: the normalised innovation of the reference cue,
+        ``eps = |z_ref - x_pred|^2 / (2 (sigma_ref^2 + q^2))``; its average scales
+        the configured process noise by ``sqrt(eps)`` in [1, 20], so fast hands
+        widen the motion model and slow ones keep the configured one.
+        """
+        if not ms:
+            return
+        ref = min(ms, key=lambda m: self._base[m.source])
+        var_ref = self._var[ref.source]
         for m in ms:
+            if m is ref:
+                continue
             base, var = self._base[m.source], self._var[m.source]
-            # per-axis innovation variance, winsorised at 3 sigma: one outlier moves sigma by a bounded step
-            sample = min(((m.u - predicted[0]) ** 2 + (m.v - predicted[1]) ** 2) / 2.0, 9.0 * var)
-            # sigma^2 <- (1 - a) sigma^2 + a e^2, kept in [(base / 4)^2, (4 base)^2]
+            # per-axis variance of the difference to the reference, winsorised at 3 sigma
+            sample = min(((m.u - ref.u) ** 2 + (m.v - ref.v) ** 2) / 2.0 - var_ref, 9.0 * var)
+            # sigma_s^2 <- (1 - a) sigma_s^2 + a (|z_s - z_ref|^2 / 2 - sigma_ref^2), bounded
             var = min(max((1.0 - NOISE_RATE) * var + NOISE_RATE * sample, base * base / 16.0), 16.0 * base * base)
             self._var[m.source] = var
             self.tracker.set_noise(m.source, math.sqrt(var))
+        if predicted is None:
+            return
+        q2 = self._process[0] ** 2 * self._q_scale**2
+        eps = ((ref.u - predicted[0]) ** 2 + (ref.v - predicted[1]) ** 2) / (2.0 * (var_ref + q2))
+        # eps_bar <- (1 - a) eps_bar + a eps; process noise x sqrt(eps_bar) in [1, 20]
+        self._eps = (1.0 - MOTION_RATE) * self._eps + MOTION_RATE * min(eps, 400.0)
+        self._q_scale = min(max(math.sqrt(self._eps), 1.0), 20.0)
+        self.tracker.set_process_noise((self._process[0] * self._q_scale, self._process[1] * self._q_scale))
 
     def _trust(self, m: Measurement) -> float:
         # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
@@ -483,9 +512,8 @@ class _FilterStage:
             self._start(size)
         tracker = self.tracker
         ms = row.measurements(self.sources)
-        predicted = self.prediction(row.timestamp_ns) if self.config.adapt_noise and len(self._history) == 2 else None
-        if predicted is not None:
-            self._adapt(ms, predicted)
+        if self.config.adapt_noise:
+            self._adapt(ms, self.prediction(row.timestamp_ns) if len(self._history) == 2 else None)
         if not tracker.initialised and (ms or self.init is not None):
             best = min(ms, key=self._trust) if ms else None
             tracker.reset(prior=self.init if self.init is not None else (best.u, best.v))
