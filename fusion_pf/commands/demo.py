@@ -72,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
     from drivers.tracker_topics import read_topic
     from fusion_pf.errors import InputError
     from fusion_pf.experiments import parse_counts, run_sweep
+    from fusion_pf.frame import SOURCES
     from fusion_pf.options import parse_pairs
-    from fusion_pf.pipeline import TrackConfig, TrackCsv, cue_names, track
+    from fusion_pf.pipeline import TrackConfig, TrackCsv, track
     from fusion_pf.score.evaluate import evaluate, markdown, write_report
     from fusion_pf.score.inputs import align, read_ground_truth
 
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {args.out} is a file; expected a directory")
     recording = find_sample(args.recording)
     cue_noise = parse_pairs(args.cue_noise) if args.cue_noise else {}
-    config = TrackConfig(particles=args.particles, seed=args.seed, cue_noise_px=cue_noise)
+    config = TrackConfig(cues=SOURCES, particles=args.particles, seed=args.seed, cue_noise_px=cue_noise)
     reference = read_ground_truth(recording, read_topic)
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"demo: tracking {recording} -> {tracked}", file=log)
     with open_source(str(recording)) as src:
         frames = list(tqdm(src, total=len(src), desc="decode", **bar))
-    with TrackCsv(tracked, latency=True, sources=cue_names(config)) as table:
+    with TrackCsv(tracked, latency=True, sources=SOURCES) as table:
         for result in track(tqdm(frames, desc="track", **bar), config):
             table.write(result)
     ev = evaluate(tracked, reference)

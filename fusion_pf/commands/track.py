@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.tracker_topics import TrackerTopics
     from fusion_pf.errors import InputError
     from fusion_pf.geometry import write_roi_ply
-    from fusion_pf.pipeline import STATES, TrackCsv, TrackStats, cue_names, track
+    from fusion_pf.pipeline import STATES, TrackCsv, TrackStats, track
     from fusion_pf.signals import sigint_deferred
 
     config = config_from_args(args)
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         recorder = stack.enter_context(McapRecorder(args.output, **options))
         table = None
         if args.csv is not None:
-            table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=cue_names(config)))
+            table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
         total = len(src) if isinstance(src, ReplaySource) else None
         bar = stack.enter_context(
             tqdm(total=total, unit="frame", desc=src.describe(), disable=True if args.no_progress else None, file=sys.stderr)

@@ -3,8 +3,8 @@
 ``fusion-pf track``, ``cues``, ``score --sweep`` and ``demo`` build their cues
 here, from one :class:`CueOptions`, so a threshold tuned with ``fusion-pf cues``
 is the threshold ``track`` uses. Each registered cue says what it needs from a
-frame (:data:`~fusion_pf.cues.base.NEEDS`); :func:`default_cues` picks the
-cues a recording can feed.
+frame (:data:`~fusion_pf.cues.base.NEEDS`); the pipeline picks the cues a
+recording can feed (:func:`fusion_pf.pipeline.cue_names`).
 
 A new cue is a class with the :class:`~fusion_pf.cues.base.Cue` members plus a
 :func:`register` call naming its builder.
@@ -26,7 +26,7 @@ from .hand import HandCue
 from .skeleton import SkeletonCue
 from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
 
-__all__ = ["CUES", "CueInfo", "CueOptions", "build_cue", "build_cues", "check_cue_names", "default_cues", "register"]
+__all__ = ["CUES", "CueInfo", "CueOptions", "build_cue", "build_cues", "check_cue_names", "register"]
 
 
 def _default(cls: type, name: str):
@@ -166,9 +166,3 @@ def build_cues(names: Iterable[str], options: CueOptions | None = None) -> dict[
     """New instances of the cues ``names``, by name, in that order."""
     options = options or CueOptions()
     return {n: CUES[n].build(options) for n in check_cue_names(names)}
-
-
-def default_cues(has: Iterable[str]) -> tuple[str, ...]:
-    """The paper's cues a recording can feed, given the frame parts it ``has`` (:data:`NEEDS`)."""
-    parts = set(has)
-    return tuple(n for n in ("colour", "depth", "skeleton") if CUES[n].needs <= parts)

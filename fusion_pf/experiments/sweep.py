@@ -121,7 +121,13 @@ def _run_job(frames: Sequence[Frame], config: TrackConfig, background: Backgroun
     """Track ``frames`` with ``config``; the points of the tracked frames and the wall time."""
     t0 = time.perf_counter()
     results = [r for r in track(frames, config, background=background) if not r.background]
-    return result_points(results, cue_names(config)), time.perf_counter() - t0
+    return result_points(results, sweep_sources(frames, config)), time.perf_counter() - t0
+
+
+def sweep_sources(frames: Sequence[Frame], config: TrackConfig) -> tuple[str, ...]:
+    """The cues every job computes (those of the first tracked frame)."""
+    first = next((f for f in frames if not f.background), None)
+    return cue_names(config, first)
 
 
 @dataclass(frozen=True)
@@ -248,7 +254,7 @@ def run_sweep(
         raise InputError(f"reference must have shape ({n}, 2) (one row per tracked frame), got {reference.shape}")
     for c in counts:
         job_config(config, seed, c, 0)
-    sources = (*cue_names(config), "fused")
+    sources = (*sweep_sources(frames, config), "fused")
     jobs = [(c, r) for c in range(len(counts)) for r in range(runs)]
     points = np.full((len(counts), runs, len(sources), n, 2), np.nan)
     seconds = np.zeros((len(counts), runs))

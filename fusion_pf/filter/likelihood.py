@@ -55,10 +55,11 @@ __all__ = [
 #: joint is biased 15-70 px during occlusion, which the robust likelihood
 #: absorbs. The skin cues share the colour cue's forearm bias and take its value.
 #: The learned hand cue is the most precise source on real frames: 6 px RMSE on
-#: 256 x 256 hand crops (hand-graph-cnn dev frames 477-582), ~1.5 px at 320 x 200.
+#: 256 x 256 hand crops (hand-graph-cnn dev frames 477-582); 1.5 px (at 320 x
+#: 200, so 1.44 px there) was the best of {1, 1.5, 2, 3} on those frames.
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0, "depth": 4.0, "skeleton": 20.0, "skin_rgb": 12.0, "skin_rg": 12.0, "skin_lab": 12.0,
-    "hand": 3.0,
+    "hand": 1.5,
 }
 
 #: Area of the robust likelihood's uniform outlier density: a 1280 x 800 frame.

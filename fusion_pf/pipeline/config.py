@@ -15,7 +15,6 @@ from ..cues.registry import CUES, CueOptions, check_cue_names
 from ..errors import InputError
 from ..filter.likelihood import DEFAULT_NOISE_PX, LIKELIHOODS
 from ..filter.motion import DEFAULT_PROCESS_NOISE
-from ..frame import SOURCES
 from ..geometry import DEFAULT_DEPTH_RADIUS
 from ..options import option, parse_pairs, parse_tuple, validate
 
@@ -123,7 +122,8 @@ class TrackConfig:
     joint: str = option("right_hand", kind="str", metavar="NAME", help="skeleton joint used as the skeleton cue and ROI prior")
     cues: tuple[str, ...] | None = option(
         None, optional=True, parse=_names, check=_check_names, metavar="CUE,...",
-        show=lambda v: ",".join(SOURCES),
+        show=lambda v: "auto: colour,depth,skeleton (paper 003) on a recording with a skeleton and no camera "
+                       "hands; else hand plus depth and skeleton where the recording has them",
         help=f"cues to compute, among {', '.join(CUES)}")
     sources: tuple[str, ...] | None = option(
         None, optional=True, parse=_names, check=_check_names, metavar="SRC,...", show=lambda v: "all cues",
@@ -166,9 +166,15 @@ class TrackConfig:
     scale_noise: bool = option(True, kind="bool",
                                help="scale --noise, --process-noise and the window without depth with the image "
                                     "diagonal: the values are px at 320x200")
-    adapt_noise: bool = option(True, kind="bool",
+    adapt_noise: bool = option(False, kind="bool",
                                help="learn each cue's noise online (its spread around the most trusted cue, between "
-                                    "a quarter and four times --noise) and widen the process noise for fast motion")
+                                    "a quarter and four times --noise) and widen the process noise for fast motion; "
+                                    "off by default: it did not lower the error on the sample, the realistic "
+                                    "synthetic scenes or the real development frames")
+    jump_sigmas: float = option(8.0, kind="float", lo=1.0, hi=1000.0, unit="sigmas",
+                                help="restart the filter at a confident cue (quality >= 0.8) that lies farther than "
+                                     "this many of its noise plus the posterior spread from the prediction "
+                                     "(a hand faster than the motion model)")
     silent_frames: int = option(15, kind="int", lo=1, hi=100_000, metavar="K",
                                 help="the track is lost after K frames in which no fused cue measured anything")
     max_spread: float = option(0.2, kind="float", lo=0.001, hi=10.0, unit="of the image diagonal",

@@ -59,21 +59,23 @@ class TrackCsv:
     path : str or Path
     latency : bool
         Fill the ``latency_*_ms`` columns.
-    sources : sequence of str
-        The computed cues (:func:`~fusion_pf.pipeline.run.cue_names`).
+    sources : sequence of str or None
+        The computed cues (:func:`~fusion_pf.pipeline.run.cue_names`); None:
+        those of the first tracked frame (the header is written then).
     """
 
-    def __init__(self, path: str | Path, *, latency: bool = False, sources: Sequence[str] = SOURCES) -> None:
+    def __init__(self, path: str | Path, *, latency: bool = False, sources: Sequence[str] | None = SOURCES) -> None:
         self.path = Path(path)
         self.latency = bool(latency)
-        self.sources = tuple(sources)
+        self.sources = None if sources is None else tuple(sources)
         self._fh: IO[str] | None = None
         self.rows = 0
 
     def __enter__(self) -> "TrackCsv":
         self._fh = open(self.path, "w", newline="", encoding="ascii")
         self._writer = csv.writer(self._fh, lineterminator="\n")
-        self._writer.writerow(csv_columns(self.sources))
+        if self.sources is not None:
+            self._writer.writerow(csv_columns(self.sources))
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -87,6 +89,9 @@ class TrackCsv:
             return
         if self._fh is None:
             raise InputError(f"CSV {self.path} is not open; use TrackCsv inside a 'with' block")
+        if self.sources is None:
+            self.sources = tuple(result.cues)
+            self._writer.writerow(csv_columns(self.sources))
         self._writer.writerow(csv_row(result, latency=self.latency, sources=self.sources))
         self._fh.flush()
         self.rows += 1

@@ -113,6 +113,9 @@ DEGRADED_FRAMES = 3
 NOISE_RATE = 0.05
 #: Weight of one frame in the online process-noise estimate (a time constant of 5 frames).
 MOTION_RATE = 0.2
+#: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
+#: the hand cue's presence score is 0.9-1.0 on a visible hand.
+JUMP_MIN_QUALITY = 0.8
 
 
 def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
@@ -122,9 +125,20 @@ def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
     return math.hypot(*size) / math.hypot(*REFERENCE_SIZE)
 
 
-def cue_names(config: TrackConfig) -> tuple[str, ...]:
-    """The cues ``config`` computes: ``config.cues``, or the paper's colour, depth and skeleton."""
-    return config.cues if config.cues is not None else SOURCES
+def cue_names(config: TrackConfig, frame: Frame | None = None) -> tuple[str, ...]:
+    """The cues ``config`` computes on a recording whose first tracked frame is ``frame``.
+
+    ``config.cues`` when given. Otherwise (auto): on a recording with a
+    skeleton and no camera hands, the paper's colour, depth and skeleton (paper
+    003's setting, a body-tracking camera); else the learned ``hand`` cue plus
+    ``depth`` and ``skeleton`` where the recording has them. Without a frame
+    (nothing seen yet) the auto choice is the paper's.
+    """
+    if config.cues is not None:
+        return config.cues
+    if frame is None or (frame.joints is not None and frame.hands is None):
+        return SOURCES
+    return ("hand", *(("depth",) if frame.depth is not None else ()), *(("skeleton",) if frame.joints is not None else ()))
 
 
 def stages(cues: Sequence[str]) -> tuple[str, ...]:
@@ -305,8 +319,8 @@ class _CueStage:
 
     def __init__(self, config: TrackConfig) -> None:
         self.config = config
-        self.names = cue_names(config)
-        self.cues = build_cues(self.names, config.cue_options)
+        self.names: tuple[str, ...] = config.cues or ()
+        self.cues = None if config.cues is None else build_cues(self.names, config.cue_options)
         self.last_joint: tuple[float, float] | None = None
         self.noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1,)))
 
@@ -341,6 +355,9 @@ class _CueStage:
         self, index: int, frame: Frame, decode_ns: int, model: BackgroundModel | None, prior: tuple[float, float] | None
     ) -> CueRow:
         """All cues of one frame: in the window around ``prior``, or over the whole frame without one (acquisition)."""
+        if self.cues is None:
+            self.names = cue_names(self.config, frame)
+            self.cues = build_cues(self.names, self.config.cue_options)
         lat = {"decode": decode_ns}
         search = prior is None
         if search:
@@ -425,13 +442,15 @@ class _FilterStage:
         self.config = config
         self.rng = rng
         self.tracker: Tracker | None = None
-        self.sources = config.sources if config.sources is not None else cue_names(config)
+        self.sources = config.sources
         self._history: list[tuple[int, float, float]] = []
         self.status = TrackStatus()
         self.states: StateConfig | None = None
         self.init = config.init
         self.reacquisitions = 0
         self.losses = 0
+        self.jumps = 0
+        self._spread: float | None = None
         self._base: dict[str, float] = {}
         self._var: dict[str, float] = {}
 
@@ -500,6 +519,14 @@ class _FilterStage:
         self._q_scale = min(max(math.sqrt(self._eps), 1.0), 20.0)
         self.tracker.set_process_noise((self._process[0] * self._q_scale, self._process[1] * self._q_scale))
 
+    def _jumped(self, m: Measurement, timestamp_ns: int) -> bool:
+        """Whether a confident cue lies beyond the prediction's reach (``config.jump_sigmas`` of its noise plus the spread)."""
+        predicted = self.prediction(timestamp_ns)
+        if predicted is None or m.quality < JUMP_MIN_QUALITY or self._spread is None:
+            return False
+        reach = self.config.jump_sigmas * (math.sqrt(self._var[m.source]) + self._spread)
+        return math.hypot(m.u - predicted[0], m.v - predicted[1]) > reach
+
     def _trust(self, m: Measurement) -> float:
         # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
         return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
@@ -511,16 +538,20 @@ class _FilterStage:
         if self.tracker is None:
             self._start(size)
         tracker = self.tracker
-        ms = row.measurements(self.sources)
+        ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
         if self.config.adapt_noise:
             self._adapt(ms, self.prediction(row.timestamp_ns) if len(self._history) == 2 else None)
+        best = min(ms, key=self._trust) if ms else None
+        if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
+            tracker.reset(prior=(best.u, best.v))  # the palm moved beyond the motion model: restart at the cue
+            self.jumps += 1
         if not tracker.initialised and (ms or self.init is not None):
-            best = min(ms, key=self._trust) if ms else None
             tracker.reset(prior=self.init if self.init is not None else (best.u, best.v))
         self.init = None
         estimate = tracker.step(row.timestamp_ns, ms)
         cov = None if estimate is None else estimate.cov
         spread = math.nan if cov is None else math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))
+        self._spread = None if cov is None else spread
         position = None if estimate is None else (estimate.u, estimate.v)
         before = self.status.state
         self.status = step_state(self.status, Evidence(position, spread_px=spread, cues=len(ms)), self.states)
@@ -700,7 +731,7 @@ def run_filter(
             out.append(_background_result(row))
             continue
         result = filt(row)
-        result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(cue_names(config))[:-1])
+        result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(tuple(row.cues))[:-1])
         out.append(result)
     return out
 
