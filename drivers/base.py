@@ -28,10 +28,14 @@ finalised on close, so a file is valid whatever stopped the source.
 from __future__ import annotations
 
 import abc
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from fusion_pf.frame import Frame
+
+_SourceT = TypeVar("_SourceT", bound="Source")
+_SinkT = TypeVar("_SinkT", bound="Sink")
 
 
 @dataclass
@@ -92,7 +96,7 @@ class Source(abc.ABC):
     def _frames(self) -> Iterator[Frame]:
         """Yield frames in capture order (called by ``__iter__``)."""
 
-    def __enter__(self) -> "Source":
+    def __enter__(self: _SourceT) -> _SourceT:
         self.open()
         self._opened = True
         return self
@@ -101,7 +105,7 @@ class Source(abc.ABC):
         self._opened = False
         self.close()
 
-    def __iter__(self) -> Iterator[Frame]:
+    def __iter__(self) -> Generator[Frame, None, None]:
         if not self._opened:
             raise RuntimeError(f"{type(self).__name__} must be used inside a 'with' block")
         for frame in self._frames():
@@ -155,7 +159,7 @@ class Sink(abc.ABC):
     def close(self) -> None:
         """Finalise the output; safe to call twice."""
 
-    def __enter__(self) -> "Sink":
+    def __enter__(self: _SinkT) -> _SinkT:
         self.open()
         return self
 

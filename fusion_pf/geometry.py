@@ -207,6 +207,7 @@ def write_roi_ply(
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(points)
     cloud.colors = o3d.utility.Vector3dVector(colours)
-    if not o3d.io.write_point_cloud(str(path), cloud, write_ascii=False):
+    # open3d >= 0.19 stubs say os.PathLike; every supported version (>= 0.18) takes a str
+    if not o3d.io.write_point_cloud(str(path), cloud, write_ascii=False):  # type: ignore[arg-type]
         raise OSError(f"open3d could not write {path}")
     return len(points)

@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     rows = {}
     for name, res in results.items():
         m = res.measurement
-        row = {"u": None, "v": None, "quality": None, "area": None, "error_px": None,
+        row: dict[str, object] = {"u": None, "v": None, "quality": None, "area": None, "error_px": None,
                "latency_ms": res.latency_ns / 1e6}
         if m is not None:
             row.update(u=m.u, v=m.v, quality=m.quality, area=m.extras.get("area"))

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from drivers import open_source
+    from drivers import ReplaySource, open_source
     from drivers.tracker_topics import read_topic
     from fusion_pf.errors import InputError
     from fusion_pf.experiments import parse_counts, run_sweep
@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     tracked = args.out / "tracked.csv"
     print(f"demo: tracking {recording} -> {tracked}", file=log)
     with open_source(str(recording)) as src:
-        frames = list(tqdm(src, total=len(src), desc="decode", **bar))
+        n_frames = len(src) if isinstance(src, ReplaySource) else None
+        frames = list(tqdm(src, total=n_frames, desc="decode", **bar))
     with TrackCsv(tracked, latency=True, sources=SOURCES) as table:
         for result in track(tqdm(frames, desc="track", **bar), config):
             table.write(result)

@@ -25,6 +25,9 @@ __all__ = ["Estimate", "Measurement", "Tracker", "check_prior", "check_timestamp
 class Tracker(abc.ABC):
     """A recursive palm filter (particle filter or Kalman baseline)."""
 
+    #: Whether the filter holds a state (a prior or a first measurement was given).
+    initialised: bool
+
     @abc.abstractmethod
     def step(self, timestamp_ns: int, measurements: Sequence[Measurement]) -> Estimate | None:
         """Predict to ``timestamp_ns`` and update with ``measurements``.

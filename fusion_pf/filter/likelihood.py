@@ -94,7 +94,7 @@ def check_noise_px(noise_px: Mapping[str, float]) -> dict[str, float]:
 
 def squared_distance(
     positions: np.ndarray,
-    z: Sequence[float],
+    z: Sequence[float] | np.ndarray,
     out: np.ndarray | None = None,
     scratch: np.ndarray | None = None,
 ) -> np.ndarray:
@@ -104,7 +104,7 @@ def squared_distance(
     ----------
     positions : ndarray, shape (N, 2)
         Particle positions ``(u, v)`` (any memory layout).
-    z : (float, float)
+    z : (float, float) or ndarray, shape (2,)
         The cue ``(u, v)``.
     out, scratch : ndarray, shape (N,), optional
         Output and work buffers (preallocate them in a loop).
@@ -332,6 +332,7 @@ class JointLikelihood:
         out.fill(0.0)
         peaks = 0.0
         inlier = False
+        assert self._scratch is not None, "allocated by _buffers"
         for m in measurements:
             ll = self.source_loglik(positions, m, self._scratch)
             peak = float(ll.max())

@@ -172,7 +172,7 @@ class FrameClock:
         if self.frame_period_ns is None or last_ns is None:
             return 1.0
         gap = t - last_ns
-        if self.frame_period_ns != "auto":
+        if not isinstance(self.frame_period_ns, str):  # a number; the only str is "auto"
             # dt = (t_k - t_(k-1)) / period
             return gap / self.frame_period_ns
         self._shortest = gap if self._shortest is None else min(self._shortest, gap)

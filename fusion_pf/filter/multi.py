@@ -259,6 +259,11 @@ def overlap(positions: np.ndarray, radius_px: float) -> np.ndarray:
     return o
 
 
+def _state_floats(x: np.ndarray) -> tuple[float, float, float, float]:
+    """``(u, v, du, dv)`` of a state, shape (4,), as Python floats."""
+    return float(x[0]), float(x[1]), float(x[2]), float(x[3])
+
+
 @dataclass(frozen=True, slots=True)
 class TargetEstimate:
     """One target's estimate in one frame.
@@ -512,7 +517,7 @@ class KMeansParticleFilter:
         states = self._track_states(ms, memb, spread)
         targets = {
             name: TargetEstimate(
-                *(float(c) for c in self._est[k]), state=states[name], membership=float(memb[k]),
+                *_state_floats(self._est[k]), state=states[name], membership=float(memb[k]),
                 spread_px=float(spread[k]), noise_gain=float(self._gain[k]), restarted=bool(restarted[k]),
             )
             for k, name in enumerate(self.targets)

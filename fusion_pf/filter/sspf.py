@@ -53,7 +53,15 @@ from .base import Estimate, Tracker
 from .estimate import weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std
-from .multi import MultiEstimate, TargetEstimate, _check_measurements, _check_targets, cluster_spread, membership
+from .multi import (
+    MultiEstimate,
+    TargetEstimate,
+    _check_measurements,
+    _check_targets,
+    _state_floats,
+    cluster_spread,
+    membership,
+)
 from .pf import check_prior, check_timestamp, fused_position
 from .resample import systematic
 from .states import Evidence, StateConfig, TrackStateMachine
@@ -147,6 +155,7 @@ class ScatterSearchCore:
 
     def predict(self, dt: float) -> None:
         """PREDICT (eq. 5 of paper 002): ``x += dt v``, Gaussian noise ``std * sqrt(dt)``."""
+        assert self.x is not None, "predict() before initialise()"
         self.x[..., :2] += dt * self.x[..., 2:]
         self.x += self.std_unit * math.sqrt(dt) * self.rng.standard_normal(self.x.shape)
 
@@ -216,6 +225,7 @@ class ScatterSearchCore:
         """
         self.evaluations = 0
         x = self.x
+        assert x is not None, "update() before initialise()"
         fit = self.fitness(x, z_bar, precision)
         ref, ref_fit = self.scatter_search(x, fit, z_bar, precision)
         # INCLUDE: the RefSet replaces the worst particles
@@ -309,7 +319,10 @@ class ScatterSearchPF(Tracker):
     @property
     def particles(self) -> np.ndarray:
         """Current particles, shape (N, 4)."""
-        return self._core.x[:, 0]
+        x = self._core.x
+        if x is None:
+            raise RuntimeError("ScatterSearchPF has no particles before it is initialised")
+        return x[:, 0]
 
     @property
     def evaluations(self) -> int:
@@ -327,7 +340,8 @@ class ScatterSearchPF(Tracker):
         self._core.std_unit = noise_std(self.process_noise, 1.0)
 
     def reset(self, prior=None) -> None:
-        """Forget the particles; re-initialise at ``prior`` (else the constructor's) or from the next measurement."""
+        """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
+        constructor's prior, if any) or from the next measurement."""
         if prior is not None:
             self.prior = check_prior(prior)
         self._last_ns: int | None = None
@@ -358,6 +372,7 @@ class ScatterSearchPF(Tracker):
         elif self._last_ns is not None:
             core.predict(self._clock.steps(t, self._last_ns))
         self._last_ns = t
+        assert core.x is not None, "initialised above"
         n = core.n
         if not ms:
             w = np.full(n, 1.0 / n)
@@ -454,6 +469,7 @@ class JointScatterSearchPF:
         elif self._last_ns is not None:
             core.predict(1.0)
         self._last_ns = t
+        assert core.x is not None, "initialised above"
         if (precision > 0).any():
             self._est, _, _ = core.update(z_bar, precision)
         else:
@@ -463,7 +479,7 @@ class JointScatterSearchPF:
         ev = {name: Evidence((float(self._est[k, 0]), float(self._est[k, 1])), spread[k], memb[k], len(ms[k]))
               for k, name in enumerate(self.targets)}
         states = self._fsm.update(ev)
-        out = {name: TargetEstimate(*(float(c) for c in self._est[k]), state=states[name], membership=memb[k],
+        out = {name: TargetEstimate(*_state_floats(self._est[k]), state=states[name], membership=memb[k],
                                     spread_px=spread[k])
                for k, name in enumerate(self.targets)}
         return MultiEstimate(t, out, core.evaluations)

@@ -74,7 +74,10 @@ def read_reference(
     """
     if (reference is None) == (ground_truth is None):
         raise InputError("give exactly one reference: annotations (--reference) or ground truth (--ground-truth)")
-    return read_annotations(reference) if reference is not None else read_ground_truth(ground_truth, read_topic)
+    if reference is not None:
+        return read_annotations(reference)
+    assert ground_truth is not None, "exactly one is given (checked above)"
+    return read_ground_truth(ground_truth, read_topic)
 
 
 def evaluate(

@@ -80,6 +80,20 @@ def test_no_measurement_predicts_and_bad_parameters():
             ScatterSearchPF(**kwargs)
 
 
+def test_reset_with_prior_follows_the_tracker_contract():
+    f = ScatterSearchPF(noise_px=CUE_NOISE, n_particles=10, init_spread_px=1.0, rng=0)
+    with pytest.raises(RuntimeError, match="before it is initialised"):
+        _ = f.particles
+    f.reset(prior=(50.0, 60.0))
+    assert f.initialised
+    np.testing.assert_allclose(f.particles[:, :2].mean(axis=0), (50.0, 60.0), atol=2.0)
+    e = f.step(0, [])
+    assert math.hypot(e.u - 50.0, e.v - 60.0) < 5
+    # a plain reset keeps the prior given last, like ParticleFilter.reset
+    f.reset()
+    assert f.initialised and np.abs(f.particles[:, :2].mean(axis=0) - (50.0, 60.0)).max() < 2.0
+
+
 def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
     core = ScatterSearchCore(3, n_particles=10, refset_size=6, process_noise=(3, 1), step_px=4, min_step_px=0.5,
                              max_rounds=1, init_spread_px=1, init_velocity_px=1, rng=0)

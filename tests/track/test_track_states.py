@@ -91,7 +91,7 @@ def test_sample_without_skeleton_tracks_nearly_as_well():
     e_with = errors([r for r in with_skeleton if not r.background], person)
     e_without = errors([r for r in without if not r.background], person)
     assert len(e_without) >= 0.95 * sum(f.ground_truth is not None for f in person)
-    rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))
     assert rms(e_without) < 2.0 * rms(e_with), (rms(e_without), rms(e_with))
 
 
