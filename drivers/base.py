@@ -34,6 +34,36 @@ from typing import Iterator
 from fusion_pf.frame import Frame
 
 
+@dataclass(frozen=True)
+class FrameLoss:
+    """Frames a source could not deliver, and why (one damaged chunk, one gap, the truncated tail).
+
+    Attributes
+    ----------
+    frames : int or None
+        How many frames were lost; None when the count cannot be known (the
+        frames after the point where a file is truncated).
+    reason : str
+        Why, e.g. ``"chunk at byte 361 is corrupt (chunk CRC mismatch ...)"``.
+    offset : int or None
+        Byte offset of the damage in the file, when there is one.
+    """
+
+    frames: int | None
+    reason: str
+    offset: int | None = None
+
+    def describe(self) -> str:
+        """``"3 frames: <reason>"`` (``"frames of unknown number: ..."`` when the count is unknown)."""
+        if self.frames is None:
+            return f"an unknown number of frames: {self.reason}"
+        return f"{self.frames} frame{'s' if self.frames != 1 else ''}: {self.reason}"
+
+
+#: Losses listed one by one in :meth:`SourceStats.loss_summary`; the rest are counted.
+_LISTED_LOSSES = 4
+
+
 @dataclass
 class SourceStats:
     """What a source yielded and what it lost (filled in while iterating).
@@ -51,6 +81,13 @@ class SourceStats:
         frames a replay had to skip).
     notes : list of str
         Human-readable remarks (e.g. "file truncated after 1.2 s").
+    losses : list of FrameLoss
+        Every frame a replay could not read, grouped by cause (their known
+        counts add up to the replay's share of ``dropped``).
+    skipped_parts : dict of str to int
+        Malformed optional messages left out of yielded frames, by part
+        (``"depth"``, ``"skeleton"``, ``"ground truth"``): the frame was
+        yielded without it.
     """
 
     frames: int = 0
@@ -58,6 +95,35 @@ class SourceStats:
     missing_skeleton: int = 0
     dropped: int = 0
     notes: list[str] = field(default_factory=list)
+    losses: list[FrameLoss] = field(default_factory=list)
+    skipped_parts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def partial(self) -> bool:
+        """True when frames were lost or parts of frames were left out."""
+        return bool(self.dropped or self.losses or any(self.skipped_parts.values()))
+
+    def loss_summary(self) -> str:
+        """One line saying what was lost and why; ``""`` when nothing was.
+
+        Examples
+        --------
+        ``"skipped 12 frames: 8 frames: chunk at byte 361 is corrupt (chunk CRC mismatch); 4 frames:
+        ...; 3 skeleton messages malformed (frames kept without skeleton)"``
+        """
+        parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
+        rest = self.losses[_LISTED_LOSSES:]
+        if rest:
+            known = sum(loss.frames or 0 for loss in rest)
+            parts.append(f"{known} more frames in {len(rest)} other damaged places")
+        for part, n in sorted(self.skipped_parts.items()):
+            if n:
+                parts.append(f"{n} {part} message{'s' if n != 1 else ''} malformed (frames kept without {part})")
+        if not parts and not self.dropped:
+            return ""
+        unknown = any(loss.frames is None for loss in self.losses)
+        head = f"skipped {self.dropped}{'+' if unknown else ''} frame{'s' if self.dropped != 1 else ''}"
+        return f"{head}: " + "; ".join(parts) if parts else head
 
     def count(self, frame: Frame) -> Frame:
         """Count ``frame`` as yielded and return it."""
