@@ -54,10 +54,10 @@ class FrameLoss:
     offset: int | None = None
 
     def describe(self) -> str:
-        """``"3 frames: <reason>"`` (``"frames of unknown number: ..."`` when the count is unknown)."""
+        """``"<reason> (3 frames)"``, or ``"<reason> (number unknown)"``."""
         if self.frames is None:
-            return f"an unknown number of frames: {self.reason}"
-        return f"{self.frames} frame{'s' if self.frames != 1 else ''}: {self.reason}"
+            return f"{self.reason} (number unknown)"
+        return f"{self.reason} ({self.frames} frame{'s' if self.frames != 1 else ''})"
 
 
 #: Losses listed one by one in :meth:`SourceStats.loss_summary`; the rest are counted.
@@ -108,8 +108,9 @@ class SourceStats:
 
         Examples
         --------
-        ``"skipped 12 frames: 8 frames: chunk at byte 361 is corrupt (chunk CRC mismatch); 4 frames:
-        ...; 3 skeleton messages malformed (frames kept without skeleton)"``
+        ``"skipped 12 frames: chunk at byte 361 is corrupt (chunk CRC mismatch ...) (8 frames); ...
+        (4 frames); 3 skeleton messages malformed (frames kept without skeleton)"``; a count that
+        cannot be known (a truncated tail) makes it ``"skipped 12+ frames"``.
         """
         parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
         rest = self.losses[_LISTED_LOSSES:]
@@ -122,7 +123,7 @@ class SourceStats:
         if not parts and not self.dropped:
             return ""
         unknown = any(loss.frames is None for loss in self.losses)
-        head = f"skipped {self.dropped}{'+' if unknown else ''} frame{'s' if self.dropped != 1 else ''}"
+        head = f"skipped {self.dropped}{'+' if unknown else ''} frame{'s' if self.dropped != 1 or unknown else ''}"
         return f"{head}: " + "; ".join(parts) if parts else head
 
     def count(self, frame: Frame) -> Frame:

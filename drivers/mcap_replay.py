@@ -418,7 +418,7 @@ class McapReplay(ReplaySource):
         self._lost: dict[int, tuple[str, int | None]] = {}
         self._bad_parts: dict[str, set[int]] = {}
         self._scan_damage: list[_Damage] = []
-        self._stop: tuple[int, int | None] | None = None
+        self._stop: tuple[int, int | None, tuple[int, int] | None] | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -629,6 +629,7 @@ class McapReplay(ReplaySource):
         color_ids: set[int] = set()
         last_color: list[int] = []
         pos, end_seen, in_summary, stop, stop_at = 8, False, False, "", size
+        cut_hint: tuple[int, int] | None = None
 
         def channel(cur: _Cursor) -> None:
             cid, sid = cur.uint(2), cur.uint(2)
@@ -659,6 +660,8 @@ class McapReplay(ReplaySource):
                     if not in_summary:
                         stop = f"the file ends at byte {size} after {why} at byte {pos}"
                         stop_at = pos
+                        if opcode == _OP_CHUNK:
+                            cut_hint = self._chunk_times(memoryview(os.pread(self._fd, 16, pos + 9)))  # type: ignore[arg-type]
                     break
                 if not in_summary:
                     damage.append(_Damage(pos, f"{nxt - pos} damaged bytes at byte {pos} ({why})",
@@ -724,7 +727,7 @@ class McapReplay(ReplaySource):
         self._counts = {cid: len(t) for cid, t in times.items()}
         self._truncated = not end_seen or reason == "no footer"
         self._scan_damage = damage
-        self._stop = (stop_at, max(last_color) if last_color else None) if not end_seen else None
+        self._stop = (stop_at, max(last_color) if last_color else None, cut_hint) if not end_seen else None
         for d in damage:
             self._notes.append(f"{d.reason}; skipped it")
         if self._truncated:
@@ -776,10 +779,13 @@ class McapReplay(ReplaySource):
             if n != 0:
                 self._scan_losses.append(FrameLoss(n, d.reason, d.offset))
         if stop is not None:
-            at, last = stop
+            at, last, cut = stop
+            if cut is not None and period is not None and (last is None or cut[0] > last):
+                n = int(round((cut[1] - cut[0]) / period)) + 1
+                self._scan_losses.append(FrameLoss(n, f"the chunk at byte {at} is cut off by the end of the file", at))
             after = f" after t={last} ns" if last is not None else ""
             self._scan_losses.append(FrameLoss(
-                None, f"the file is truncated at byte {at}; frames recorded{after} are lost", at))
+                None, f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost", at))
 
     def _topic_times(self, kind: str) -> np.ndarray:
         parts = [self._times[cid] for cid, k in self._kind.items() if k == kind and cid in self._times]
