@@ -63,6 +63,10 @@ BACKGROUND_FRAMES_KEY = "background_frames"
 FORMAT_VERSION_KEY = "format_version"
 #: Name of the MCAP metadata records repeating each calibration outside the chunks (one per change).
 CALIBRATION_METADATA = "fusion_pf.calibration"
+#: Name of the MCAP metadata records repeating each channel outside the chunks (one per channel):
+#: ``id``, ``topic``, ``message_encoding``, ``schema_name``, ``schema_encoding``. A scan of a file
+#: whose first chunk is damaged still knows the channels.
+CHANNEL_METADATA = "fusion_pf.channel"
 #: Version of the convention written by this module.
 FORMAT_VERSION = "1"
 #: ``frame_id`` written into every Foxglove message.

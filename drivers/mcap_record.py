@@ -4,7 +4,9 @@ Every frame becomes up to five messages (calibration when it changed or a new
 chunk starts, colour, depth, skeleton, ground truth), all with ``log_time =
 publish_time = frame.timestamp_ns``. Each calibration is also written once as a
 ``fusion_pf.calibration`` metadata record (outside the chunks, indexed by the
-summary), so no single damaged chunk takes the calibration of the others with it. Tracker outputs are added with :meth:`McapRecorder.write_json`
+summary), so no single damaged chunk takes the calibration of the others with it;
+each channel likewise gets a ``fusion_pf.channel`` metadata record, so a scan of
+a file whose first chunk is damaged still knows the topics. Tracker outputs are added with :meth:`McapRecorder.write_json`
 and :meth:`McapRecorder.write_protobuf`. The file is written in place (no temp
 name): the header is flushed at once and every chunk reaches the OS as soon as it
 is written, so a crash (even SIGKILL) leaves a readable partial file, and :meth:`McapRecorder.close` -- run by the context manager whatever
@@ -226,6 +228,10 @@ class McapRecorder(Sink):
             self._schemas[key] = schema_id
         channel_id = writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
+        self._metadata_record(writer, fmt.CHANNEL_METADATA, {
+            "id": str(channel_id), "topic": topic, "message_encoding": message_encoding,
+            "schema_name": schema_name, "schema_encoding": schema_encoding,
+        })
         return channel_id
 
     def _proto_channel(self, topic: str, message: Message) -> int:

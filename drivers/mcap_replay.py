@@ -202,11 +202,13 @@ def _message_header(rec: memoryview | bytes) -> tuple[int, int, int]:
     return cid, seq, log_time
 
 
-def _structure_ok(opcode: int, length: int, body: bytes) -> bool:
+def _structure_ok(opcode: int, length: int, body: bytes, strict: bool = True) -> bool:
     """Whether the first bytes ``body`` of a record are consistent with its opcode and ``length``.
 
     Used to find the next record after damage; ``body`` holds at least the
     first 64 bytes of the record body (fewer when the record is shorter).
+    Without ``strict`` (a record where one is expected) a chunk's message
+    times are not checked, so parsing it can say what is wrong with them.
     """
     def u(at: int, n: int) -> int | None:
         return int.from_bytes(body[at : at + n], "little") if at + n <= len(body) else None
@@ -218,8 +220,8 @@ def _structure_ok(opcode: int, length: int, body: bytes) -> bool:
         comp = body[32 : 32 + clen]
         rlen = u(32 + clen, 8)
         start, end = u(0, 8), u(8, 8)
-        return (comp in (b"", b"zstd", b"lz4") and rlen is not None and 40 + clen + rlen == length
-                and start is not None and end is not None and start <= end < _TIME_LIMIT)
+        times_ok = start is not None and end is not None and (not strict or start <= end < _TIME_LIMIT)
+        return comp in (b"", b"zstd", b"lz4") and rlen is not None and 40 + clen + rlen == length and times_ok
     if opcode == _OP_MESSAGE_INDEX:
         n = u(2, 4)
         return n is not None and n % 16 == 0 and 6 + n == length
@@ -566,9 +568,12 @@ class McapReplay(ReplaySource):
         if kind is not None:
             self._kind[channel.id] = kind
 
-    def _add_metadata(self, body: bytes | memoryview) -> None:
+    def _add_metadata(self, body: bytes | memoryview) -> dict[str, str] | None:
+        """Take in a metadata record; return the fields of a ``fusion_pf.channel`` record (else None)."""
         cur = _Cursor(body, "metadata")
         name = cur.string()
+        if name == fmt.CHANNEL_METADATA:
+            return cur.mapping()
         if name == fmt.RECORDING_METADATA:
             self._metadata.update(cur.mapping())
         elif name == fmt.CALIBRATION_METADATA:
@@ -577,9 +582,10 @@ class McapReplay(ReplaySource):
             except RecordingError as exc:
                 raise _Corrupt(str(exc)) from None
             self._cal_meta[t] = intrinsics
+        return None
 
-    def _record_at(self, pos: int) -> tuple[int, int] | None:
-        """``(opcode, length)`` of a plausible record starting at ``pos``, or None."""
+    def _record_at(self, pos: int, strict: bool = True) -> tuple[int, int] | None:
+        """``(opcode, length)`` of a plausible record starting at ``pos``, or None (see :func:`_structure_ok`)."""
         head = os.pread(self._fd, 9 + 64, pos)  # type: ignore[arg-type]
         if len(head) < 9:
             return None
@@ -592,7 +598,7 @@ class McapReplay(ReplaySource):
             if length < _MESSAGE_HEADER.size:
                 return None
             return opcode, length
-        if _structure_ok(opcode, length, head[9 : 9 + min(length, 64)]):
+        if _structure_ok(opcode, length, head[9 : 9 + min(length, 64)], strict):
             return opcode, length
         return None
 
@@ -626,6 +632,7 @@ class McapReplay(ReplaySource):
         pending: dict[int, tuple[int, int, str, str]] = {}
         times: dict[int, list[int]] = {}
         damage: list[_Damage] = []
+        spare: dict[int, dict[str, str]] = {}
         color_ids: set[int] = set()
         last_color: list[int] = []
         pos, end_seen, in_summary, stop, stop_at = 8, False, False, "", size
@@ -642,15 +649,13 @@ class McapReplay(ReplaySource):
             sid = cur.uint(2)
             schemas[sid] = (cur.string(), cur.string())
 
-        def message(rec: memoryview) -> int:
-            cid, _seq, log_time = _message_header(rec)
+        def message(cid: int, log_time: int) -> None:
             times.setdefault(cid, []).append(log_time)
             if cid in color_ids:
                 last_color.append(log_time)
-            return cid
 
         while pos + 9 <= size:
-            found = self._record_at(pos)
+            found = self._record_at(pos, strict=False)
             if found is None or (in_summary and found[0] not in (_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, *_SUMMARY_OPCODES)):
                 opcode, length = _RECORD_HEADER.unpack(os.pread(self._fd, 9, pos))  # type: ignore[arg-type]
                 why = (f"a record (opcode 0x{opcode:02x}) of {length} bytes that does not fit"
@@ -687,28 +692,29 @@ class McapReplay(ReplaySource):
                 elif opcode == _OP_CHANNEL:
                     channel(_Cursor(body, "channel"))
                 elif opcode == _OP_METADATA and not in_summary:
-                    self._add_metadata(body)
+                    fields = self._add_metadata(body)
+                    if fields is not None and fields.get("id", "").isdigit():
+                        spare[int(fields["id"])] = fields
+                        if fields.get("topic") == fmt.COLOR_TOPIC:
+                            color_ids.add(int(fields["id"]))
                 elif opcode == _OP_MESSAGE and not in_summary:
-                    cid = message(body)
-                    t = times[cid][-1]
+                    cid, _seq, t = _message_header(body)
+                    message(cid, t)
                     self._blocks.append(_Block(pos, 9 + length, False, t, t, frozenset((cid,))))
                 elif opcode == _OP_CHUNK and not in_summary:
                     records = list(_records(_decompress_chunk(body), "chunk"))
-                    seen: set[int] = set()
-                    lo, hi = None, None
-                    for op, rec in records:
+                    found_messages = [_message_header(rec) for op, rec in records if op == _OP_MESSAGE]
+                    for op, rec in records:  # the whole chunk is sound: take it in
                         if op == _OP_SCHEMA:
                             schema(_Cursor(rec, "schema"))
                         elif op == _OP_CHANNEL:
                             channel(_Cursor(rec, "channel"))
-                        elif op == _OP_MESSAGE:
-                            cid = message(rec)
-                            log_time = times[cid][-1]
-                            seen.add(cid)
-                            lo = log_time if lo is None else min(lo, log_time)
-                            hi = log_time if hi is None else max(hi, log_time)
-                    if lo is not None:
-                        self._blocks.append(_Block(pos, 9 + length, True, lo, hi, frozenset(seen)))
+                    for cid, _seq, log_time in found_messages:
+                        message(cid, log_time)
+                    if found_messages:
+                        stamps = [log_time for _cid, _seq, log_time in found_messages]
+                        self._blocks.append(_Block(pos, 9 + length, True, min(stamps), max(stamps),
+                                                   frozenset(cid for cid, _seq, _t in found_messages)))
             except (_Corrupt, struct.error) as exc:
                 kind = "chunk" if opcode == _OP_CHUNK else f"record (opcode 0x{opcode:02x})"
                 hint = self._chunk_times(body) if opcode == _OP_CHUNK else None
@@ -723,6 +729,12 @@ class McapReplay(ReplaySource):
         for cid, sid, topic, encoding in pending.values():
             name, schema_encoding = schemas.get(sid, ("", ""))
             self._add_channel(_Channel(cid, topic, encoding, name, schema_encoding))
+        for cid, fields in spare.items():  # channels whose own record was in a damaged chunk
+            if cid not in self._channels and cid <= 0xFFFF:
+                self._add_channel(_Channel(cid, fields.get("topic", ""), fields.get("message_encoding", ""),
+                                           fields.get("schema_name", ""), fields.get("schema_encoding", "")))
+                self._notes.append(f"channel {cid} ({fields.get('topic', '')}) taken from its "
+                                   f"{fmt.CHANNEL_METADATA} metadata copy")
         self._times = {cid: np.sort(np.asarray(t, np.int64)) for cid, t in times.items()}
         self._counts = {cid: len(t) for cid, t in times.items()}
         self._truncated = not end_seen or reason == "no footer"
@@ -768,7 +780,7 @@ class McapReplay(ReplaySource):
                 n = frames_in(lo, after, False) + 1 if lo is not None and lo < after and period else (
                     0 if lo == after else None)
             elif stop is not None:
-                n = 0  # damage after the last readable frame of a truncated file: counted with the truncation
+                n = None  # damage after the last readable frame of a truncated file: no later frame to count to
             elif d.hint is not None and period is not None:
                 lo, hi = d.hint
                 n = max(int(round((hi - before) / period)) if before is not None and lo <= before

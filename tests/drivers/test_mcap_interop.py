@@ -146,7 +146,10 @@ def test_typescript_readers_agree(tmp_path, make_frames, record):
     k = frames[0].intrinsics
     assert topics[fmt.CALIBRATION_TOPIC]["first"]["K"] == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
     assert topics[fmt.SKELETON_TOPIC]["schemaEncoding"] == "jsonschema" and topics[fmt.SKELETON_TOPIC]["first"] == {"keys": ["joints"]}
-    assert indexed["metadata"][-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
+    recording_meta = [m for m in indexed["metadata"] if m["name"] == fmt.RECORDING_METADATA]
+    channel_meta = {m["metadata"]["topic"] for m in indexed["metadata"] if m["name"] == fmt.CHANNEL_METADATA}
+    assert channel_meta == set(counts)
+    assert recording_meta[-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
         "format_version": "1", "writer": indexed["metadata"][0]["metadata"]["writer"], "seed": "4", "background_frames": "2"}}
 
 
