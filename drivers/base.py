@@ -85,7 +85,7 @@ class SourceStats:
         Every frame a replay could not read, grouped by cause (their known
         counts add up to the replay's share of ``dropped``).
     skipped_parts : dict of str to int
-        Malformed optional messages left out of yielded frames, by part
+        Malformed or unreadable optional messages left out of yielded frames, by part
         (``"depth"``, ``"skeleton"``, ``"ground truth"``): the frame was
         yielded without it.
     """
@@ -109,7 +109,7 @@ class SourceStats:
         Examples
         --------
         ``"skipped 12 frames: chunk at byte 361 is corrupt (chunk CRC mismatch ...) (8 frames); ...
-        (4 frames); 3 skeleton messages malformed (frames kept without skeleton)"``; a count that
+        (4 frames); 3 skeleton messages unreadable (frames kept without skeleton)"``; a count that
         cannot be known (a truncated tail) makes it ``"skipped 12+ frames"``.
         """
         parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
@@ -119,7 +119,7 @@ class SourceStats:
             parts.append(f"{known} more frames in {len(rest)} other damaged places")
         for part, n in sorted(self.skipped_parts.items()):
             if n:
-                parts.append(f"{n} {part} message{'s' if n != 1 else ''} malformed (frames kept without {part})")
+                parts.append(f"{n} {part} message{'s' if n != 1 else ''} unreadable (frames kept without {part})")
         if not parts and not self.dropped:
             return ""
         unknown = any(loss.frames is None for loss in self.losses)

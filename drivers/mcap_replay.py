@@ -419,6 +419,7 @@ class McapReplay(ReplaySource):
         self._scan_losses: list[FrameLoss] = []
         self._lost: dict[int, tuple[str, int | None]] = {}
         self._bad_parts: dict[str, set[int]] = {}
+        self._part_times: dict[str, set[int]] = {}
         self._scan_damage: list[_Damage] = []
         self._stop: tuple[int, int | None, tuple[int, int] | None] | None = None
 
@@ -833,6 +834,7 @@ class McapReplay(ReplaySource):
                     f"messages; expected {enc} {expected}"
                 )
         self._all = self._topic_times("color")
+        self._part_times = {kind: set(self._topic_times(kind).tolist()) for kind in ("depth", "skeleton", "truth")}
         if len(self._all) == 0:
             raise RecordingError(f"{self.path} has no {fmt.COLOR_TOPIC} messages (no frames); {self._topics_present()}")
         self._cal_meta_times = np.array(sorted(self._cal_meta), np.int64)
@@ -978,7 +980,7 @@ class McapReplay(ReplaySource):
         with self._lock:
             seen = self._bad_parts.setdefault(part, set())
             if not seen:
-                self.stats.notes.append(f"{exc}; frames are kept without a malformed {part}")
+                self.stats.notes.append(f"{exc}; frames are kept without an unreadable {part}")
             seen.add(index)
             self.stats.skipped_parts[part] = len(seen)
 
@@ -1043,14 +1045,15 @@ class McapReplay(ReplaySource):
             self._lost[index] = (reason, offset)
         self._publish()
 
-    def _why_missing(self, t: int) -> tuple[str, int | None]:
-        """Why the colour message at ``t`` was not read: the corrupt chunk that holds it, if any."""
-        for block in self._blocks_between(t, t, ("color",)):
+    def _why_missing(self, t: int, kind: str = "color") -> tuple[str, int | None]:
+        """Why the ``kind`` message at ``t`` was not read: the corrupt chunk that holds it, if any."""
+        for block in self._blocks_between(t, t, (kind,)):
             reason = self._corrupt.get(block.offset)
             if reason is not None:
-                kind = "chunk" if block.is_chunk else "message"
-                return f"{kind} at byte {block.offset} is corrupt ({reason})", block.offset
-        return f"its {fmt.COLOR_TOPIC} message cannot be found", None
+                what = "chunk" if block.is_chunk else "message"
+                return f"{what} at byte {block.offset} is corrupt ({reason})", block.offset
+        topic = {v: k for k, v in _KINDS.items()}[kind]
+        return f"its {topic} message cannot be found", None
 
     def _publish(self) -> None:
         """Refresh ``stats.losses`` and ``stats.dropped`` from the losses found so far."""
@@ -1174,6 +1177,10 @@ class McapReplay(ReplaySource):
             if "color" not in parts:
                 self._lose(lo + k, *self._why_missing(t))
                 continue
+            for kind, part in (("depth", "depth"), ("skeleton", "skeleton"), ("truth", "ground truth")):
+                if kind not in parts and t in self._part_times[kind]:  # indexed, but its chunk is unreadable
+                    why, _offset = self._why_missing(t, kind)
+                    self._skip_part(part, lo + k, f"the {part} of frame {lo + k} (t={t} ns) cannot be read: {why}")
             try:
                 frame = self._build(lo + k, t, parts)
             except _Corrupt as exc:

@@ -105,7 +105,7 @@ def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path):
     proc = fusion_pf("record", src, out)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
-    assert any("not valid JSON" in line and "kept without a malformed skeleton" in line
+    assert any("not valid JSON" in line and "kept without an unreadable skeleton" in line
                for line in proc.stderr.splitlines())
     assert proc.stdout.startswith("recorded 7 frames")
     with McapReplay(out) as replay:

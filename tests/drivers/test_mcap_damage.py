@@ -15,7 +15,6 @@ import pytest
 from mcap.reader import make_reader
 
 from drivers import mcap_format as fmt
-from drivers.base import FrameLoss
 from drivers.mcap_replay import McapReplay
 from fusion_pf.errors import RecordingError
 from fusion_pf.frame import Intrinsics
@@ -102,6 +101,8 @@ def test_damaged_chunks_of_a_scanned_file_are_counted(recorded, tmp_path):
 
 
 def test_truncation_counts_the_frames_of_the_cut_chunk(recorded, tmp_path):
+    from drivers.base import FrameLoss
+
     frames, path, chunks = recorded
     cut = chunks[5].chunk_start_offset + chunks[5].chunk_length // 2
     bad = tmp_path / "cut.mcap"
@@ -243,4 +244,20 @@ def test_deeply_nested_skeleton_json_is_skipped_and_counted(tmp_path):
     assert [f.joints is None for f in out] == [False, True, False]
     assert stats.skipped_parts == {"skeleton": 1} and stats.dropped == 0
     assert "nested too deeply" in " ".join(stats.notes)
-    assert "1 skeleton message malformed (frames kept without skeleton)" in stats.loss_summary()
+    assert "1 skeleton message unreadable (frames kept without skeleton)" in stats.loss_summary()
+
+
+def test_parts_in_a_corrupt_chunk_of_another_writer_are_counted(tmp_path, make_frames, write_foxglove):
+    """Another writer splits frames across chunks: a frame kept without its depth says why."""
+    frames = make_frames(16)
+    path = write_foxglove(tmp_path / "fox.mcap", frames, chunk_size=20_000)
+    with open(path, "rb") as fh:
+        chunks = sorted(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    bad = tmp_path / "fox_bad.mcap"
+    bad.write_bytes(corrupt(path.read_bytes(), chunks[len(chunks) // 2]))
+    out, stats, _ = replay(bad)
+    by_time = {f.timestamp_ns: f for f in frames}
+    without = {part: sum(1 for f in out if getattr(by_time[f.timestamp_ns], attr) is not None and getattr(f, attr) is None)
+               for part, attr in (("depth", "depth"), ("skeleton", "joints"), ("ground truth", "ground_truth"))}
+    assert len(out) + stats.dropped == 16 and stats.dropped >= 1
+    assert {k: v for k, v in without.items() if v} == stats.skipped_parts

@@ -198,7 +198,7 @@ def test_depth_not_aligned_to_colour(tmp_path, write_messages):
         assert replay.stats.skipped_parts == {"depth": 1} and replay.stats.dropped == 0
         assert any("/camera/depth is 32x24 but /camera/color is 64x48 in frame 2" in n for n in replay.stats.notes)
         assert replay.stats.loss_summary() == (
-            "skipped 0 frames: 1 depth message malformed (frames kept without depth)")
+            "skipped 0 frames: 1 depth message unreadable (frames kept without depth)")
 
 
 def test_calibration_size_must_match(tmp_path, write_messages):
