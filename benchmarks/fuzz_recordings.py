@@ -150,11 +150,12 @@ def check_info(path: str, expected: int) -> dict:
         decoded, dropped = doc["verified"]["frames"], doc["verified"]["dropped"]
     except (ValueError, KeyError) as exc:
         return {"class": "traceback", "detail": f"unreadable --json output ({exc})"}
+    detail = {"frames": decoded, "reported_lost": dropped, "detail": (lines or [""])[0][:300]}
     if decoded >= expected and not lines:
-        return {"class": "ok", "frames": decoded}
+        return {"class": "ok", **detail}
     if decoded + dropped >= expected or doc.get("truncated"):
-        return {"class": "ok-with-report", "frames": decoded, "detail": (lines or [""])[0][:300]}
-    return {"class": "frames-silently-missing", "frames": decoded, "detail": (lines or [""])[0][:300]}
+        return {"class": "ok-with-report", **detail}
+    return {"class": "frames-silently-missing", **detail}
 
 
 def _worker(conn: "mp.connection.Connection") -> None:
@@ -240,6 +241,14 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("info", "replay"):
         counts = Counter(r[name]["class"] for r in results)
         print(f"{name:7s} " + "  ".join(f"{c}={counts.get(c, 0)}" for c in CLASSES))
+    print("frames over the runs that read the file (not refused): read / reported lost / unaccounted "
+          "(neither read nor counted; includes truncated tails)")
+    for name in ("info", "replay"):
+        runs = [r[name] for r in results if "frames" in r[name]]
+        read = sum(r["frames"] for r in runs)
+        lost = sum(r.get("reported_lost", 0) for r in runs)
+        gone = sum(max(0, expected - r["frames"] - r.get("reported_lost", 0)) for r in runs)
+        print(f"{name:7s} runs={len(runs)} read={read} reported_lost={lost} unaccounted={gone}")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({"seed": args.seed, "mutations": args.mutations, "expected": expected,
