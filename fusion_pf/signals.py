@@ -89,9 +89,10 @@ def sigint_deferred() -> Iterator[None]:
         _depth = 0
         for s, handler in deferred.items():
             signal.signal(s, handler)
-    if _held:
-        signum = _held[0]
-        _held.clear()
+        held = list(_held)
+        _held.clear()  # an exception leaving the block wins over a held stop request
+    if held:
+        signum = held[0]
         handler = deferred[signum]
         if handler is signal.default_int_handler:
             raise KeyboardInterrupt

@@ -129,8 +129,10 @@ def run(args: argparse.Namespace) -> int:
     skins = [SkinCue(RgChromaSkin(), min_area=args.min_area), SkinCue(RgbRuleSkin(), min_area=args.min_area)]
     if args.skin_model is not None:
         skins.append(SkinCue(LabGmmSkin.load(args.skin_model), min_area=args.min_area))
-    if args.stages is not None and not args.stages.is_dir():
-        raise InputError(f"--stages {args.stages} is not a directory")
+    if args.stages is not None:
+        if args.stages.exists() and not args.stages.is_dir():
+            raise InputError(f"--stages {args.stages} is not a directory")
+        args.stages.mkdir(parents=True, exist_ok=True)
 
     with McapReplay(args.file) as src:
         n = len(src)

@@ -31,6 +31,13 @@ def test_cues_command_writes_one_labelled_sheet_per_cue(recording, tmp_path, cap
     assert depth_sheet.shape[0] == 22 + 3 * (200 + 22)  # 11 tiles
 
 
+def test_cues_stages_folder_is_created(recording, tmp_path, capsys):
+    """Issue 14 item 9: like the other commands, --stages creates its folder."""
+    out = tmp_path / "new" / "stages"
+    assert main(["cues", str(recording), "--frame", "6", "--stages", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"frame000006_{n}.png" for n in ("colour", "depth", "skin_rg", "skin_rgb")]
+
+
 def test_cues_command_text_output_and_full_frame(recording, capsys):
     capsys.readouterr()
     assert main(["cues", str(recording), "--prior", "full", "--background-frames", "3"]) == 0
@@ -43,7 +50,7 @@ def test_cues_command_text_output_and_full_frame(recording, capsys):
     "argv,needle",
     [(["--frame", "99"], "--frame must be in [0, 8], got 99"),
      (["--colour-thresholds", "50,10"], "colour upper threshold must be an int in [50, 255], got 10"),
-     (["--stages", "/nonexistent/dir"], "is not a directory")],
+     (["--stages", "/etc/passwd"], "is not a directory")],
 )
 def test_cues_command_bad_options_exit_2_with_one_line(recording, capsys, argv, needle):
     capsys.readouterr()
