@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from fusion_pf.annotate.db import AnnotationDB, check_reference_matches, recording_sha256
+from fusion_pf.annotate.db import AnnotationDB
 from fusion_pf.errors import RecordingError
 
 from .conftest import REPO, Server, synth
@@ -148,6 +148,7 @@ def _annotate(recording, db):
 
 def test_database_of_another_recording_with_the_same_shape_is_refused(rec20, tmp_path):
     from drivers.mcap_replay import McapReplay
+    from fusion_pf.annotate.db import recording_sha256
 
     other = tmp_path / "other.mcap"  # same frame count, size and timestamps; another seed
     subprocess.run([sys.executable, "-m", "fusion_pf", "synth", str(other), "--frames", "20", "--seed", "2",
@@ -176,6 +177,8 @@ def test_db_in_a_missing_folder_or_a_directory_is_one_line(rec20, tmp_path):
 
 
 def test_check_reference_matches(tmp_path):
+    from fusion_pf.annotate.db import check_reference_matches
+
     db_path = tmp_path / "r.sqlite"
     db = AnnotationDB(db_path, recording="r.mcap", n_frames=5, width=10, height=10, sha256="a" * 64,
                       timestamps=[100, 200, 300, 400, 500])
