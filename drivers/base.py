@@ -47,11 +47,15 @@ class FrameLoss:
         Why, e.g. ``"chunk at byte 361 is corrupt (chunk CRC mismatch ...)"``.
     offset : int or None
         Byte offset of the damage in the file, when there is one.
+    tail : bool
+        True for the end of a truncated file (frames recorded after the cut;
+        an unfinished recording has one too).
     """
 
     frames: int | None
     reason: str
     offset: int | None = None
+    tail: bool = False
 
     def describe(self) -> str:
         """``"<reason> (3 frames)"``, or ``"<reason> (number unknown)"``."""

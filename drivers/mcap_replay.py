@@ -68,6 +68,7 @@ _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x01, 0x02, 0x03,
 _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_ATTACHMENT, _OP_METADATA, _OP_DATA_END = 0x06, 0x07, 0x09, 0x0C, 0x0F
 #: Records that may follow damage in the data section (where a scan may resynchronise).
 _RESYNC_OPCODES = (_OP_SCHEMA, _OP_CHANNEL, _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_METADATA, _OP_DATA_END, _OP_FOOTER)
+_OP_STATISTICS = 0x0B
 #: Summary-section records (chunk index ... summary offset): skipped by length when met in a scan.
 _SUMMARY_OPCODES = (0x08, 0x0A, 0x0B, 0x0D, 0x0E)
 #: Largest record or decompressed chunk accepted (as the mcap readers' record_size_limit).
@@ -422,6 +423,7 @@ class McapReplay(ReplaySource):
         self._part_times: dict[str, set[int]] = {}
         self._scan_damage: list[_Damage] = []
         self._stop: tuple[int, int | None, tuple[int, int] | None] | None = None
+        self._stat_counts: dict[int, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -688,6 +690,13 @@ class McapReplay(ReplaySource):
                 if opcode == _OP_HEADER:
                     cur = _Cursor(body, "header")
                     self._profile, self._library = cur.string(), cur.string()
+                elif opcode == _OP_STATISTICS:
+                    cur = _Cursor(body, "statistics")
+                    cur.take(8 + 2 + 4 * 4 + 16)
+                    end_map = cur.pos + cur.uint(4)
+                    while cur.pos < end_map:
+                        cid = cur.uint(2)
+                        self._stat_counts[cid] = cur.uint(8)
                 elif opcode == _OP_SCHEMA:
                     schema(_Cursor(body, "schema"))
                 elif opcode == _OP_CHANNEL:
@@ -724,6 +733,9 @@ class McapReplay(ReplaySource):
                 nxt = self._resync(pos + 1)
                 if nxt is None:
                     break
+                if nxt > end:  # the damage goes on past the corrupt record
+                    damage.append(_Damage(end, f"{nxt - end} unreadable bytes at byte {end}",
+                                          max(last_color) if last_color else None, None))
                 pos = nxt
                 continue
             pos = end
@@ -751,14 +763,27 @@ class McapReplay(ReplaySource):
         else:
             self._notes.insert(0, f"file has no usable index ({reason}); scanned it")
 
+    def _frame_period(self) -> float | None:
+        """Typical interval between consecutive frames (ns): the median of the intervals near the shortest.
+
+        Robust to lost frames (long intervals) as long as two consecutive frames were read.
+        """
+        gaps = np.diff(self._all)
+        gaps = gaps[gaps > 0]
+        if not len(gaps):
+            return None
+        return float(np.median(gaps[gaps <= 1.5 * gaps.min()]))
+
     def _estimate_scan_losses(self) -> None:
-        """Turn the damage a scan met into frame losses, counting the frames each gap lacks."""
+        """Turn the damage a scan met into frame losses, counting the frames each gap lacks.
+
+        Damage met between the same two readable frames is one loss: the
+        frames missing between them (from the frame period), described by the
+        first damaged record and how many more followed.
+        """
         damage, stop = self._scan_damage, self._stop
         times = self._all
-        period = float(np.median(np.diff(times))) if len(times) >= 2 else None
-        if period is not None and period <= 0:
-            period = None
-        counted: set[int | None] = set()
+        period = self._frame_period()
 
         def frames_in(lo: int, hi: int, inclusive: bool) -> int | None:
             """Frames strictly between ``lo`` and ``hi`` (and the two ends when ``inclusive``)."""
@@ -767,30 +792,36 @@ class McapReplay(ReplaySource):
             return max(int(round((hi - lo) / period)) + (1 if inclusive else -1), 0)
 
         first_ns = min(self._cal_meta) if self._cal_meta else None  # our recorder: the first frame's time
+        groups: list[list[_Damage]] = []
         for d in damage:
-            before = d.before_ns
+            if groups and groups[-1][0].before_ns == d.before_ns:
+                groups[-1].append(d)
+            else:
+                groups.append([d])
+        for group in groups:
+            before = group[0].before_ns
             k = int(np.searchsorted(times, before, "right")) if before is not None else 0
             after = int(times[k]) if k < len(times) else None
+            hints = [d.hint for d in group if d.hint is not None]
+            lo = min(h[0] for h in hints) if hints else None
+            hi = max(h[1] for h in hints) if hints else None
             n: int | None
-            if before in counted and after is not None:
-                n = 0  # the same gap was counted with the damage just before
-            elif before is not None and after is not None:
+            if before is not None and after is not None:
                 n = frames_in(before, after, False)
             elif after is not None:  # damage before the first readable frame
-                lo = d.hint[0] if d.hint else first_ns
-                n = frames_in(lo, after, False) + 1 if lo is not None and lo < after and period else (
-                    0 if lo == after else None)
-            elif stop is not None:
-                n = None  # damage after the last readable frame of a truncated file: no later frame to count to
-            elif d.hint is not None and period is not None:
-                lo, hi = d.hint
-                n = max(int(round((hi - before) / period)) if before is not None and lo <= before
-                        else int(round((hi - lo) / period)) + 1, 0)
+                lo = lo if lo is not None else first_ns
+                n = None if lo is None or lo > after else frames_in(lo, after, True)
+                n = None if n is None else n - 1  # ``after`` itself was read
+            elif stop is not None or len(hints) < len(group):
+                n = None  # after the last readable frame, with nothing to count to
             else:
-                n = None
-            counted.add(before)
+                n = frames_in(before, hi, True) - 1 if before is not None and lo <= before else frames_in(lo, hi, True)
+            reason = group[0].reason
+            if len(group) > 1:
+                reason += f", and {len(group) - 1} more damaged record(s) up to byte {group[-1].offset}"
             if n != 0:
-                self._scan_losses.append(FrameLoss(n, d.reason, d.offset))
+                self._scan_losses.append(FrameLoss(n, reason, group[0].offset))
+        self._check_statistics()
         if stop is not None:
             at, last, cut = stop
             if cut is not None and period is not None and (last is None or cut[0] > last):
@@ -798,7 +829,33 @@ class McapReplay(ReplaySource):
                 self._scan_losses.append(FrameLoss(n, f"the chunk at byte {at} is cut off by the end of the file", at))
             after = f" after t={last} ns" if last is not None else ""
             self._scan_losses.append(FrameLoss(
-                None, f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost", at))
+                None, f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost", at,
+                tail=True))
+
+    def _check_statistics(self) -> None:
+        """Compare the frames read and counted lost with the colour message count of the summary, if read.
+
+        The summary's Statistics record survives damage to the data section:
+        frames it counts beyond those read or counted as lost were lost
+        without a trace (e.g. a whole chunk removed); they fill an unknown count
+        when there is exactly one, or are reported as a loss of their own.
+        """
+        colour = [cid for cid, kind in self._kind.items() if kind == "color"]
+        if not self._stat_counts or not colour or self._stop is not None:
+            return
+        counted = sum(self._stat_counts.get(cid, 0) for cid in colour)
+        known = sum(x.frames or 0 for x in self._scan_losses)
+        missing = counted - len(self._all) - known
+        unknown = [k for k, x in enumerate(self._scan_losses) if x.frames is None]
+        if missing <= 0:
+            return
+        if len(unknown) == 1:
+            x = self._scan_losses[unknown[0]]
+            self._scan_losses[unknown[0]] = FrameLoss(missing, x.reason, x.offset, x.tail)
+        elif not unknown:
+            self._scan_losses.append(FrameLoss(
+                missing, f"the summary counts {counted} {fmt.COLOR_TOPIC} messages, {missing} more than were read "
+                "or found in damaged records"))
 
     def _topic_times(self, kind: str) -> np.ndarray:
         parts = [self._times[cid] for cid, k in self._kind.items() if k == kind and cid in self._times]

@@ -12,7 +12,8 @@ DESCRIPTION = (
     "resolution and intrinsics, background frames, frames missing depth or skeleton, and "
     "whether it is truncated. Counts come from the summary when the file is indexed; a "
     "truncated file is scanned. --verify also decodes every frame (checking chunk CRCs), says "
-    "which frames could not be read and why, and exits 2 when frames are lost. Strings from the "
+    "which frames could not be read and why, and exits 2 when frames are lost (a truncated tail "
+    "alone, as an unfinished recording has, is a warning). Strings from the "
     "file are printed with control characters escaped."
 )
 
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             stats = replay.stats
             verified = {
                 "frames": decoded, "dropped": stats.dropped,
-                "losses": [{"frames": x.frames, "reason": x.reason, "offset": x.offset} for x in stats.losses],
+                "losses": [{"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail}
+                           for x in stats.losses],
                 "skipped_parts": dict(stats.skipped_parts), "summary": stats.loss_summary(),
             }
             info = replay.info()
@@ -94,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
         print(_text(out, verified))
     for note in info.notes:
         print(f"fusion-pf: warning: {printable(note)}", file=sys.stderr)
-    if verified is not None and verified["dropped"]:
+    if verified is not None and (verified["dropped"] or any(x["frames"] is None and not x["tail"]
+                                                             for x in verified["losses"])):
         raise RecordingError(
             f"{args.file} failed verification: {verified['dropped']} frames cannot be read "
             f"({verified['frames']} decoded); {verified['summary']}"
