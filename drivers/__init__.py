@@ -9,9 +9,9 @@ from pathlib import Path
 
 from fusion_pf.errors import InputError
 
-from .base import ReplaySource, Sink, Source, SourceStats
+from .base import FrameLoss, ReplaySource, Sink, Source, SourceStats
 
-__all__ = ["open_source", "Source", "ReplaySource", "Sink", "SourceStats", "SOURCE_SPECS"]
+__all__ = ["open_source", "Source", "ReplaySource", "Sink", "SourceStats", "FrameLoss", "SOURCE_SPECS"]
 
 #: The source specs :func:`open_source` understands, for help texts.
 SOURCE_SPECS = (

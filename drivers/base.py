@@ -38,6 +38,40 @@ _SourceT = TypeVar("_SourceT", bound="Source")
 _SinkT = TypeVar("_SinkT", bound="Sink")
 
 
+@dataclass(frozen=True)
+class FrameLoss:
+    """Frames a source could not deliver, and why (one damaged chunk, one gap, the truncated tail).
+
+    Attributes
+    ----------
+    frames : int or None
+        How many frames were lost; None when the count cannot be known (the
+        frames after the point where a file is truncated).
+    reason : str
+        Why, e.g. ``"chunk at byte 361 is corrupt (chunk CRC mismatch ...)"``.
+    offset : int or None
+        Byte offset of the damage in the file, when there is one.
+    tail : bool
+        True for the end of a truncated file (frames recorded after the cut;
+        an unfinished recording has one too).
+    """
+
+    frames: int | None
+    reason: str
+    offset: int | None = None
+    tail: bool = False
+
+    def describe(self) -> str:
+        """``"<reason> (3 frames)"``, or ``"<reason> (number unknown)"``."""
+        if self.frames is None:
+            return f"{self.reason} (number unknown)"
+        return f"{self.reason} ({self.frames} frame{'s' if self.frames != 1 else ''})"
+
+
+#: Losses listed one by one in :meth:`SourceStats.loss_summary`; the rest are counted.
+_LISTED_LOSSES = 4
+
+
 @dataclass
 class SourceStats:
     """What a source yielded and what it lost (filled in while iterating).
@@ -55,6 +89,13 @@ class SourceStats:
         frames a replay had to skip).
     notes : list of str
         Human-readable remarks (e.g. "file truncated after 1.2 s").
+    losses : list of FrameLoss
+        Every frame a replay could not read, grouped by cause (their known
+        counts add up to the replay's share of ``dropped``).
+    skipped_parts : dict of str to int
+        Malformed or unreadable optional messages left out of yielded frames, by part
+        (``"depth"``, ``"skeleton"``, ``"ground truth"``): the frame was
+        yielded without it.
     """
 
     frames: int = 0
@@ -62,6 +103,36 @@ class SourceStats:
     missing_skeleton: int = 0
     dropped: int = 0
     notes: list[str] = field(default_factory=list)
+    losses: list[FrameLoss] = field(default_factory=list)
+    skipped_parts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def partial(self) -> bool:
+        """True when frames were lost or parts of frames were left out."""
+        return bool(self.dropped or self.losses or any(self.skipped_parts.values()))
+
+    def loss_summary(self) -> str:
+        """One line saying what was lost and why; ``""`` when nothing was.
+
+        Examples
+        --------
+        ``"skipped 12 frames: chunk at byte 361 is corrupt (chunk CRC mismatch ...) (8 frames); ...
+        (4 frames); 3 skeleton messages unreadable (frames kept without skeleton)"``; a count that
+        cannot be known (a truncated tail) makes it ``"skipped 12+ frames"``.
+        """
+        parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
+        rest = self.losses[_LISTED_LOSSES:]
+        if rest:
+            known = sum(loss.frames or 0 for loss in rest)
+            parts.append(f"{known} more frames in {len(rest)} other damaged places")
+        for part, n in sorted(self.skipped_parts.items()):
+            if n:
+                parts.append(f"{n} {part} message{'s' if n != 1 else ''} unreadable (frames kept without {part})")
+        if not parts and not self.dropped:
+            return ""
+        unknown = any(loss.frames is None for loss in self.losses)
+        head = f"skipped {self.dropped}{'+' if unknown else ''} frame{'s' if self.dropped != 1 or unknown else ''}"
+        return f"{head}: " + "; ".join(parts) if parts else head
 
     def count(self, frame: Frame) -> Frame:
         """Count ``frame`` as yielded and return it."""

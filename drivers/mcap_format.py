@@ -64,6 +64,12 @@ RECORDING_METADATA = "fusion_pf.recording"
 BACKGROUND_FRAMES_KEY = "background_frames"
 #: Key of :data:`RECORDING_METADATA` giving the version of this convention.
 FORMAT_VERSION_KEY = "format_version"
+#: Name of the MCAP metadata records repeating each calibration outside the chunks (one per change).
+CALIBRATION_METADATA = "fusion_pf.calibration"
+#: Name of the MCAP metadata records repeating each channel outside the chunks (one per channel):
+#: ``id``, ``topic``, ``message_encoding``, ``schema_name``, ``schema_encoding``. A scan of a file
+#: whose first chunk is damaged still knows the channels.
+CHANNEL_METADATA = "fusion_pf.channel"
 #: Version of the convention written by this module.
 FORMAT_VERSION = "1"
 #: ``frame_id`` written into every Foxglove message.
@@ -540,9 +546,73 @@ def decode_calibration(data: bytes | memoryview, where: str = CALIBRATION_TOPIC)
         )
     k = msg.K
     try:
-        return Intrinsics(msg.width, msg.height, k[0], k[4], k[2], k[5], model, tuple(msg.D))
+        intrinsics = Intrinsics(msg.width, msg.height, k[0], k[4], k[2], k[5], model, tuple(msg.D))
     except InputError as exc:
         raise RecordingError(f"{where}: {exc}") from None
+    check_plausible_intrinsics(intrinsics, where)
+    return intrinsics
+
+
+#: Largest focal length or principal-point offset accepted, in image sizes (a 0.06 degree field of view).
+MAX_INTRINSICS_SCALE = 1e4
+
+
+def check_plausible_intrinsics(intrinsics: Intrinsics, where: str) -> None:
+    """Raise RecordingError unless fx, fy, |cx|, |cy| are at most :data:`MAX_INTRINSICS_SCALE` image sizes.
+
+    Finite but absurd values (``fx = 1e308``) would overflow the geometry downstream.
+    """
+    i = intrinsics
+    limit = MAX_INTRINSICS_SCALE * max(i.width, i.height)
+    for name in ("fx", "fy", "cx", "cy"):
+        value = getattr(i, name)
+        if abs(value) > limit:
+            raise RecordingError(
+                f"{where}: {name} = {value:g} px is implausible for a {i.width}x{i.height} image; "
+                f"expected |{name}| <= {limit:g}"
+            )
+
+
+_CALIBRATION_KEYS = ("timestamp_ns", "width", "height", "fx", "fy", "cx", "cy", "distortion_model", "distortion")
+
+
+def calibration_metadata(intrinsics: Intrinsics, timestamp_ns: int) -> dict[str, str]:
+    """The :data:`CALIBRATION_METADATA` record of a calibration in effect from ``timestamp_ns``.
+
+    Floats are written with ``repr`` so they read back exactly; ``distortion``
+    is a comma-separated list (empty for none).
+    """
+    i = intrinsics
+    return {
+        "timestamp_ns": str(int(timestamp_ns)), "width": str(i.width), "height": str(i.height),
+        "fx": repr(float(i.fx)), "fy": repr(float(i.fy)), "cx": repr(float(i.cx)), "cy": repr(float(i.cy)),
+        "distortion_model": i.distortion_model, "distortion": ",".join(repr(float(c)) for c in i.distortion),
+    }
+
+
+def decode_calibration_metadata(record: Mapping[str, str], where: str = CALIBRATION_METADATA) -> tuple[int, Intrinsics]:
+    """``(timestamp_ns, intrinsics)`` of a :data:`CALIBRATION_METADATA` record.
+
+    Raises
+    ------
+    RecordingError
+        When a key is missing or a value is not a number of the expected kind.
+    """
+    missing = [key for key in _CALIBRATION_KEYS if key not in record]
+    if missing:
+        raise RecordingError(f"{where}: missing keys {missing}")
+    try:
+        t = int(record["timestamp_ns"])
+        check_timestamp(t, f"{where} timestamp_ns")
+        distortion = tuple(float(c) for c in record["distortion"].split(",") if c)
+        intrinsics = Intrinsics(
+            int(record["width"]), int(record["height"]), float(record["fx"]), float(record["fy"]),
+            float(record["cx"]), float(record["cy"]), record["distortion_model"], distortion,
+        )
+    except (ValueError, InputError) as exc:
+        raise RecordingError(f"{where}: {exc}") from None
+    check_plausible_intrinsics(intrinsics, where)
+    return t, intrinsics
 
 
 # --------------------------------------------------------------------------- JSON
@@ -569,6 +639,8 @@ def decode_json(data: bytes | memoryview, where: str) -> Any:
         return json.loads(bytes(data))
     except (UnicodeDecodeError, ValueError) as exc:
         raise RecordingError(f"{where}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise RecordingError(f"{where}: JSON nested too deeply ({len(data)} bytes)") from None
 
 
 def encode_skeleton(joints: Mapping[str, Joint]) -> dict[str, Any]:

@@ -1,11 +1,15 @@
 """MCAP recorder: a :class:`~drivers.base.Sink` writing frames per docs/recording-format.md.
 
-Every frame becomes up to five messages (calibration when it changed, colour,
-depth, skeleton, ground truth), all with ``log_time = publish_time =
-frame.timestamp_ns``. Tracker outputs are added with :meth:`McapRecorder.write_json`
+Every frame becomes up to five messages (calibration when it changed or a new
+chunk starts, colour, depth, skeleton, ground truth), all with ``log_time =
+publish_time = frame.timestamp_ns``. Each calibration is also written once as a
+``fusion_pf.calibration`` metadata record (outside the chunks, indexed by the
+summary), so no single damaged chunk takes the calibration of the others with it;
+each channel likewise gets a ``fusion_pf.channel`` metadata record, so a scan of
+a file whose first chunk is damaged still knows the topics. Tracker outputs are added with :meth:`McapRecorder.write_json`
 and :meth:`McapRecorder.write_protobuf`. The file is written in place (no temp
-name): chunks reach the disk as they fill, so a crash leaves a readable partial
-file, and :meth:`McapRecorder.close` -- run by the context manager whatever
+name): the header is flushed at once and every chunk reaches the OS as soon as it
+is written, so a crash (even SIGKILL) leaves a readable partial file, and :meth:`McapRecorder.close` -- run by the context manager whatever
 stopped the source -- writes the index and summary.
 """
 
@@ -32,6 +36,10 @@ from .base import Sink
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 #: Default uncompressed chunk size in bytes (about one raw 640x400 RGB-D frame).
 CHUNK_SIZE = 1 << 20
+#: Bytes a message adds to a chunk besides its data (record header 9, channel 2, sequence 4, two times 16).
+_MESSAGE_OVERHEAD = 31
+#: The mcap Writer's own chunk limit, never reached: this recorder ends chunks at frame boundaries.
+_NEVER = 1 << 62
 
 
 class McapRecorder(Sink):
@@ -58,7 +66,10 @@ class McapRecorder(Sink):
         flags.
     chunk_size : int
         Uncompressed chunk size in bytes; a crash loses at most the chunk being
-        filled.
+        filled. Chunks end at frame boundaries: a chunk is closed before a
+        frame that would take it past ``chunk_size`` (a frame larger than that
+        gets a chunk of its own), and every chunk starts with a copy of the
+        calibration.
 
     Examples
     --------
@@ -119,6 +130,9 @@ class McapRecorder(Sink):
         self.frames_written = 0
         self.messages_written = 0
         self._bytes = 0
+        self._chunk_bytes = 0
+        #: The OSError that stopped writing (full disk, ...), or None.
+        self.error: OSError | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -129,11 +143,12 @@ class McapRecorder(Sink):
         fh = open(self.path, "wb")
         try:
             writer = Writer(
-                fh, chunk_size=self.chunk_size, compression=COMPRESSIONS[self.compression],
+                fh, chunk_size=_NEVER, compression=COMPRESSIONS[self.compression],
                 enable_crcs=True, enable_data_crcs=True,
             )
             writer.start(profile="", library=f"fusion-pf {__version__}; mcap-python {mcap.__version__}")
             writer.add_metadata(fmt.RECORDING_METADATA, self._metadata)
+            fh.flush()
         except BaseException:
             fh.close()
             raise
@@ -143,6 +158,7 @@ class McapRecorder(Sink):
         self._intrinsics, self._last_ns = None, None
         self._background, self._foreground = 0, False
         self.frames_written = self.messages_written = 0
+        self._chunk_bytes, self.error = 0, None
 
     def close(self) -> None:
         """Write the index and summary and close the file; safe to call twice.
@@ -156,12 +172,34 @@ class McapRecorder(Sink):
         self._writer = self._fh = None
         with sigint_deferred():
             try:
-                if not self._foreground:
-                    self._announce_background(writer)
-                writer.finish()
+                if self.error is None:
+                    if not self._foreground:
+                        self._announce_background(writer)
+                    writer.finish()
+            except OSError as exc:
+                self.error = exc
             finally:
-                fh.close()
+                try:
+                    fh.close()
+                except OSError as exc:
+                    self.error = self.error or exc
                 self._bytes = os.path.getsize(self.path)
+        if self.error is not None:
+            raise self._failure()
+
+    def _failure(self) -> RecordingError:
+        exc = self.error
+        why = exc.strerror or str(exc) if exc is not None else "unknown error"
+        return RecordingError(
+            f"writing {self.path} failed ({why}); the file keeps the chunks that reached the disk"
+        )
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        try:
+            self.close()
+        except RecordingError:
+            if exc_type is None:
+                raise  # otherwise the exception in flight says what went wrong
 
     @property
     def bytes_written(self) -> int:
@@ -191,6 +229,10 @@ class McapRecorder(Sink):
             self._schemas[key] = schema_id
         channel_id = writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
+        self._metadata_record(writer, fmt.CHANNEL_METADATA, {
+            "id": str(channel_id), "topic": topic, "message_encoding": message_encoding,
+            "schema_name": schema_name, "schema_encoding": schema_encoding,
+        })
         return channel_id
 
     def _proto_channel(self, topic: str, message: Message) -> int:
@@ -208,18 +250,46 @@ class McapRecorder(Sink):
 
     def _add(self, channel_id: int, timestamp_ns: int, data: bytes, sequence: int = 0) -> None:
         # a Ctrl-C inside add_message could split a chunk from its message indexes
+        writer = self._require_writer()
+        if self.error is not None:
+            raise self._failure()
         with sigint_deferred():
-            self._require_writer().add_message(
-                channel_id=channel_id, log_time=timestamp_ns, publish_time=timestamp_ns, data=data,
-                sequence=sequence & 0xFFFFFFFF,
-            )
+            try:
+                writer.add_message(
+                    channel_id=channel_id, log_time=timestamp_ns, publish_time=timestamp_ns, data=data,
+                    sequence=sequence & 0xFFFFFFFF,
+                )
+            except OSError as exc:
+                self.error = exc
+                raise self._failure() from None
             self.messages_written += 1
+            self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
+
+    def _end_chunk(self) -> None:
+        """Write the chunk being filled (and its message indexes) and hand it to the OS."""
+        if self._chunk_bytes:
+            with sigint_deferred():
+                try:
+                    self._require_writer().flush()
+                except OSError as exc:
+                    self.error = exc
+                    raise self._failure() from None
+                self._chunk_bytes = 0
 
     def _announce_background(self, writer: Writer) -> None:
         if self._background != self._announced:
             self._metadata[fmt.BACKGROUND_FRAMES_KEY] = str(self._background)
-            writer.add_metadata(fmt.RECORDING_METADATA, dict(self._metadata))
+            self._metadata_record(writer, fmt.RECORDING_METADATA, dict(self._metadata))
             self._announced = self._background
+
+    def _metadata_record(self, writer: Writer, name: str, data: dict[str, str]) -> None:
+        if self.error is not None:
+            raise self._failure()
+        try:
+            writer.add_metadata(name, data)
+        except OSError as exc:
+            self.error = exc
+            raise self._failure() from None
 
     # ------------------------------------------------------------------ writing
 
@@ -247,8 +317,8 @@ class McapRecorder(Sink):
                 f"is a background frame after {self.frames_written - self._background} other frames"
             )
         messages: list[tuple[str, Message | None, str | None, Any]] = []
-        if frame.intrinsics != self._intrinsics:
-            messages.append((fmt.CALIBRATION_TOPIC, fmt.encode_calibration(frame.intrinsics, t), None, None))
+        changed = frame.intrinsics != self._intrinsics
+        messages.append((fmt.CALIBRATION_TOPIC, fmt.encode_calibration(frame.intrinsics, t), None, None))
         messages.append(
             (fmt.COLOR_TOPIC, fmt.encode_color(frame.color, t, self.color_format, self.jpeg_quality), None, None)
         )
@@ -273,13 +343,22 @@ class McapRecorder(Sink):
             else (self._json_channel(topic, schema_name, None), fmt.encode_json(obj, f"{topic} of frame seq {frame.seq}"))
             for topic, proto, schema_name, obj in messages
         ]
+        size = sum(_MESSAGE_OVERHEAD + len(data) for _, data in payloads)
         with sigint_deferred():
+            if self._chunk_bytes and self._chunk_bytes + size > self.chunk_size:
+                self._end_chunk()
+            if changed:
+                self._metadata_record(writer, fmt.CALIBRATION_METADATA, fmt.calibration_metadata(frame.intrinsics, t))
+            if not (changed or self._chunk_bytes == 0):  # the chunk already holds this calibration
+                payloads = payloads[1:]
             for channel_id, data in payloads:
                 self._add(channel_id, t, data, frame.seq)
             self._intrinsics = frame.intrinsics
             self._last_ns = t
             self._background += frame.background
             self.frames_written += 1
+            if self._chunk_bytes > self.chunk_size:
+                self._end_chunk()
 
     def _check_extra_topic(self, topic: object) -> str:
         if not isinstance(topic, str) or not topic:
@@ -318,6 +397,8 @@ class McapRecorder(Sink):
         t = fmt.check_timestamp(timestamp_ns)
         data = fmt.encode_json(obj, f"{topic} message")
         self._add(self._json_channel(topic, schema_name, schema), t, data)
+        if self._chunk_bytes > self.chunk_size:
+            self._end_chunk()
 
     def write_protobuf(self, topic: str, message: Message, timestamp_ns: int) -> None:
         """Write a protobuf message, e.g. a ``foxglove.ImageAnnotations`` overlay.
@@ -337,3 +418,5 @@ class McapRecorder(Sink):
             raise InputError(f"write_protobuf takes a protobuf message, got {type(message).__name__}")
         t = fmt.check_timestamp(timestamp_ns)
         self._add(self._proto_channel(topic, message), t, message.SerializeToString())
+        if self._chunk_bytes > self.chunk_size:
+            self._end_chunk()

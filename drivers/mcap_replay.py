@@ -23,6 +23,19 @@ Replay streams: chunks are read one at a time with ``os.pread`` (so
 concurrent :meth:`McapReplay.frame` calls from several threads are safe) and
 chunk CRCs are checked. A corrupt chunk is skipped with a note; the frames it
 held are counted as dropped.
+
+Damage
+------
+Every frame that cannot be read is accounted for in ``stats.losses``
+(:class:`~drivers.base.FrameLoss`: how many, where, why) and ``stats.dropped``;
+``stats.loss_summary()`` says it in one line. A scan that meets a damaged
+record (bad length, CRC, removed or duplicated bytes) searches forward for the
+next plausible record instead of stopping, and estimates the frames lost in
+the gap from the frame period. A malformed optional part (depth, skeleton,
+ground truth) is left out of its frame and counted in ``stats.skipped_parts``.
+The calibration is also read from the ``fusion_pf.calibration`` metadata and
+from its copy at the start of every chunk, so a damaged chunk costs only its
+own frames.
 """
 
 from __future__ import annotations
@@ -48,12 +61,22 @@ from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import Frame, Intrinsics, PalmPoint
 
 from . import mcap_format as fmt
-from .base import ReplaySource, SourceStats
+from .base import FrameLoss, ReplaySource, SourceStats
 
 MAGIC = b"\x89MCAP0\r\n"
 
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
-_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_METADATA, _OP_DATA_END = 0x06, 0x07, 0x0C, 0x0F
+_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_ATTACHMENT, _OP_METADATA, _OP_DATA_END = 0x06, 0x07, 0x09, 0x0C, 0x0F
+#: Records that may follow damage in the data section (where a scan may resynchronise).
+_RESYNC_OPCODES = (_OP_SCHEMA, _OP_CHANNEL, _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_METADATA, _OP_DATA_END, _OP_FOOTER)
+_OP_STATISTICS = 0x0B
+#: Summary-section records (chunk index ... summary offset): skipped by length when met in a scan.
+_SUMMARY_OPCODES = (0x08, 0x0A, 0x0B, 0x0D, 0x0E)
+#: Largest record or decompressed chunk accepted (as the mcap readers' record_size_limit).
+_MAX_RECORD = 4 << 30
+#: Bytes searched per read while resynchronising.
+_RESYNC_WINDOW = 1 << 20
+_TIME_LIMIT = 1 << 63
 _FOOTER_LEN = 9 + 20
 _MESSAGE_HEADER = struct.Struct("<HIQQ")
 _RECORD_HEADER = struct.Struct("<BQ")
@@ -155,6 +178,8 @@ def _decompress_chunk(body: memoryview) -> memoryview:
     cur = _Cursor(body, "chunk")
     cur.uint(16)
     size, crc = cur.uint(8), cur.uint(4)
+    if size > _MAX_RECORD:
+        raise _Corrupt(f"chunk claims {size} uncompressed bytes (more than {_MAX_RECORD})")
     compression = cur.string()
     data = cur.take(cur.uint(8))
     try:
@@ -175,6 +200,80 @@ def _decompress_chunk(body: memoryview) -> memoryview:
     if crc and zlib.crc32(out) != crc:
         raise _Corrupt(f"chunk CRC mismatch (expected {crc:#010x}, got {zlib.crc32(out):#010x})")
     return memoryview(out)
+
+
+def _message_header(rec: memoryview | bytes) -> tuple[int, int, int]:
+    """``(channel_id, sequence, log_time)`` of a message record body."""
+    try:
+        cid, seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(rec)
+    except struct.error as exc:
+        raise _Corrupt(f"message record too short ({exc})") from None
+    if log_time >= _TIME_LIMIT:
+        raise _Corrupt(f"message log time {log_time} ns is beyond 2**63")
+    return cid, seq, log_time
+
+
+def _structure_ok(opcode: int, length: int, body: bytes, strict: bool = True) -> bool:
+    """Whether the first bytes ``body`` of a record are consistent with its opcode and ``length``.
+
+    Used to find the next record after damage; ``body`` holds at least the
+    first 64 bytes of the record body (fewer when the record is shorter).
+    Without ``strict`` (a record where one is expected) a chunk's message
+    times are not checked, so parsing it can say what is wrong with them.
+    """
+    def u(at: int, n: int) -> int | None:
+        return int.from_bytes(body[at : at + n], "little") if at + n <= len(body) else None
+
+    if opcode == _OP_CHUNK:
+        clen = u(28, 4)
+        if clen is None or clen > 4:
+            return False
+        comp = body[32 : 32 + clen]
+        rlen = u(32 + clen, 8)
+        start, end = u(0, 8), u(8, 8)
+        times_ok = start is not None and end is not None and (not strict or start <= end < _TIME_LIMIT)
+        return comp in (b"", b"zstd", b"lz4") and rlen is not None and 40 + clen + rlen == length and times_ok
+    if opcode == _OP_MESSAGE_INDEX:
+        n = u(2, 4)
+        return n is not None and n % 16 == 0 and 6 + n == length
+    if opcode == _OP_DATA_END:
+        return length == 4
+    if opcode == _OP_FOOTER:
+        return length == 20
+    if opcode == _OP_METADATA:
+        n = u(0, 4)
+        if n is None or n > 256 or 4 + n + 4 > length:
+            return False
+        m = u(4 + n, 4)
+        return m is not None and 4 + n + 4 + m == length
+    if opcode == _OP_SCHEMA:
+        n = u(2, 4)
+        if n is None or n > 256:
+            return False
+        e = u(6 + n, 4)
+        if e is None or e > 64:
+            return False
+        d = u(10 + n + e, 4)
+        return d is not None and 14 + n + e + d == length
+    if opcode == _OP_CHANNEL:
+        n = u(4, 4)
+        if n is None or n > 256:
+            return False
+        e = u(8 + n, 4)
+        if e is None or e > 64:
+            return False
+        m = u(12 + n + e, 4)
+        return m is not None and 16 + n + e + m == length
+    return False
+
+
+class _Damage(NamedTuple):
+    """A damaged stretch of a scanned file."""
+
+    offset: int
+    reason: str
+    before_ns: int | None  # latest colour time read before it (file order)
+    hint: tuple[int, int] | None  # message start/end time from a chunk header that still parses
 
 
 @dataclass(frozen=True)
@@ -325,7 +424,16 @@ class McapReplay(ReplaySource):
         self._background = 0
         self._own_sequences = False
         self._formats: tuple[str | None, str | None] = (None, None)
-        self._corrupt: set[int] = set()
+        self._corrupt: dict[int, str] = {}
+        self._cal_meta: dict[int, Intrinsics] = {}
+        self._cal_meta_times = np.zeros(0, np.int64)
+        self._scan_losses: list[FrameLoss] = []
+        self._lost: dict[int, tuple[str, int | None]] = {}
+        self._bad_parts: dict[str, set[int]] = {}
+        self._part_times: dict[str, set[int]] = {}
+        self._scan_damage: list[_Damage] = []
+        self._stop: tuple[int, int | None, tuple[int, int] | None] | None = None
+        self._stat_counts: dict[int, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -358,6 +466,7 @@ class McapReplay(ReplaySource):
             self.close()
             raise
         self.stats.notes[:0] = self._notes
+        self._publish()
 
     def close(self) -> None:
         """Close the file; safe to call twice."""
@@ -373,6 +482,10 @@ class McapReplay(ReplaySource):
     def _pread(self, offset: int, length: int) -> bytes:
         if self._fd is None:
             raise RuntimeError(f"{type(self).__name__} is closed")
+        if offset < 0 or length < 0 or offset + length > self._size:
+            raise _Corrupt(
+                f"a record of {length} bytes at byte {offset} does not fit in the {self._size}-byte file"
+            )
         data = os.pread(self._fd, length, offset)
         if len(data) != length:
             raise _Corrupt(f"the file ends at byte {offset + len(data)}, inside a record ending at {offset + length}")
@@ -426,6 +539,11 @@ class McapReplay(ReplaySource):
         times: dict[int, list[np.ndarray]] = {}
         try:
             for ci in summary.chunk_indexes:
+                if not ci.message_start_time <= ci.message_end_time < _TIME_LIMIT:
+                    raise _Corrupt(f"chunk index times {ci.message_start_time}..{ci.message_end_time} are impossible")
+                opcode, length = _RECORD_HEADER.unpack(self._pread(ci.chunk_start_offset, 9))
+                if opcode != _OP_CHUNK or 9 + length != ci.chunk_length:
+                    raise _Corrupt(f"the chunk index points at byte {ci.chunk_start_offset}, where no such chunk is")
                 self._blocks.append(
                     _Block(ci.chunk_start_offset, ci.chunk_length, True, ci.message_start_time,
                            ci.message_end_time, frozenset(ci.message_index_offsets))
@@ -438,11 +556,17 @@ class McapReplay(ReplaySource):
                     cur = _Cursor(body, "message index")
                     cid = cur.uint(2)
                     pairs = cur.take(cur.uint(4))
-                    times.setdefault(cid, []).append(np.frombuffer(pairs, "<u8")[0::2].astype(np.int64))
-            for mi in summary.metadata_indexes:
-                self._add_metadata(self._pread(mi.offset, mi.length)[9:])
-        except _Corrupt as exc:
+                    log_times = np.frombuffer(pairs, "<u8", count=len(pairs) // 8)[0::2]
+                    if log_times.size and int(log_times.max()) >= _TIME_LIMIT:
+                        raise _Corrupt("a message index holds a log time beyond 2**63")
+                    times.setdefault(cid, []).append(log_times.astype(np.int64))
+        except (_Corrupt, struct.error) as exc:
             return f"damaged index ({exc})"
+        for mi in summary.metadata_indexes:
+            try:
+                self._add_metadata(self._pread(mi.offset, mi.length)[9:])
+            except _Corrupt as exc:
+                self._notes.append(f"skipped the metadata record at byte {mi.offset}: {exc}")
         self._times = {cid: np.sort(np.concatenate(parts)) for cid, parts in times.items()}
         if summary.statistics is not None:
             self._counts = dict(summary.statistics.channel_message_counts)
@@ -457,83 +581,190 @@ class McapReplay(ReplaySource):
         if kind is not None:
             self._kind[channel.id] = kind
 
-    def _add_metadata(self, body: bytes | memoryview) -> None:
+    def _add_metadata(self, body: bytes | memoryview) -> dict[str, str] | None:
+        """Take in a metadata record; return the fields of a ``fusion_pf.channel`` record (else None)."""
         cur = _Cursor(body, "metadata")
-        if cur.string() == fmt.RECORDING_METADATA:
+        name = cur.string()
+        if name == fmt.CHANNEL_METADATA:
+            return cur.mapping()
+        if name == fmt.RECORDING_METADATA:
             self._metadata.update(cur.mapping())
+        elif name == fmt.CALIBRATION_METADATA:
+            try:
+                t, intrinsics = fmt.decode_calibration_metadata(cur.mapping())
+            except RecordingError as exc:
+                raise _Corrupt(str(exc)) from None
+            self._cal_meta[t] = intrinsics
+        return None
+
+    def _record_at(self, pos: int, strict: bool = True) -> tuple[int, int] | None:
+        """``(opcode, length)`` of a plausible record starting at ``pos``, or None (see :func:`_structure_ok`)."""
+        head = os.pread(self._fd, 9 + 64, pos)  # type: ignore[arg-type]
+        if len(head) < 9:
+            return None
+        opcode, length = _RECORD_HEADER.unpack_from(head)
+        if length > _MAX_RECORD or pos + 9 + length > self._size:
+            return None
+        if opcode in _SUMMARY_OPCODES or opcode in (_OP_HEADER, _OP_ATTACHMENT):
+            return opcode, length
+        if opcode == _OP_MESSAGE:
+            if length < _MESSAGE_HEADER.size:
+                return None
+            return opcode, length
+        if _structure_ok(opcode, length, head[9 : 9 + min(length, 64)], strict):
+            return opcode, length
+        return None
+
+    def _resync(self, start: int) -> int | None:
+        """Offset of the next plausible data-section record at or after ``start``, or None."""
+        pos = start
+        while pos + 9 <= self._size:
+            buf = np.frombuffer(os.pread(self._fd, _RESYNC_WINDOW, pos), np.uint8)  # type: ignore[arg-type]
+            for k in np.flatnonzero(np.isin(buf, _RESYNC_OPCODES)):
+                at = pos + int(k)
+                found = self._record_at(at)
+                if found is not None and found[0] in _RESYNC_OPCODES:
+                    return at
+            pos += max(len(buf), 1)
+        return None
+
+    @staticmethod
+    def _chunk_times(body: memoryview) -> tuple[int, int] | None:
+        """Message start/end times from a (possibly corrupt) chunk header, when they are plausible."""
+        if len(body) < 16:
+            return None
+        start, end = struct.unpack_from("<QQ", body)
+        return (start, end) if start <= end < _TIME_LIMIT else None
 
     def _scan(self, reason: str) -> None:
-        """Rebuild the index with one linear pass over the complete records."""
+        """Rebuild the index with one linear pass over the records, resynchronising after damage."""
         size = self._size
         self._reset()
         self._size = size
         schemas: dict[int, tuple[str, str]] = {}
         pending: dict[int, tuple[int, int, str, str]] = {}
         times: dict[int, list[int]] = {}
-        pos, end_seen, stop = 8, False, ""
+        damage: list[_Damage] = []
+        spare: dict[int, dict[str, str]] = {}
+        color_ids: set[int] = set()
+        last_color: list[int] = []
+        pos, end_seen, in_summary, stop, stop_at = 8, False, False, "", size
+        cut_hint: tuple[int, int] | None = None
 
         def channel(cur: _Cursor) -> None:
             cid, sid = cur.uint(2), cur.uint(2)
             topic, encoding = cur.string(), cur.string()
             pending[cid] = (cid, sid, topic, encoding)
+            if topic == fmt.COLOR_TOPIC:
+                color_ids.add(cid)
 
         def schema(cur: _Cursor) -> None:
             sid = cur.uint(2)
             schemas[sid] = (cur.string(), cur.string())
 
-        while True:
-            if pos + 9 > size:
-                if pos < size:
-                    stop = f"the file ends at byte {size} inside a record header at byte {pos}"
-                break
-            opcode, length = _RECORD_HEADER.unpack(os.pread(self._fd, 9, pos))  # type: ignore[arg-type]
+        def message(cid: int, log_time: int) -> None:
+            times.setdefault(cid, []).append(log_time)
+            if cid in color_ids:
+                last_color.append(log_time)
+
+        while pos + 9 <= size:
+            found = self._record_at(pos, strict=False)
+            if found is None or (in_summary and found[0] not in (_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, *_SUMMARY_OPCODES)):
+                opcode, length = _RECORD_HEADER.unpack(os.pread(self._fd, 9, pos))  # type: ignore[arg-type]
+                why = (f"a record (opcode 0x{opcode:02x}) of {length} bytes that does not fit"
+                       if pos + 9 + length > size else f"an unreadable record (opcode 0x{opcode:02x}, {length} bytes)")
+                nxt = self._resync(pos + 1)
+                if nxt is None:
+                    if not in_summary:
+                        stop = f"the file ends at byte {size} after {why} at byte {pos}"
+                        stop_at = pos
+                        if opcode == _OP_CHUNK:
+                            cut_hint = self._chunk_times(memoryview(os.pread(self._fd, 16, pos + 9)))  # type: ignore[arg-type]
+                    break
+                if not in_summary:
+                    damage.append(_Damage(pos, f"{nxt - pos} damaged bytes at byte {pos} ({why})",
+                                          max(last_color) if last_color else None, None))
+                pos = nxt
+                continue
+            opcode, length = found
             end = pos + 9 + length
-            if opcode == 0 or end > size:
-                stop = f"the file ends at byte {size} inside a record (opcode 0x{opcode:02x}) starting at byte {pos}"
-                break
-            if opcode in (_OP_DATA_END, _OP_FOOTER):
+            if opcode == _OP_FOOTER:
                 end_seen = True
                 break
+            if opcode == _OP_DATA_END:
+                end_seen = in_summary = True
+                pos = end
+                continue
             body = memoryview(os.pread(self._fd, length, pos + 9))  # type: ignore[arg-type]
             try:
                 if opcode == _OP_HEADER:
                     cur = _Cursor(body, "header")
                     self._profile, self._library = cur.string(), cur.string()
+                elif opcode == _OP_STATISTICS:
+                    cur = _Cursor(body, "statistics")
+                    cur.take(8 + 2 + 4 * 4 + 16)
+                    end_map = cur.pos + cur.uint(4)
+                    while cur.pos < end_map:
+                        cid = cur.uint(2)
+                        self._stat_counts[cid] = cur.uint(8)
                 elif opcode == _OP_SCHEMA:
                     schema(_Cursor(body, "schema"))
                 elif opcode == _OP_CHANNEL:
                     channel(_Cursor(body, "channel"))
-                elif opcode == _OP_METADATA:
-                    self._add_metadata(body)
-                elif opcode == _OP_MESSAGE:
-                    cid, _seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(body)
-                    times.setdefault(cid, []).append(log_time)
-                    self._blocks.append(_Block(pos, 9 + length, False, log_time, log_time, frozenset((cid,))))
-                elif opcode == _OP_CHUNK:
-                    seen: set[int] = set()
-                    lo, hi = None, None
-                    for op, rec in _records(_decompress_chunk(body), "chunk"):
+                elif opcode == _OP_METADATA and not in_summary:
+                    fields = self._add_metadata(body)
+                    if fields is not None and fields.get("id", "").isdigit():
+                        spare[int(fields["id"])] = fields
+                        if fields.get("topic") == fmt.COLOR_TOPIC:
+                            color_ids.add(int(fields["id"]))
+                elif opcode == _OP_MESSAGE and not in_summary:
+                    cid, _seq, t = _message_header(body)
+                    message(cid, t)
+                    self._blocks.append(_Block(pos, 9 + length, False, t, t, frozenset((cid,))))
+                elif opcode == _OP_CHUNK and not in_summary:
+                    records = list(_records(_decompress_chunk(body), "chunk"))
+                    found_messages = [_message_header(rec) for op, rec in records if op == _OP_MESSAGE]
+                    for op, rec in records:  # the whole chunk is sound: take it in
                         if op == _OP_SCHEMA:
                             schema(_Cursor(rec, "schema"))
                         elif op == _OP_CHANNEL:
                             channel(_Cursor(rec, "channel"))
-                        elif op == _OP_MESSAGE:
-                            cid, _seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(rec)
-                            times.setdefault(cid, []).append(log_time)
-                            seen.add(cid)
-                            lo = log_time if lo is None else min(lo, log_time)
-                            hi = log_time if hi is None else max(hi, log_time)
-                    if lo is not None:
-                        self._blocks.append(_Block(pos, 9 + length, True, lo, hi, frozenset(seen)))
+                    for cid, _seq, log_time in found_messages:
+                        message(cid, log_time)
+                    if found_messages:
+                        stamps = [log_time for _cid, _seq, log_time in found_messages]
+                        self._blocks.append(_Block(pos, 9 + length, True, min(stamps), max(stamps),
+                                                   frozenset(cid for cid, _seq, _t in found_messages)))
             except (_Corrupt, struct.error) as exc:
-                self._notes.append(f"skipped a corrupt record (opcode 0x{opcode:02x}) at byte {pos}: {exc}")
+                kind = "chunk" if opcode == _OP_CHUNK else f"record (opcode 0x{opcode:02x})"
+                hint = self._chunk_times(body) if opcode == _OP_CHUNK else None
+                damage.append(_Damage(pos, f"{kind} at byte {pos} is corrupt ({exc})",
+                                      max(last_color) if last_color else None, hint))
+                nxt = self._resync(pos + 1)
+                if nxt is None:
+                    break
+                if nxt > end:  # the damage goes on past the corrupt record
+                    damage.append(_Damage(end, f"{nxt - end} unreadable bytes at byte {end}",
+                                          max(last_color) if last_color else None, None))
+                pos = nxt
+                continue
             pos = end
         for cid, sid, topic, encoding in pending.values():
             name, schema_encoding = schemas.get(sid, ("", ""))
             self._add_channel(_Channel(cid, topic, encoding, name, schema_encoding))
+        for cid, fields in spare.items():  # channels whose own record was in a damaged chunk
+            if cid not in self._channels and cid <= 0xFFFF:
+                self._add_channel(_Channel(cid, fields.get("topic", ""), fields.get("message_encoding", ""),
+                                           fields.get("schema_name", ""), fields.get("schema_encoding", "")))
+                self._notes.append(f"channel {cid} ({fields.get('topic', '')}) taken from its "
+                                   f"{fmt.CHANNEL_METADATA} metadata copy")
         self._times = {cid: np.sort(np.asarray(t, np.int64)) for cid, t in times.items()}
         self._counts = {cid: len(t) for cid, t in times.items()}
         self._truncated = not end_seen or reason == "no footer"
+        self._scan_damage = damage
+        self._stop = (stop_at, max(last_color) if last_color else None, cut_hint) if not end_seen else None
+        for d in damage:
+            self._notes.append(f"{d.reason}; skipped it")
         if self._truncated:
             if end_seen:
                 stop = f"the data section is complete but the file ends at byte {size} without a valid footer"
@@ -541,6 +772,100 @@ class McapReplay(ReplaySource):
             self._notes.insert(0, f"file truncated (the writer did not finish it): {where}; replaying every complete message")
         else:
             self._notes.insert(0, f"file has no usable index ({reason}); scanned it")
+
+    def _frame_period(self) -> float | None:
+        """Typical interval between consecutive frames (ns): the median of the intervals near the shortest.
+
+        Robust to lost frames (long intervals) as long as two consecutive frames were read.
+        """
+        gaps = np.diff(self._all)
+        gaps = gaps[gaps > 0]
+        if not len(gaps):
+            return None
+        return float(np.median(gaps[gaps <= 1.5 * gaps.min()]))
+
+    def _estimate_scan_losses(self) -> None:
+        """Turn the damage a scan met into frame losses, counting the frames each gap lacks.
+
+        Damage met between the same two readable frames is one loss: the
+        frames missing between them (from the frame period), described by the
+        first damaged record and how many more followed.
+        """
+        damage, stop = self._scan_damage, self._stop
+        times = self._all
+        period = self._frame_period()
+
+        def frames_in(lo: int, hi: int, inclusive: bool) -> int | None:
+            """Frames strictly between ``lo`` and ``hi`` (and the two ends when ``inclusive``)."""
+            if period is None:
+                return None
+            return max(int(round((hi - lo) / period)) + (1 if inclusive else -1), 0)
+
+        first_ns = min(self._cal_meta) if self._cal_meta else None  # our recorder: the first frame's time
+        groups: list[list[_Damage]] = []
+        for d in damage:
+            if groups and groups[-1][0].before_ns == d.before_ns:
+                groups[-1].append(d)
+            else:
+                groups.append([d])
+        for group in groups:
+            before = group[0].before_ns
+            k = int(np.searchsorted(times, before, "right")) if before is not None else 0
+            after = int(times[k]) if k < len(times) else None
+            hints = [d.hint for d in group if d.hint is not None]
+            lo = min(h[0] for h in hints) if hints else None
+            hi = max(h[1] for h in hints) if hints else None
+            n: int | None
+            if before is not None and after is not None:
+                n = frames_in(before, after, False)
+            elif after is not None:  # damage before the first readable frame
+                lo = lo if lo is not None else first_ns
+                n = None if lo is None or lo > after else frames_in(lo, after, True)
+                n = None if n is None else n - 1  # ``after`` itself was read
+            elif stop is not None or len(hints) < len(group):
+                n = None  # after the last readable frame, with nothing to count to
+            else:
+                n = frames_in(before, hi, True) - 1 if before is not None and lo <= before else frames_in(lo, hi, True)
+            reason = group[0].reason
+            if len(group) > 1:
+                reason += f", and {len(group) - 1} more damaged record(s) up to byte {group[-1].offset}"
+            if n != 0:
+                self._scan_losses.append(FrameLoss(n, reason, group[0].offset))
+        self._check_statistics()
+        if stop is not None:
+            at, last, cut = stop
+            if cut is not None and period is not None and (last is None or cut[0] > last):
+                n = int(round((cut[1] - cut[0]) / period)) + 1
+                self._scan_losses.append(FrameLoss(n, f"the chunk at byte {at} is cut off by the end of the file", at))
+            after = f" after t={last} ns" if last is not None else ""
+            self._scan_losses.append(FrameLoss(
+                None, f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost", at,
+                tail=True))
+
+    def _check_statistics(self) -> None:
+        """Compare the frames read and counted lost with the colour message count of the summary, if read.
+
+        The summary's Statistics record survives damage to the data section:
+        frames it counts beyond those read or counted as lost were lost
+        without a trace (e.g. a whole chunk removed); they fill an unknown count
+        when there is exactly one, or are reported as a loss of their own.
+        """
+        colour = [cid for cid, kind in self._kind.items() if kind == "color"]
+        if not self._stat_counts or not colour or self._stop is not None:
+            return
+        counted = sum(self._stat_counts.get(cid, 0) for cid in colour)
+        known = sum(x.frames or 0 for x in self._scan_losses)
+        missing = counted - len(self._all) - known
+        unknown = [k for k, x in enumerate(self._scan_losses) if x.frames is None]
+        if missing <= 0:
+            return
+        if len(unknown) == 1:
+            x = self._scan_losses[unknown[0]]
+            self._scan_losses[unknown[0]] = FrameLoss(missing, x.reason, x.offset, x.tail)
+        elif not unknown:
+            self._scan_losses.append(FrameLoss(
+                missing, f"the summary counts {counted} {fmt.COLOR_TOPIC} messages, {missing} more than were read "
+                "or found in damaged records"))
 
     def _topic_times(self, kind: str) -> np.ndarray:
         parts = [self._times[cid] for cid, k in self._kind.items() if k == kind and cid in self._times]
@@ -559,7 +884,8 @@ class McapReplay(ReplaySource):
         self._block_start = np.array([b.start_ns for b in self._blocks], np.int64)
         self._block_end = np.array([b.end_ns for b in self._blocks], np.int64)
         kinds = set(self._kind.values())
-        for kind, topic in (("color", fmt.COLOR_TOPIC), ("calibration", fmt.CALIBRATION_TOPIC)):
+        required = (("color", fmt.COLOR_TOPIC),) + (() if self._cal_meta else (("calibration", fmt.CALIBRATION_TOPIC),))
+        for kind, topic in required:
             if kind not in kinds:
                 raise RecordingError(f"{self.path} has no {topic} topic, which is required; {self._topics_present()}")
         for cid, kind in self._kind.items():
@@ -577,9 +903,11 @@ class McapReplay(ReplaySource):
                     f"messages; expected {enc} {expected}"
                 )
         self._all = self._topic_times("color")
+        self._part_times = {kind: set(self._topic_times(kind).tolist()) for kind in ("depth", "skeleton", "truth")}
         if len(self._all) == 0:
             raise RecordingError(f"{self.path} has no {fmt.COLOR_TOPIC} messages (no frames); {self._topics_present()}")
-        self._cal_times = self._topic_times("calibration")
+        self._cal_meta_times = np.array(sorted(self._cal_meta), np.int64)
+        self._cal_times = np.union1d(self._topic_times("calibration"), self._cal_meta_times)
         if len(self._cal_times) == 0:
             raise RecordingError(
                 f"{self.path} has no {fmt.CALIBRATION_TOPIC} message, which is required; {self._topics_present()}"
@@ -602,13 +930,14 @@ class McapReplay(ReplaySource):
         lo = 0 if start_ns is None else int(np.searchsorted(self._all, start_ns, "left"))
         hi = len(self._all) if end_ns is None else int(np.searchsorted(self._all, end_ns, "left"))
         self._sel = (lo, max(lo, hi))
+        self._estimate_scan_losses()
         self._probe()
 
     def _probe(self) -> None:
         """Decode the first frame to check sizes and learn the formats."""
         try:
             parts = self._parts_at(int(self._all[0]))
-            self._build(0, int(self._all[0]), parts)
+            self._build(0, int(self._all[0]), parts, strict=True)
         except _Corrupt:
             return  # noted by _corrupt_block; replay skips the block
         self._formats = tuple(  # type: ignore[assignment]
@@ -629,19 +958,20 @@ class McapReplay(ReplaySource):
             if cached is not None:
                 self._block_cache.move_to_end(block.offset)
                 return cached
-        body = memoryview(self._pread(block.offset, block.length))[9:]
+        raw = memoryview(self._pread(block.offset, block.length))
+        opcode, length = _RECORD_HEADER.unpack_from(raw)
+        if opcode != (_OP_CHUNK if block.is_chunk else _OP_MESSAGE) or 9 + length != block.length:
+            raise _Corrupt(f"the record there changed (opcode 0x{opcode:02x}, {length} bytes)")
+        body = raw[9:]
         out: list[tuple[int, int, memoryview, int]] = []
-        try:
-            if block.is_chunk:
-                for opcode, rec in _records(_decompress_chunk(body), "chunk"):
-                    if opcode == _OP_MESSAGE:
-                        cid, seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(rec)
-                        out.append((cid, log_time, rec[_MESSAGE_HEADER.size :], seq))
-            else:
-                cid, seq, log_time, _pub = _MESSAGE_HEADER.unpack_from(body)
-                out.append((cid, log_time, body[_MESSAGE_HEADER.size :], seq))
-        except struct.error as exc:
-            raise _Corrupt(f"message record too short ({exc})") from None
+        if block.is_chunk:
+            for opcode, rec in _records(_decompress_chunk(body), "chunk"):
+                if opcode == _OP_MESSAGE:
+                    cid, seq, log_time = _message_header(rec)
+                    out.append((cid, log_time, rec[_MESSAGE_HEADER.size :], seq))
+        else:
+            cid, seq, log_time = _message_header(body)
+            out.append((cid, log_time, body[_MESSAGE_HEADER.size :], seq))
         with self._lock:
             self._block_cache[block.offset] = out
             while len(self._block_cache) > _BLOCK_CACHE:
@@ -660,7 +990,7 @@ class McapReplay(ReplaySource):
         text = f"{self.path.name}: {kind} at byte {block.offset} is corrupt: {exc}"
         with self._lock:
             if block.offset not in self._corrupt:
-                self._corrupt.add(block.offset)
+                self._corrupt[block.offset] = str(exc)
                 self.stats.notes.append(text + "; skipped it")
         return _Corrupt(text)
 
@@ -678,70 +1008,140 @@ class McapReplay(ReplaySource):
         return parts
 
     def _calibration_at(self, t: int) -> Intrinsics:
+        """The calibration in effect at ``t``: its message, else its ``fusion_pf.calibration`` metadata copy."""
         k = max(int(np.searchsorted(self._cal_times, t, "right")) - 1, 0)
         c = int(self._cal_times[k])
         with self._lock:
             cached = self._cal_cache.get(c)
         if cached is not None:
             return cached
+        problems: list[str] = []
+        intrinsics = None
         for block in self._blocks_between(c, c, ("calibration",)):
             try:
                 records = self._block_records(block)
             except _Corrupt as exc:
-                raise self._corrupt_block(block, exc) from None
+                problems.append(str(self._corrupt_block(block, exc)))
+                continue
             for cid, log_time, data, _seq in records:
                 if log_time == c and self._kind.get(cid) == "calibration":
-                    intrinsics = fmt.decode_calibration(data, f"{fmt.CALIBRATION_TOPIC} at t={c} ns")
-                    with self._lock:
-                        if len(self._cal_cache) >= _CALIBRATION_CACHE:
-                            self._cal_cache.clear()
-                        self._cal_cache[c] = intrinsics
-                    return intrinsics
-        raise _Corrupt(f"the {fmt.CALIBRATION_TOPIC} message at t={c} ns cannot be found")
+                    try:
+                        intrinsics = fmt.decode_calibration(data, f"{fmt.CALIBRATION_TOPIC} at t={c} ns")
+                        break
+                    except RecordingError as exc:
+                        problems.append(str(exc))
+            if intrinsics is not None:
+                break
+        if intrinsics is None and len(self._cal_meta_times):
+            m = max(int(np.searchsorted(self._cal_meta_times, t, "right")) - 1, 0)
+            intrinsics = self._cal_meta[int(self._cal_meta_times[m])]
+        if intrinsics is None:
+            why = problems[0] if problems else "it cannot be found"
+            raise _Corrupt(f"the {fmt.CALIBRATION_TOPIC} message at t={c} ns cannot be read: {why}")
+        with self._lock:
+            if len(self._cal_cache) >= _CALIBRATION_CACHE:
+                self._cal_cache.clear()
+            self._cal_cache[c] = intrinsics
+        return intrinsics
 
-    def _build(self, index: int, t: int, parts: dict[str, tuple[int, memoryview, int]]) -> Frame:
-        """Decode the parts of the frame with file index ``index`` at time ``t``."""
+    def _skip_part(self, part: str, index: int, exc: Exception) -> None:
+        """Count a malformed optional ``part`` of frame ``index`` (noting the first of each part)."""
+        with self._lock:
+            seen = self._bad_parts.setdefault(part, set())
+            if not seen:
+                self.stats.notes.append(f"{exc}; frames are kept without an unreadable {part}")
+            seen.add(index)
+            self.stats.skipped_parts[part] = len(seen)
+
+    def _build(self, index: int, t: int, parts: dict[str, tuple[int, memoryview, int]], *, strict: bool = False) -> Frame:
+        """Decode the parts of the frame with file index ``index`` at time ``t``.
+
+        A malformed depth, skeleton or ground truth is left out and counted
+        (:meth:`_skip_part`); with ``strict`` (the first frame, checked at open)
+        it raises RecordingError instead. A frame whose colour or calibration
+        cannot be used raises _Corrupt (RecordingError with ``strict``).
+        """
         where = f"frame {index} (t={t} ns)"
         if "color" not in parts:
             raise _Corrupt(f"{where} has no {fmt.COLOR_TOPIC} message")
         cid, data, seq = parts["color"]
-        color = fmt.decode_color(self._channels[cid].schema_name, data, f"{fmt.COLOR_TOPIC} of {where}")
-        depth = None
-        if "depth" in parts:
-            cid, data, _seq = parts["depth"]
-            depth = fmt.decode_depth(self._channels[cid].schema_name, data, f"{fmt.DEPTH_TOPIC} of {where}")
-        joints = None
-        if "skeleton" in parts:
-            w = f"{fmt.SKELETON_TOPIC} of {where}"
-            joints = fmt.decode_skeleton(fmt.decode_json(parts["skeleton"][1], w), w)
-        truth = None
+        try:
+            color = fmt.decode_color(self._channels[cid].schema_name, data, f"{fmt.COLOR_TOPIC} of {where}")
+            intrinsics = self._calibration_at(t)
+            h, w = color.shape[:2]
+            if (intrinsics.width, intrinsics.height) != (w, h):
+                raise RecordingError(
+                    f"{self.path}: {fmt.CALIBRATION_TOPIC} is for {intrinsics.width}x{intrinsics.height} images "
+                    f"but {fmt.COLOR_TOPIC} is {w}x{h} in {where}"
+                )
+        except RecordingError as exc:
+            if strict:
+                raise
+            raise _Corrupt(str(exc)) from None
+        optional: dict[str, Any] = {"depth": None, "skeleton": None, "truth": None, "hands": None}
         truths: dict[str, PalmPoint] = {}
-        w = f"{fmt.GROUND_TRUTH_TOPIC} of {where}"
-        for _cid, data, _seq in parts.get("truth", ()):
-            target, point = fmt.decode_truth(fmt.decode_json(data, w), w)
-            if target is None:
-                truth = point
-            else:
-                truths[target] = point
-        hands = None
-        if "hands" in parts:
-            w = f"{fmt.HAND_TOPIC} of {where}"
-            hands = fmt.decode_hands(fmt.decode_json(parts["hands"][1], w), w)
-        intrinsics = self._calibration_at(t)
-        h, w = color.shape[:2]
-        if depth is not None and depth.shape != (h, w):
-            raise RecordingError(
-                f"{self.path}: {fmt.DEPTH_TOPIC} is {depth.shape[1]}x{depth.shape[0]} but {fmt.COLOR_TOPIC} is "
-                f"{w}x{h} in {where}; depth must be aligned to colour (same size)"
-            )
-        if (intrinsics.width, intrinsics.height) != (w, h):
-            raise RecordingError(
-                f"{self.path}: {fmt.CALIBRATION_TOPIC} is for {intrinsics.width}x{intrinsics.height} images but "
-                f"{fmt.COLOR_TOPIC} is {w}x{h} in {where}"
-            )
+        topics = {"depth": fmt.DEPTH_TOPIC, "skeleton": fmt.SKELETON_TOPIC, "truth": fmt.GROUND_TRUTH_TOPIC,
+                  "hands": fmt.HAND_TOPIC}
+        names = {"depth": "depth", "skeleton": "skeleton", "truth": "ground truth", "hands": "hand landmarks"}
+        for kind in ("depth", "skeleton", "truth", "hands"):
+            if kind not in parts:
+                continue
+            records = parts[kind] if kind == "truth" else [parts[kind]]
+            w_ = f"{topics[kind]} of {where}"
+            for cid, data, _seq in records:
+                try:
+                    if kind == "depth":
+                        value: Any = fmt.decode_depth(self._channels[cid].schema_name, data, w_)
+                        if value.shape != (h, w):
+                            raise RecordingError(
+                                f"{self.path}: {fmt.DEPTH_TOPIC} is {value.shape[1]}x{value.shape[0]} but "
+                                f"{fmt.COLOR_TOPIC} is {w}x{h} in {where}; depth must be aligned to colour (same size)"
+                            )
+                    elif kind == "skeleton":
+                        value = fmt.decode_skeleton(fmt.decode_json(data, w_), w_)
+                    elif kind == "hands":
+                        value = fmt.decode_hands(fmt.decode_json(data, w_), w_)
+                    else:
+                        target, value = fmt.decode_truth(fmt.decode_json(data, w_), w_)
+                        if target is not None:
+                            truths[target] = value
+                            continue
+                except RecordingError as exc:
+                    if strict:
+                        raise
+                    self._skip_part(names[kind], index, exc)
+                    value = None
+                optional[kind] = value
         seq = seq if self._own_sequences else index
-        return Frame(t, seq, color, depth, intrinsics, joints, truth, background=index < self._background,
-                     ground_truths=truths or None, hands=hands)
+        return Frame(t, seq, color, optional["depth"], intrinsics, optional["skeleton"], optional["truth"],
+                     background=index < self._background, ground_truths=truths or None, hands=optional["hands"])
+
+    def _lose(self, index: int, reason: str, offset: int | None) -> None:
+        """Record that the frame with file index ``index`` could not be read, and why."""
+        with self._lock:
+            self._lost[index] = (reason, offset)
+        self._publish()
+
+    def _why_missing(self, t: int, kind: str = "color") -> tuple[str, int | None]:
+        """Why the ``kind`` message at ``t`` was not read: the corrupt chunk that holds it, if any."""
+        for block in self._blocks_between(t, t, (kind,)):
+            reason = self._corrupt.get(block.offset)
+            if reason is not None:
+                what = "chunk" if block.is_chunk else "message"
+                return f"{what} at byte {block.offset} is corrupt ({reason})", block.offset
+        topic = {v: k for k, v in _KINDS.items()}[kind]
+        return f"its {topic} message cannot be found", None
+
+    def _publish(self) -> None:
+        """Refresh ``stats.losses`` and ``stats.dropped`` from the losses found so far."""
+        with self._lock:
+            groups: dict[tuple[str, int | None], int] = {}
+            for index in sorted(self._lost):
+                key = self._lost[index]
+                groups[key] = groups.get(key, 0) + 1
+            losses = list(self._scan_losses) + [FrameLoss(n, reason, offset) for (reason, offset), n in groups.items()]
+            self.stats.losses = losses
+            self.stats.dropped = sum(loss.frames or 0 for loss in losses)
 
     # ------------------------------------------------------------------ public API
 
@@ -806,8 +1206,11 @@ class McapReplay(ReplaySource):
     ) -> Iterator[Frame]:
         """Yield the selected frames with index in ``[start, stop)`` and time in ``[start_ns, end_ns)``.
 
-        Frames whose colour message sits in a corrupt chunk are skipped and
-        counted in ``stats.dropped``, with a note.
+        Frames whose colour message sits in a corrupt chunk, or whose colour or
+        calibration cannot be decoded, are skipped and recorded in
+        ``stats.losses`` and ``stats.dropped`` (with a note); a malformed depth,
+        skeleton or ground truth is left out of its frame and counted in
+        ``stats.skipped_parts``.
         """
         self._require_open()
         start = self._check_index(start, "start")
@@ -849,12 +1252,18 @@ class McapReplay(ReplaySource):
                         _put(pending.setdefault(log_time, {}), kind, (cid, data, seq))
             parts = pending.pop(t, {})
             if "color" not in parts:
-                self.stats.dropped += 1
+                self._lose(lo + k, *self._why_missing(t))
                 continue
+            for kind, part in (("depth", "depth"), ("skeleton", "skeleton"), ("truth", "ground truth")):
+                if kind not in parts and t in self._part_times[kind]:  # indexed, but its chunk is unreadable
+                    why, _offset = self._why_missing(t, kind)
+                    self._skip_part(part, lo + k, f"the {part} of frame {lo + k} (t={t} ns) cannot be read: {why}")
             try:
-                yield self._build(lo + k, t, parts)
+                frame = self._build(lo + k, t, parts)
             except _Corrupt as exc:
-                raise RecordingError(f"frame {lo + k - self._sel[0]} (t={t} ns) cannot be read: {exc}") from None
+                self._lose(lo + k, str(exc), None)
+                continue
+            yield frame
 
     def info(self) -> RecordingInfo:
         """Describe the whole recording (topics, counts, timing, calibration, truncation)."""
@@ -875,15 +1284,20 @@ class McapReplay(ReplaySource):
         n = len(self._all)
         start, end = int(self._all[0]), int(self._all[-1])
         duration = end - start
-        try:
-            cal = self._calibration_at(start)
-            intrinsics = {
-                "fx": cal.fx, "fy": cal.fy, "cx": cal.cx, "cy": cal.cy,
-                "distortion_model": cal.distortion_model, "distortion": list(cal.distortion),
-            }
-            width, height = cal.width, cal.height
-        except _Corrupt as exc:
-            raise RecordingError(f"{self.path}: the first calibration cannot be read: {exc}") from None
+        cal, problem = None, None
+        for c in [start] + [int(c) for c in self._cal_times if c > start]:
+            try:
+                cal = self._calibration_at(c)
+                break
+            except _Corrupt as exc:
+                problem = problem or exc
+        if cal is None:
+            raise RecordingError(f"{self.path}: no calibration can be read: {problem}")
+        intrinsics = {
+            "fx": cal.fx, "fy": cal.fy, "cx": cal.cx, "cy": cal.cy,
+            "distortion_model": cal.distortion_model, "distortion": list(cal.distortion),
+        }
+        width, height = cal.width, cal.height
 
         def missing(kind: str) -> int:
             return int(n - np.count_nonzero(np.isin(self._all, self._topic_times(kind))))

@@ -92,7 +92,7 @@ __all__ = [
 #: The one-line error when no camera is connected.
 NO_DEVICE_MESSAGE = (
     "no OAK device found (none connected over USB or the network, or all in use by another "
-    "program); connect one, or replay a recording instead: fusion-pf track recordings/sample.mcap"
+    "program); connect one, or replay a recording instead: fusion-pf track recordings/sample.mcap -o out.mcap"
 )
 
 #: Seconds to wait for the first frame (device boot, network upload).

@@ -6,7 +6,10 @@ inside ``run`` so ``fusion-pf --help`` stays fast.
 
 User errors (:class:`~fusion_pf.errors.FusionPFError`, a missing file) print one
 line ``fusion-pf: error: ...`` and exit non-zero, without a traceback. Ctrl-C
-exits 130 after the running command has finalised its outputs.
+exits 130 after the running command has finalised its outputs (SIGTERM 143 and
+SIGHUP 129 where a command handles them, see :mod:`fusion_pf.signals`). A
+closed pipe (``fusion-pf info x.mcap | head``) ends the command quietly with
+141, the status of a process killed by SIGPIPE.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import sys
 
 from . import __version__, commands
 from .errors import FusionPFError
+from .text import printable
 
 
 def _command_modules() -> list:
@@ -51,12 +55,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``fusion-pf`` console script; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    from .signals import sigint_deferred
+
     try:
+        with sigint_deferred():  # a Ctrl-C while the commands import (numpy turns it into ImportError) waits
+            args = build_parser().parse_args(argv)
         return int(args._run(args) or 0)
+    except BrokenPipeError:
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 141
     except FusionPFError as exc:
-        print(f"fusion-pf: error: {exc}", file=sys.stderr)
+        print(f"fusion-pf: error: {printable(exc)}", file=sys.stderr)
         return exc.exit_code
     except FileNotFoundError as exc:
         print(f"fusion-pf: error: no such file: {exc.filename}", file=sys.stderr)
@@ -64,9 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"fusion-pf: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fusion-pf: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", 2)
+        print("fusion-pf: interrupted" if signum == 2 else f"fusion-pf: terminated by signal {signum}",
+              file=sys.stderr)
+        return 128 + signum
 
 
 if __name__ == "__main__":

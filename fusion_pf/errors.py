@@ -34,3 +34,10 @@ class RecordingError(FusionPFError):
 
 class DeviceError(FusionPFError):
     """A camera is missing, was unplugged, or timed out."""
+
+
+#: Exit status of a command that finished but could not use every input frame (a damaged or
+#: truncated recording): it printed what it skipped and why (``SourceStats.loss_summary()``).
+#: 0 = everything used, 2 = refused (a FusionPFError), 3 = partial, 130/143/129 = stopped by
+#: Ctrl-C/SIGTERM/SIGHUP, 141 = output pipe closed.
+PARTIAL_EXIT_CODE = 3

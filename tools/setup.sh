@@ -1,12 +1,18 @@
 #!/usr/bin/env bash
 # Installs everything fusion-pf and its tests need on a fresh Debian machine:
+# python3-venv when Python cannot create a virtualenv (a stock Debian lacks it),
 # system libraries (libusb for open3d/depthai, Chromium for the browser test),
 # a virtualenv in .venv with the package and its extras, and the Node packages
 # of the interop tests. Safe to run again: it skips what is already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+PY=${PYTHON:-python3}
 need_apt=()
+# Debian ships venv/ensurepip apart from python3: python3-venv (and python3.X-venv for Python 3.X)
+if ! "$PY" -c "import ensurepip, venv" >/dev/null 2>&1; then
+  need_apt+=(python3-venv "python$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')-venv")
+fi
 dpkg -s libusb-1.0-0 >/dev/null 2>&1 || need_apt+=(libusb-1.0-0)
 if [ "${1:-}" = "--test" ]; then
   command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
@@ -19,7 +25,6 @@ if [ ${#need_apt[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}" >/dev/null
 fi
 
-PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 extras="oak"
 [ "${1:-}" = "--test" ] && extras="oak,dev"

@@ -17,8 +17,27 @@ Schema
     ``(operator, frame)``.
 ``meta``
     ``key``/``value`` text pairs: ``schema_version``, ``recording`` (file name),
+    ``recording_sha256`` (SHA-256 of the recording file, :func:`recording_sha256`),
     ``n_frames``, ``width``, ``height``. A database made for one recording
-    refuses to annotate another one with a different frame count.
+    refuses to annotate any other file (another content hash), whatever its
+    shape; a database written before the hash was stored adopts the hash of the
+    first recording it is opened with, provided every stored click's frame and
+    timestamp match that recording.
+
+Tracker outputs belong to a recording too: :func:`check_reference_matches`
+tells ``score --reference DB`` whether a tracked file's frames (and, when its
+metadata carries it, the source recording's hash) are those of the annotated
+recording.
+
+WAL and checkpoints
+-------------------
+In WAL mode committed clicks first live in ``<db>-wal``; SQLite copies them into
+the main file at checkpoints. :meth:`AnnotationDB.close` (server shutdown,
+Ctrl-C) and :func:`checkpoint` (run by ``annotations export`` before reading)
+checkpoint with ``TRUNCATE``, so after a clean stop or an export the ``.sqlite``
+file alone holds every click and can be copied by itself. After a kill -9 the
+clicks are still safe in the ``-wal`` file (keep it next to the database); the
+next open or export checkpoints them.
 
 Durability
 ----------
@@ -37,6 +56,7 @@ test measures it.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import os
 import sqlite3
@@ -153,13 +173,40 @@ class Click:
         }
 
 
+def recording_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a recording file's bytes: the identity of the recording.
+
+    Raises
+    ------
+    RecordingError
+        When the file cannot be read.
+    """
+    try:
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha256").hexdigest()
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def _check_db_path(path: Path) -> None:
+    if path.is_dir():
+        raise InputError(f"annotation database {path} is a directory; expected an SQLite file name")
+    if not path.parent.is_dir():
+        raise InputError(f"the folder of the annotation database {path} does not exist: {path.parent}")
+
+
 def _connect(path: Path, *, readonly: bool = False) -> sqlite3.Connection:
-    if readonly:
-        if not path.is_file():
-            raise RecordingError(f"no such annotation database: {path}")
-        conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=10.0)
-    else:
-        conn = sqlite3.connect(path, timeout=10.0, isolation_level=None, check_same_thread=True)
+    _check_db_path(path)
+    try:
+        if readonly:
+            if not path.is_file():
+                raise RecordingError(f"no such annotation database: {path}")
+            conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=10.0)
+        else:
+            # one connection per thread; close() may run in another thread (the main one, after Ctrl-C)
+            conn = sqlite3.connect(path, timeout=10.0, isolation_level=None, check_same_thread=False)
+    except sqlite3.Error as exc:
+        raise RecordingError(f"cannot open the annotation database {path}: {exc}") from None
     try:
         conn.execute("PRAGMA busy_timeout = 10000")
         if not readonly:
@@ -183,9 +230,15 @@ class AnnotationDB:
     Parameters
     ----------
     path : str or Path
-        SQLite file, created when missing.
+        SQLite file, created when missing (its folder must exist).
     recording : str
         Name of the annotated recording (stored in ``meta`` when new).
+    sha256 : str, optional
+        :func:`recording_sha256` of the recording; a database holding another
+        hash is refused.
+    timestamps : sequence of int, optional
+        Frame timestamps of the recording; a database without a stored hash
+        adopts ``sha256`` only when every click's frame has this timestamp.
     n_frames : int
         Frames in the recording; clicks must have ``0 <= frame < n_frames``.
     width, height : int
@@ -194,11 +247,12 @@ class AnnotationDB:
     Raises
     ------
     RecordingError
-        When the file is not an SQLite database, or was made for a recording
-        with another frame count or image size.
+        When the file is not an SQLite database, or was made for another
+        recording (another content hash, frame count or image size).
     """
 
-    def __init__(self, path: str | Path, *, recording: str, n_frames: int, width: int, height: int) -> None:
+    def __init__(self, path: str | Path, *, recording: str, n_frames: int, width: int, height: int,
+                 sha256: str | None = None, timestamps: "list[int] | None" = None) -> None:
         self.path = Path(path)
         self.n_frames = int(n_frames)
         self.width = int(width)
@@ -207,7 +261,11 @@ class AnnotationDB:
         self._all: list[sqlite3.Connection] = []
         self._all_lock = threading.Lock()
         conn = self._conn()
-        conn.executescript(_SCHEMA)
+        try:
+            conn.executescript(_SCHEMA)
+        except sqlite3.Error as exc:
+            self.close()
+            raise RecordingError(f"{self.path} cannot be used as an annotation database: {exc}") from None
         wanted = {
             "schema_version": str(SCHEMA_VERSION),
             "recording": recording,
@@ -224,13 +282,36 @@ class AnnotationDB:
                         f"{self.path} holds annotations of {have.get('recording', '?')!r} with "
                         f"{key} = {have[key]}, but this recording has {key} = {wanted[key]}"
                     )
+            if sha256 is not None:
+                stored = have.get("recording_sha256")
+                if stored is not None and stored != sha256:
+                    raise RecordingError(
+                        f"{self.path} holds annotations of another recording ({have.get('recording', '?')!r}, "
+                        f"SHA-256 {stored[:16]}...), not of {recording!r} (SHA-256 {sha256[:16]}...)"
+                    )
+                if stored is None and have:
+                    self._check_clicks_fit(conn, timestamps, recording)
+                wanted["recording_sha256"] = sha256
             conn.executemany(
                 "INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", sorted(wanted.items())
             )
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
+            self.close()
             raise
+
+    def _check_clicks_fit(self, conn: sqlite3.Connection, timestamps: "list[int] | None", recording: str) -> None:
+        """Refuse to adopt a hash when a stored click's frame has another timestamp in this recording."""
+        rows = conn.execute("SELECT DISTINCT frame, timestamp_ns FROM clicks").fetchall()
+        if rows and timestamps is None:
+            raise RecordingError(f"{self.path} has no recording hash; cannot tell whether its clicks are of {recording!r}")
+        for frame, t in rows:
+            if not (0 <= frame < len(timestamps or ()) and int(timestamps[frame]) == t):  # type: ignore[index]
+                raise RecordingError(
+                    f"{self.path} holds a click on frame {frame} at t={t} ns, which is not a frame of {recording!r}; "
+                    "it was made for another recording"
+                )
 
     def _conn(self) -> sqlite3.Connection:
         conn = getattr(self._local, "conn", None)
@@ -242,12 +323,21 @@ class AnnotationDB:
         return conn
 
     def close(self) -> None:
-        """Close the connections of every thread (call when no request runs any more)."""
+        """Checkpoint the WAL into the database file, then close every thread's connection.
+
+        Call when no request runs any more (server shutdown, Ctrl-C).
+        """
         with self._all_lock:
             conns, self._all = self._all, []
-        for conn in conns:
-            conn.close()
-        self._local = threading.local()
+        try:
+            if conns:
+                conns[0].execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+        except sqlite3.Error:
+            pass  # a reader still holds the WAL; the clicks stay safe in it
+        finally:
+            for conn in conns:
+                conn.close()
+            self._local = threading.local()
 
     def check_click(self, frame: object, u: object, v: object) -> tuple[int, float | None, float | None]:
         """Validate a click's frame index and position.
@@ -272,16 +362,23 @@ class AnnotationDB:
             Naming the bad value and the accepted range.
         """
         if isinstance(frame, bool) or not isinstance(frame, int):
-            raise InputError(f"frame must be an integer index, got {frame!r}")
+            raise InputError(f"frame must be an integer index, got {str(frame)[:40]!r}")
         if not 0 <= frame < self.n_frames:
-            raise InputError(f"frame {frame} is out of range [0, {self.n_frames})")
+            shown = str(frame) if len(str(frame)) <= 20 else f"a {len(str(abs(frame)))}-digit integer"
+            raise InputError(f"frame {shown} is out of range [0, {self.n_frames})")
         if u is None and v is None:
             return frame, None, None
         out = []
         for name, value, size in (("u", u, self.width), ("v", v, self.height)):
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{name} must be a number (or u and v both null), got {value!r}")
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise InputError(
+                    f"{name} = a {len(str(abs(value)))}-digit integer is outside the image: expected "
+                    f"-0.5 <= {name} <= {size - 0.5}"
+                ) from None
             if not math.isfinite(value) or not -0.5 <= value <= size - 0.5:
                 raise InputError(
                     f"{name} = {value} is outside the image: expected -0.5 <= {name} <= {size - 0.5}"
@@ -348,6 +445,97 @@ class AnnotationDB:
             f"SELECT {_COLUMNS} FROM clicks WHERE frame = ? ORDER BY operator", (frame,)
         ).fetchall()
         return [Click.from_row(r) for r in rows]
+
+
+def checkpoint(db_path: str | Path) -> None:
+    """Copy the clicks still in ``<db>-wal`` into the database file (``wal_checkpoint(TRUNCATE)``).
+
+    Nothing to do when there is no ``-wal`` file. A busy database (a server
+    still writing) is checkpointed as far as possible.
+
+    Raises
+    ------
+    RecordingError
+        When the file is missing or is not an annotation database.
+    """
+    path = Path(db_path)
+    _check_db_path(path)
+    if not path.is_file():
+        raise RecordingError(f"no such annotation database: {path}")
+    if not path.with_name(path.name + "-wal").exists():
+        return
+    conn = _connect(path)
+    try:
+        conn.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+    except sqlite3.Error as exc:
+        raise RecordingError(f"cannot checkpoint {path}: {exc}") from None
+    finally:
+        conn.close()
+
+
+def read_meta(db_path: str | Path) -> dict[str, str]:
+    """The ``meta`` table of an annotation database (read-only)."""
+    path = Path(db_path)
+    conn = _connect(path, readonly=True)
+    try:
+        return dict(conn.execute("SELECT key, value FROM meta").fetchall())
+    except sqlite3.DatabaseError as exc:
+        raise RecordingError(f"{path} is not an annotation database: {exc}") from None
+    finally:
+        conn.close()
+
+
+def check_reference_matches(
+    db_path: str | Path, frames: "list[int]", timestamps_ns: "list[int]", *, source_sha256: str | None = None,
+    what: str = "the tracked file",
+) -> None:
+    """Raise unless ``what`` (a tracker output) belongs to the recording the database annotates.
+
+    Two checks, each one enough to refuse a mismatched pair: the recording hash
+    (``source_sha256``, from the tracked file's ``fusion_pf.recording`` metadata
+    key ``source_sha256``, against the database's ``recording_sha256``; skipped
+    when either is absent), and every annotated frame's timestamp (the
+    tracked file's frame ``f`` must have the timestamp the operators' clicks on
+    frame ``f`` carry; frames the tracked file lacks are not compared).
+
+    Parameters
+    ----------
+    db_path : str or Path
+        The annotation database (``score --reference DB``).
+    frames, timestamps_ns : sequence of int, shape (n,)
+        Frame indices and timestamps of the tracked file's rows.
+    source_sha256 : str, optional
+        The hash of the recording the tracked file was made from.
+    what : str
+        Names the tracked file in the message.
+
+    Raises
+    ------
+    RecordingError
+        Naming the mismatch.
+    """
+    meta = read_meta(db_path)
+    stored = meta.get("recording_sha256")
+    if stored is not None and source_sha256 is not None and stored != source_sha256:
+        raise RecordingError(
+            f"{what} was made from another recording (SHA-256 {source_sha256[:16]}...) than the one "
+            f"{db_path} annotates ({meta.get('recording', '?')!r}, SHA-256 {stored[:16]}...)"
+        )
+    tracked = dict(zip((int(f) for f in frames), (int(t) for t in timestamps_ns)))
+    clicks = read_clicks(db_path)
+    compared = 0
+    for c in clicks:
+        t = tracked.get(c.frame)
+        if t is None:
+            continue
+        if t != c.timestamp_ns:
+            raise RecordingError(
+                f"{what} is not of the recording {db_path} annotates ({meta.get('recording', '?')!r}): its frame "
+                f"{c.frame} is at t={t} ns, the annotated frame {c.frame} at t={c.timestamp_ns} ns"
+            )
+        compared += 1
+    if compared == 0 and tracked and clicks:
+        raise RecordingError(f"{what} has none of the frames annotated in {db_path}; they cannot be of the same recording")
 
 
 def read_clicks(db_path: str | Path) -> list[Click]:
@@ -501,11 +689,17 @@ OPERATOR_COLUMNS = (
 )
 
 
+#: First characters that make a spreadsheet read a cell as a formula (OWASP "CSV injection").
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
 def _cell(value: object) -> str:
     if value is None:
         return ""
     if isinstance(value, float):
         return f"{value:.3f}"
+    if isinstance(value, str) and value.startswith(_FORMULA_START):
+        return "'" + value  # shown as text, never run as a formula
     return str(value)
 
 

@@ -29,14 +29,32 @@ HTTP API (all JSON responses; errors are ``{"error": message}`` with a 4xx statu
 Bad input (unknown path, frame out of range, click outside the image, malformed
 or non-object JSON, wrong content type, a body over :data:`MAX_BODY_BYTES`)
 gets a 4xx JSON error and writes nothing.
+
+DNS rebinding and cross-site writes
+-----------------------------------
+Every request must name this server in its ``Host`` header: ``localhost``, an
+IP address, or the bound host name (plus the machine's names when bound to
+all interfaces), with the bound port; anything else (``Host: evil.example``, a
+name an attacker's DNS points at 127.0.0.1) gets 421 and no data. Writes
+(``POST``) carrying an ``Origin`` header other than this server's own, or
+``Sec-Fetch-Site: cross-site``, get 403.
+
+Connections
+-----------
+waitress accepts up to :data:`CONNECTION_LIMIT` connections and closes one
+idle for :data:`CHANNEL_TIMEOUT_S` seconds, so a crowd of idle connections
+does not lock operators out.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
+import socket
 from collections.abc import Callable
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from flask import Flask, Response, jsonify, request, send_from_directory
 from werkzeug.exceptions import HTTPException
@@ -48,6 +66,13 @@ from .frames import FrameImages
 
 #: Largest request body accepted, in bytes (a click is ~100 bytes).
 MAX_BODY_BYTES = 4096
+
+#: Simultaneous connections waitress accepts (its default, 100, let idle sockets lock everyone out).
+CONNECTION_LIMIT = 1000
+#: Seconds after which waitress closes an idle connection.
+CHANNEL_TIMEOUT_S = 30
+#: Config key of the ``(host names, port)`` the Host header may name (set by :func:`serve`).
+HOSTS_KEY = "FUSION_PF_HOSTS"
 
 #: Folder of the page's HTML, JS and CSS.
 STATIC_DIR = Path(__file__).with_name("static")
@@ -92,9 +117,49 @@ def _json_body() -> dict:
         body = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ApiError(400, f"body is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise ApiError(400, "body is not valid JSON: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer beyond sys.get_int_max_str_digits()
+        raise ApiError(400, f"body is not valid JSON: {exc}") from None
     if not isinstance(body, dict):
         raise ApiError(400, f"body must be a JSON object, got {type(body).__name__}")
     return body
+
+
+def _split_host(text: str) -> tuple[str, int | None] | None:
+    """``(lower-case host name, port or None)`` of a Host header value or origin netloc; None if malformed."""
+    try:
+        parts = urlsplit("//" + text)
+        return (parts.hostname or "", parts.port) if parts.hostname else None
+    except ValueError:
+        return None
+
+
+def host_allowed(host_header: str | None, names: frozenset[str], port: int | None) -> bool:
+    """Whether a ``Host`` header names this server (see the module notes on DNS rebinding).
+
+    Parameters
+    ----------
+    host_header : str or None
+        The request's Host header.
+    names : frozenset of str
+        Host names accepted besides ``localhost`` and IP literals (lower case).
+    port : int or None
+        The bound port; None accepts any.
+    """
+    split = _split_host(host_header or "")
+    if split is None:
+        return False
+    name, given = split
+    if port is not None and (given or 80) != port:
+        return False
+    if name == "localhost" or name in names:
+        return True
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True  # an IP address cannot be rebound to another host
 
 
 def _reject_constant(name: str) -> float:
@@ -125,6 +190,21 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     app.url_map.merge_slashes = False  # no HTML redirects: '//x' is just an unknown path
     app.json.sort_keys = False
     first = images.meta(0)
+
+    @app.before_request
+    def _same_site() -> None:
+        names, port = app.config.get(HOSTS_KEY, (frozenset(), None))
+        if not host_allowed(request.host, names, port):
+            raise ApiError(421, f"Host {request.host[:80]!r} is not this server; open it as "
+                                f"http://localhost:{port or '<port>'}/")
+        if request.method not in ("GET", "HEAD", "OPTIONS"):
+            origin = request.headers.get("Origin")
+            if origin is not None:
+                parts = urlsplit(origin) if origin != "null" else None
+                if parts is None or parts.scheme != "http" or parts.netloc.lower() != request.host.lower():
+                    raise ApiError(403, f"cross-origin write refused (Origin {origin[:80]!r})")
+            if request.headers.get("Sec-Fetch-Site") == "cross-site":
+                raise ApiError(403, "cross-site write refused")
 
     @app.errorhandler(ApiError)
     def _api_error(exc: ApiError) -> tuple[Response, int]:
@@ -262,8 +342,18 @@ def serve(app: Flask, host: str = "127.0.0.1", port: int = 8765, *, threads: int
     from waitress import create_server
 
     server = create_server(app, host=host, port=port, threads=threads,
-                           max_request_body_size=1 << 20, ident="fusion-pf")
+                           max_request_body_size=1 << 20, ident="fusion-pf",
+                           connection_limit=CONNECTION_LIMIT, channel_timeout=CHANNEL_TIMEOUT_S,
+                           cleanup_interval=min(5, CHANNEL_TIMEOUT_S))
     bound_host = server.effective_host
+    names = {host.lower().strip("[]")}
+    try:
+        wildcard = ipaddress.ip_address(host.strip("[]")).is_unspecified
+    except ValueError:
+        wildcard = False
+    if wildcard:
+        names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+    app.config[HOSTS_KEY] = (frozenset(names), int(server.effective_port))
     url = f"http://{'[' + bound_host + ']' if ':' in bound_host else bound_host}:{server.effective_port}/"
     if on_ready is not None:
         on_ready(url)

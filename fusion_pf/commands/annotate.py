@@ -13,7 +13,10 @@ DESCRIPTION = (
     "clicks the palm centre (or marks it not visible) on every frame, and sees the other "
     "operators' clicks only after doing the frame. Clicks are committed to the SQLite "
     "database (WAL, synchronous=FULL) before they are acknowledged; one row per operator "
-    "and frame, a re-click replaces it. Binds 127.0.0.1 unless --host says otherwise. "
+    "and frame, a re-click replaces it. The database is tied to the recording's content (SHA-256): "
+    "it refuses any other recording. Binds 127.0.0.1 unless --host says otherwise; requests must "
+    "name this server in their Host header (DNS-rebinding protection). On Ctrl-C/SIGTERM the WAL "
+    "is checkpointed into the database file. "
     "Keys in the page: left/right = previous/next frame, n = next frame you have not done, "
     "x = not visible, d = depth overlay, +/- = zoom."
 )
@@ -37,10 +40,11 @@ def run(args: argparse.Namespace) -> int:
     import ipaddress
 
     from drivers.mcap_replay import McapReplay
-    from fusion_pf.annotate.db import AnnotationDB
+    from fusion_pf.annotate.db import AnnotationDB, recording_sha256
     from fusion_pf.annotate.frames import FrameImages, ReplayProvider
     from fusion_pf.annotate.server import create_app, serve
     from fusion_pf.errors import InputError
+    from fusion_pf.signals import stop_on_terminate
 
     if not 0 <= args.port <= 65535:
         raise InputError(f"--port must be in [0, 65535], got {args.port}")
@@ -48,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     if not args.recording.is_file():
         raise FileNotFoundError(2, "no such file", str(args.recording))
+    if args.db.is_dir():
+        raise InputError(f"--db {args.db} is a directory; expected an SQLite file name")
+    if not args.db.parent.is_dir():
+        raise InputError(f"--db {args.db}: the folder {args.db.parent} does not exist")
     try:
         loopback = ipaddress.ip_address(args.host).is_loopback
     except ValueError:
@@ -59,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         images = FrameImages(ReplayProvider(replay), color_format=args.image_format, cache_size=args.cache)
         first = images.meta(0)
         db = AnnotationDB(args.db, recording=args.recording.name, n_frames=images.n_frames,
-                          width=first.width, height=first.height)
+                          width=first.width, height=first.height, sha256=recording_sha256(args.recording),
+                          timestamps=replay.timestamps.tolist())
         try:
             app = create_app(images, db, recording=args.recording.name)
 
@@ -67,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"fusion-pf annotate: {images.n_frames} frames of {args.recording.name}, "
                       f"clicks in {args.db}; open {url}", flush=True)
 
-            serve(app, args.host, args.port, threads=args.threads, on_ready=ready)
+            with stop_on_terminate():
+                serve(app, args.host, args.port, threads=args.threads, on_ready=ready)
         finally:
             db.close()
     return 0

@@ -15,7 +15,11 @@ DESCRIPTION = (
     "one row per operator (--operators-csv, default OUT with '_operators' before the suffix): "
     "operator, n_frames, n_not_visible, n_compared, mean_dist_to_others_px and "
     "max_dist_to_others_px (distance of the operator's click to the mean of the other "
-    "operators' clicks, over frames where both exist) and n_visibility_disagreements."
+    "operators' clicks, over frames where both exist) and n_visibility_disagreements. Existing "
+    "outputs are refused without --force; the database (and its -wal/-shm files), an MCAP "
+    "recording or an SQLite file are never overwritten. The WAL is checkpointed into the database "
+    "first. Operator names that a spreadsheet would run as a formula (=, +, -, @) are written "
+    "with a leading apostrophe."
 )
 
 
@@ -29,6 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--csv", type=Path, required=True, metavar="OUT", help="per-frame reference CSV")
     e.add_argument("--operators-csv", type=Path, metavar="OPS",
                    help="per-operator CSV; when omitted, OUT with '_operators' before the suffix")
+    e.add_argument("--force", action="store_true", help="overwrite existing CSV files")
 
 
 def operators_path(csv_path: Path) -> Path:
@@ -38,14 +43,29 @@ def operators_path(csv_path: Path) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Write the CSVs and print one summary line."""
-    from fusion_pf.annotate.db import write_operators_csv, write_reference_csv
+    from fusion_pf.annotate.db import checkpoint, write_operators_csv, write_reference_csv
     from fusion_pf.errors import InputError
+
+    from ._paths import check_output
 
     if not args.db.is_file():
         raise FileNotFoundError(2, "no such file", str(args.db))
     ops = args.operators_csv or operators_path(args.csv)
     if ops.resolve() == args.csv.resolve():
         raise InputError(f"--operators-csv must differ from --csv, both are {args.csv}")
+    inputs = [args.db] + [args.db.with_name(args.db.name + suffix) for suffix in ("-wal", "-shm", "-journal")]
+    for out, what in ((args.csv, "--csv"), (ops, "--operators-csv")):
+        for other in inputs:
+            if out.resolve() == other.resolve():
+                raise InputError(f"{what} {out} is the annotation database (or its {other.name}); choose a CSV file")
+        if out.is_file():
+            with open(out, "rb") as fh:
+                head = fh.read(16)
+            if head.startswith((b"\x89MCAP", b"SQLite format 3")):
+                kind = "an MCAP recording" if head.startswith(b"\x89MCAP") else "an SQLite database"
+                raise InputError(f"{what} {out} is {kind}, not a CSV; it is never overwritten")
+        check_output(out, force=args.force, what=what)
+    checkpoint(args.db)
     n_frames = write_reference_csv(args.db, args.csv)
     n_ops = write_operators_csv(args.db, ops)
     print(f"fusion-pf annotations: {n_frames} frames -> {args.csv}, {n_ops} operators -> {ops}")

@@ -11,8 +11,10 @@ DESCRIPTION = (
     "Print the topics, schemas and message counts of FILE.mcap, its duration, frame rate, "
     "resolution and intrinsics, background frames, frames missing depth or skeleton, and "
     "whether it is truncated. Counts come from the summary when the file is indexed; a "
-    "truncated file is scanned. --verify also decodes every frame (checking chunk CRCs) and "
-    "exits 2 when frames are lost."
+    "truncated file is scanned. --verify also decodes every frame (checking chunk CRCs), says "
+    "which frames could not be read and why, and exits 2 when frames are lost (a truncated tail "
+    "alone, as an unfinished recording has, is a warning). Strings from the "
+    "file are printed with control characters escaped."
 )
 
 
@@ -25,19 +27,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _text(info: dict, verified: dict | None) -> str:
     from drivers.mcap_format import format_ns
+    from fusion_pf.text import printable as p
 
     k = info["intrinsics"]
     fps = f"{info['fps']:.2f} fps" if info["fps"] is not None else "fps n/a"
     dist = f"{k['distortion_model']} {k['distortion']}" if k["distortion"] else k["distortion_model"]
     state = "TRUNCATED (writer did not finish)" if info["truncated"] else "complete"
     lines = [
-        f"file          {info['path']} ({info['size_bytes']} bytes, {state}, "
+        f"file          {p(info['path'])} ({info['size_bytes']} bytes, {state}, "
         f"{'indexed' if info['indexed'] else 'scanned'})",
-        f"writer        {info['library'] or 'unknown'}",
+        f"writer        {p(info['library']) or 'unknown'}",
         f"frames        {info['frames']} over {format_ns(info['duration_ns'])} ({fps}), "
         f"start {info['start_ns']} ns",
         f"resolution    {info['width']}x{info['height']}  colour {info['color_format']}  "
-        f"depth {info['depth_format'] or 'none'}",
+        f"depth {p(info['depth_format'] or 'none')}",
         f"intrinsics    fx={k['fx']:.3f} fy={k['fy']:.3f} cx={k['cx']:.3f} cy={k['cy']:.3f} "
         f"distortion {dist} ({info['calibration_messages']} calibration message(s))",
         f"background    {info['background_frames']} frames",
@@ -45,17 +48,18 @@ def _text(info: dict, verified: dict | None) -> str:
         f"ground truth in {info['ground_truth_frames']} frames",
     ]
     if info["metadata"]:
-        lines.append("metadata      " + " ".join(f"{key}={value}" for key, value in info["metadata"].items()))
-    width = max(len(t["topic"]) for t in info["topics"])
+        lines.append("metadata      " + " ".join(f"{p(key)}={p(value)}" for key, value in info["metadata"].items()))
+    width = max(len(p(t["topic"])) for t in info["topics"])
     lines.append("topics")
     for t in info["topics"]:
         lines.append(
-            f"  {t['topic']:<{width}}  {t['message_count']:>8}  {t['schema_name']} "
-            f"({t['message_encoding']}, schema {t['schema_encoding']})"
+            f"  {p(t['topic']):<{width}}  {t['message_count']:>8}  {p(t['schema_name'])} "
+            f"({p(t['message_encoding'])}, schema {p(t['schema_encoding'])})"
         )
     if verified is not None:
         lines.append(
-            f"verified      {verified['frames']} frames decoded, {verified['dropped']} lost in corrupt chunks"
+            f"verified      {verified['frames']} frames decoded, {verified['dropped']} lost"
+            + (f"; {p(verified['summary'])}" if verified["summary"] else "")
         )
     return "\n".join(lines)
 
@@ -66,13 +70,20 @@ def run(args: argparse.Namespace) -> int:
 
     from drivers.mcap_replay import McapReplay
     from fusion_pf.errors import RecordingError
+    from fusion_pf.text import printable
 
     with McapReplay(args.file) as replay:
         info = replay.info()
         verified = None
         if args.verify:
             decoded = sum(1 for _ in replay)
-            verified = {"frames": decoded, "dropped": replay.stats.dropped}
+            stats = replay.stats
+            verified = {
+                "frames": decoded, "dropped": stats.dropped,
+                "losses": [{"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail}
+                           for x in stats.losses],
+                "skipped_parts": dict(stats.skipped_parts), "summary": stats.loss_summary(),
+            }
             info = replay.info()
     out = info.to_dict()
     if verified is not None:
@@ -84,9 +95,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(_text(out, verified))
     for note in info.notes:
-        print(f"fusion-pf: warning: {note}", file=sys.stderr)
-    if verified is not None and verified["dropped"]:
+        print(f"fusion-pf: warning: {printable(note)}", file=sys.stderr)
+    if verified is not None and (verified["dropped"] or any(x["frames"] is None and not x["tail"]
+                                                             for x in verified["losses"])):
         raise RecordingError(
-            f"{args.file} failed verification: {verified['dropped']} of {info.frames} frames are in corrupt chunks"
+            f"{args.file} failed verification: {verified['dropped']} frames cannot be read "
+            f"({verified['frames']} decoded); {verified['summary']}"
         )
     return 0

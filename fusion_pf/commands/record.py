@@ -12,8 +12,11 @@ HELP = "record a source (synthetic scene, OAK camera, recording) into an MCAP fi
 DESCRIPTION = (
     "Record SOURCE into OUT.mcap following docs/recording-format.md (chunked, zstd by default). "
     "The file is always finalised: at the end of the source, after --frames/--duration, on "
-    "Ctrl-C (exit 130) and when the source fails (exit 2, the frames recorded so far are kept). "
-    "A summary (frames, dropped, bytes) is printed at the end."
+    "Ctrl-C (exit 130), SIGTERM (exit 143) and SIGHUP (exit 129), and when the source fails "
+    "(exit 2, the frames recorded so far are kept). The header reaches the disk at once and every "
+    "chunk as soon as it is written, so even a SIGKILL leaves a readable file. A summary (frames, "
+    "dropped, bytes) is printed at the end; its frame count is read back from the file, so after "
+    "a write failure (full disk: exit 2) it counts only the frames the file really holds."
 )
 
 
@@ -69,8 +72,28 @@ def _one_line(exc: BaseException) -> str:
     return text if isinstance(exc, FusionPFError) else f"{type(exc).__name__}: {text}"
 
 
+def _frames_in(path: Path) -> int:
+    """Frames a reader finds in ``path`` (0 when it holds none that can be read)."""
+    from drivers.mcap_replay import McapReplay
+    from fusion_pf.errors import RecordingError
+
+    try:
+        with McapReplay(path) as replay:
+            return len(replay)
+    except RecordingError:
+        return 0
+
+
 def run(args: argparse.Namespace) -> int:
-    """Record until the source ends, a limit is reached, Ctrl-C, or the source fails."""
+    """Record until the source ends, a limit is reached, Ctrl-C/SIGTERM/SIGHUP, or the source fails."""
+    from fusion_pf.signals import stop_on_terminate
+
+    with stop_on_terminate():
+        return _record(args)
+
+
+def _record(args: argparse.Namespace) -> int:
+    import os
     import sys
     import time
 
@@ -79,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     from drivers import ReplaySource, open_source
     from drivers.mcap_record import McapRecorder
     from fusion_pf.errors import RecordingError
+    from fusion_pf.signals import sigint_deferred
+    from fusion_pf.text import printable
 
     from ._paths import check_output
 
@@ -99,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(args.source, **overrides)
     duration_ns = None if args.duration is None else int(round(args.duration * 1e9))
     failure: BaseException | None = None
-    interrupted = False
+    interrupted: int | None = None
     started = time.monotonic()
     with source as src:
         metadata = {"source": args.source}
@@ -130,22 +155,28 @@ def run(args: argparse.Namespace) -> int:
                         break
                     recorder.write(frame)
                     bar.update()
-        except KeyboardInterrupt:
-            interrupted = True
+        except KeyboardInterrupt as exc:
+            interrupted = getattr(exc, "signum", 2)
             raise
         finally:
-            frames.close()
-            n = recorder.frames_written
-            stats = src.stats
-            for note in stats.notes:
-                print(f"fusion-pf: warning: {note}", file=sys.stderr)
-            per_frame = f", {recorder.bytes_written / n / 1024:.1f} KiB/frame" if n else ""
-            status = " (interrupted)" if interrupted else ""
-            print(
-                f"recorded {n} frames{status} to {args.output} in {time.monotonic() - started:.1f} s: "
-                f"{stats.dropped} dropped, {stats.missing_depth} without depth, "
-                f"{stats.missing_skeleton} without skeleton; {recorder.bytes_written} bytes{per_frame}"
-            )
+            with sigint_deferred():
+                frames.close()
+                n = _frames_in(args.output) if args.output.exists() else 0
+                size = os.path.getsize(args.output) if args.output.exists() else 0
+                stats = src.stats
+                for note in stats.notes:
+                    print(f"fusion-pf: warning: {printable(note)}", file=sys.stderr)
+                per_frame = f", {size / n / 1024:.1f} KiB/frame" if n else ""
+                status = {None: "", 2: " (interrupted)"}.get(interrupted, f" (terminated by signal {interrupted})")
+                lost = recorder.frames_written - n
+                unwritten = f" ({lost} more could not be written: {recorder.error.strerror})" if (
+                    recorder.error is not None and lost > 0) else ""
+                print(
+                    f"recorded {n} frames{status}{unwritten} to {args.output} in {time.monotonic() - started:.1f} s: "
+                    f"{stats.dropped} dropped, {stats.missing_depth} without depth, "
+                    f"{stats.missing_skeleton} without skeleton; {size} bytes{per_frame}",
+                    flush=True,
+                )
     if failure is not None:
         raise RecordingError(
             f"source {args.source} failed after {recorder.frames_written} frames ({_one_line(failure)}); "

@@ -8,7 +8,7 @@ import sqlite3
 
 import pytest
 
-from fusion_pf.annotate.db import AnnotationDB, operator_table, reference_table
+from fusion_pf.annotate.db import AnnotationDB, operator_table, reference_table, write_operators_csv
 from fusion_pf.cli import main
 from fusion_pf.errors import InputError, RecordingError
 
@@ -137,8 +137,43 @@ def test_export_command_writes_both_csvs(three_operators, tmp_path, capsys):
     assert "3 frames" in capsys.readouterr().out
     other = tmp_path / "ops.csv"
     assert main(["annotations", "export", str(three_operators), "--csv", str(out),
-                 "--operators-csv", str(other)]) == 0
+                 "--operators-csv", str(other)]) == 2  # issue 14: ref.csv exists
+    assert "already exists; pass --force" in capsys.readouterr().err and not other.exists()
+    assert main(["annotations", "export", str(three_operators), "--csv", str(out),
+                 "--operators-csv", str(other), "--force"]) == 0
     assert other.read_text() == (tmp_path / "ref_operators.csv").read_text()
+
+
+def test_export_never_overwrites_an_input(three_operators, tmp_path, capsys):
+    """Issue 14 item 7: the database, its WAL and any recording are never export outputs, even with --force."""
+    before = three_operators.read_bytes()
+    for target, message in ((three_operators, "is the annotation database"),
+                            (three_operators.with_name(three_operators.name + "-wal"), "is the annotation database")):
+        assert main(["annotations", "export", str(three_operators), "--csv", str(target), "--force"]) == 2
+        assert message in capsys.readouterr().err
+    recording = tmp_path / "rec.mcap"
+    recording.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
+    for flag in ("--csv", "--operators-csv"):
+        extra = ["--csv", str(tmp_path / "x.csv")] if flag == "--operators-csv" else []
+        assert main(["annotations", "export", str(three_operators), *extra, flag, str(recording), "--force"]) == 2
+        assert "is an MCAP recording, not a CSV; it is never overwritten" in capsys.readouterr().err
+    copy = tmp_path / "copy.sqlite"
+    copy.write_bytes(before)
+    assert main(["annotations", "export", str(three_operators), "--csv", str(copy), "--force"]) == 2
+    assert "is an SQLite database" in capsys.readouterr().err
+    assert three_operators.read_bytes() == before and recording.read_bytes().startswith(b"\x89MCAP")
+
+
+def test_csv_formula_injection_is_neutralised(tmp_path):
+    """Issue 14 item 7: an operator named like a formula is written as text."""
+    db = AnnotationDB(tmp_path / "f.sqlite", recording="r.mcap", n_frames=2, width=10, height=10)
+    for name in ('=HYPERLINK("http://evil.example","x")', "+1+1", "-2", "@SUM(A1)", "ok"):
+        db.set_click(name, 0, 5, 1.0, 1.0)
+    db.close()
+    out = tmp_path / "ops.csv"
+    write_operators_csv(tmp_path / "f.sqlite", out)
+    names = [row["operator"] for row in csv.DictReader(out.open())]
+    assert sorted(names) == sorted(["'+1+1", "'-2", "'=HYPERLINK(\"http://evil.example\",\"x\")", "'@SUM(A1)", "ok"])
 
 
 def test_export_command_errors_are_one_line(tmp_path, capsys):

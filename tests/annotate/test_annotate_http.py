@@ -159,8 +159,8 @@ def test_oversized_and_chunked_bodies_are_refused(served):
     assert status == 413 and b"at most" in data
     with socket.create_connection(("127.0.0.1", server.port), timeout=10) as s:
         chunk = b" " * 8000
-        s.sendall(b"POST /api/clicks HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
-                  b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
+        s.sendall(b"POST /api/clicks HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nContent-Type: application/json\r\n"
+                  b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n" % server.port
                   + b"%x\r\n" % len(chunk) + chunk + b"\r\n0\r\n\r\n")
         reply = b""
         while chunk_in := s.recv(65536):

@@ -98,16 +98,20 @@ def _source_that_fails_at_frame(path, n_good):
     return path
 
 
-def test_source_failing_midway_keeps_the_frames(tmp_path):
+def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path):
+    """Issue 14 item 6: one malformed optional message costs only that message, and says so."""
     src = _source_that_fails_at_frame(tmp_path / "in.mcap", 4)
     out = tmp_path / "out.mcap"
     proc = fusion_pf("record", src, out)
-    assert proc.returncode == 2
-    line = error_line(proc)
-    assert "failed after 4 frames" in line and "not valid JSON" in line and "keeps those frames" in line
-    assert proc.stdout.startswith("recorded 4 frames")
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert any("not valid JSON" in line and "kept without an unreadable skeleton" in line
+               for line in proc.stderr.splitlines())
+    assert proc.stdout.startswith("recorded 7 frames")
     with McapReplay(out) as replay:
-        assert replay.info().indexed and [int(f.color[0, 0, 0]) for f in replay] == [0, 1, 2, 3]
+        frames = list(replay)
+        assert [int(f.color[0, 0, 0]) for f in frames] == list(range(7))
+        assert [f.joints is None for f in frames] == [i == 4 for i in range(7)]
 
 
 def test_corrupt_chunk_in_the_source_is_a_warning(tmp_path):

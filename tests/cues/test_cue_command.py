@@ -19,7 +19,7 @@ def test_cues_command_writes_one_labelled_sheet_per_cue(recording, tmp_path, cap
     assert main(["cues", str(recording), "--frame", "6", "--stages", str(tmp_path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["frame"] == 6 and doc["background"].startswith("4 empty-scene frames")
-    assert set(doc["cues"]) == {"colour", "depth", "skin_rg", "skin_rgb", "skeleton"}
+    assert set(doc["cues"]) == {"colour", "depth", "hand", "skin_rg", "skin_rgb", "skeleton"}
     colour = doc["cues"]["colour"]
     assert colour["error_px"] < 14.0 and 0 < colour["quality"] <= 1  # bare-forearm bias: 9.7 px measured
     assert all(math.isfinite(r["latency_ms"]) and r["latency_ms"] >= 0 for r in doc["cues"].values())
@@ -31,12 +31,19 @@ def test_cues_command_writes_one_labelled_sheet_per_cue(recording, tmp_path, cap
     assert depth_sheet.shape[0] == 22 + 3 * (200 + 22)  # 11 tiles
 
 
+def test_cues_stages_folder_is_created(recording, tmp_path, capsys):
+    """Issue 14 item 9: like the other commands, --stages creates its folder."""
+    out = tmp_path / "new" / "stages"
+    assert main(["cues", str(recording), "--frame", "6", "--stages", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"frame000006_{n}.png" for n in ("colour", "depth", "skin_rg", "skin_rgb")]
+
+
 def test_cues_command_text_output_and_full_frame(recording, capsys):
     capsys.readouterr()
     assert main(["cues", str(recording), "--prior", "full", "--background-k", "3"]) == 0
     out = capsys.readouterr().out
     assert "frame 4 of" in out and "roi full frame" in out
-    assert out.count("\n") == 2 + 5
+    assert out.count("\n") == 2 + 6
 
 
 @pytest.mark.parametrize(

@@ -118,6 +118,14 @@ def node_read(path):
                           timeout=120, cwd=INTEROP)
 
 
+def indexed_chunks(path):
+    """The chunk indexes of a finished recording (read by the mcap Python reader)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        return make_reader(fh).get_summary().chunk_indexes
+
+
 def test_typescript_readers_agree(tmp_path, make_frames, record):
     frames = make_frames(9, no_depth=(2,), no_skeleton=(3, 4))
     path = record(tmp_path / "ours.mcap", frames, color_format="jpeg", metadata={"seed": "4"})
@@ -125,8 +133,8 @@ def test_typescript_readers_agree(tmp_path, make_frames, record):
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     indexed, stream = out["indexed"], out["stream"]
-    counts = {fmt.CALIBRATION_TOPIC: 1, fmt.COLOR_TOPIC: 9, fmt.DEPTH_TOPIC: 8, fmt.SKELETON_TOPIC: 7,
-              fmt.GROUND_TRUTH_TOPIC: 7}
+    counts = {fmt.CALIBRATION_TOPIC: len(indexed_chunks(path)), fmt.COLOR_TOPIC: 9, fmt.DEPTH_TOPIC: 8,
+              fmt.SKELETON_TOPIC: 7, fmt.GROUND_TRUTH_TOPIC: 7}  # a calibration copy starts every chunk
     assert {topic: t["count"] for topic, t in indexed["topics"].items()} == counts
     assert stream["done"] and stream["counts"] == counts and stream["dataSectionCrc"] != 0
     assert indexed["ordered"] and indexed["compression"] == ["zstd"] and indexed["messages"] == sum(counts.values())
@@ -138,7 +146,10 @@ def test_typescript_readers_agree(tmp_path, make_frames, record):
     k = frames[0].intrinsics
     assert topics[fmt.CALIBRATION_TOPIC]["first"]["K"] == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
     assert topics[fmt.SKELETON_TOPIC]["schemaEncoding"] == "jsonschema" and topics[fmt.SKELETON_TOPIC]["first"] == {"keys": ["joints"]}
-    assert indexed["metadata"][-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
+    recording_meta = [m for m in indexed["metadata"] if m["name"] == fmt.RECORDING_METADATA]
+    channel_meta = {m["metadata"]["topic"] for m in indexed["metadata"] if m["name"] == fmt.CHANNEL_METADATA}
+    assert channel_meta == set(counts)
+    assert recording_meta[-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
         "format_version": "1", "writer": indexed["metadata"][0]["metadata"]["writer"], "seed": "4", "background_frames": "2"}}
 
 

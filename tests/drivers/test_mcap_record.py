@@ -34,12 +34,18 @@ def test_messages_follow_the_convention(tmp_path, make_frames, record):
     header, summary, messages, metadata = read_all(path)
     assert header.library.startswith("fusion-pf ")
     topics = Counter(summary.channels[m.channel_id].topic for _, _, m in messages)
-    assert topics == {fmt.COLOR_TOPIC: 10, fmt.DEPTH_TOPIC: 9, fmt.SKELETON_TOPIC: 9,
-                      fmt.GROUND_TRUTH_TOPIC: 8, fmt.CALIBRATION_TOPIC: 2}
+    n_cal = topics.pop(fmt.CALIBRATION_TOPIC)
+    assert topics == {fmt.COLOR_TOPIC: 10, fmt.DEPTH_TOPIC: 9, fmt.SKELETON_TOPIC: 9, fmt.GROUND_TRUTH_TOPIC: 8}
+    assert 2 <= n_cal <= len(summary.chunk_indexes) + 2  # the changes, and a copy in every chunk
     times = {f.timestamp_ns for f in frames}
     assert all(m.log_time == m.publish_time and m.log_time in times for _, _, m in messages)
-    cal_times = [m.log_time for _, c, m in messages if c.topic == fmt.CALIBRATION_TOPIC]
-    assert cal_times == [frames[0].timestamp_ns, frames[6].timestamp_ns]
+    by_time = {f.timestamp_ns: f.intrinsics for f in frames}
+    for _, c, m in messages:
+        if c.topic == fmt.CALIBRATION_TOPIC:
+            assert fmt.decode_calibration(m.data) == by_time[m.log_time]
+    cal_meta = [m for name, m in metadata if name == fmt.CALIBRATION_METADATA]
+    assert [fmt.decode_calibration_metadata(m) for m in cal_meta] == [
+        (frames[0].timestamp_ns, frames[0].intrinsics), (frames[6].timestamp_ns, frames[6].intrinsics)]
     schemas = {c.topic: (s.name, s.encoding, c.message_encoding) for s, c, _ in messages}
     assert schemas[fmt.COLOR_TOPIC] == (fmt.RAW_IMAGE, "protobuf", "protobuf")
     assert schemas[fmt.SKELETON_TOPIC] == (fmt.SKELETON_SCHEMA, "jsonschema", "json")
@@ -52,6 +58,27 @@ def test_messages_follow_the_convention(tmp_path, make_frames, record):
     skeleton = [json.loads(m.data) for _, c, m in messages if c.topic == fmt.SKELETON_TOPIC]
     assert [j["name"] for j in skeleton[0]["joints"]] == ["right_hand", "head", "left_hand"]
     assert skeleton[0]["joints"][0]["depth_mm"] is None
+
+
+def test_every_chunk_starts_with_the_calibration(tmp_path, make_frames, record):
+    """Issue 14 item 2: each chunk carries its own calibration copy as its first message."""
+    from mcap.records import Channel, Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    frames = make_frames(30, calibration_change=17)
+    path = record(tmp_path / "c.mcap", frames, chunk_size=40_000)
+    channels, firsts = {}, []
+    with open(path, "rb") as fh:
+        for rec in StreamReader(fh, emit_chunks=True).records:
+            if isinstance(rec, Chunk):
+                inner = breakup_chunk(rec, validate_crc=True)
+                channels.update({r.id: r.topic for r in inner if isinstance(r, Channel)})
+                firsts.append(next(r for r in inner if isinstance(r, Message)))
+    assert len(firsts) >= 5
+    by_time = {f.timestamp_ns: f.intrinsics for f in frames}
+    for m in firsts:
+        assert channels[m.channel_id] == fmt.CALIBRATION_TOPIC
+        assert fmt.decode_calibration(m.data) == by_time[m.log_time]
 
 
 @pytest.mark.parametrize("color_format, depth_format, compression", [("jpeg", "png", "zstd"), ("png", "raw", "lz4"),
@@ -172,7 +199,7 @@ import os, sys
 sys.path.insert(0, {os.path.dirname(__file__)!r})
 from conftest import _make_frames
 from drivers.mcap_record import McapRecorder
-rec = McapRecorder({str(path)!r}, chunk_size=16_000)
+rec = McapRecorder({str(path)!r}, chunk_size=40_000)
 rec.open()
 pending = rec._writer._Writer__chunk_builder
 for n, f in enumerate(_make_frames(40, background=3), 1):

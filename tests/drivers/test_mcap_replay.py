@@ -84,16 +84,17 @@ def test_info(tmp_path, make_frames, record):
     path = record(tmp_path / "i.mcap", frames, metadata={"generator": "hand"})
     with McapReplay(path) as replay:
         info = replay.info()
+        n_chunks = sum(b.is_chunk for b in replay._blocks)
     assert info.indexed and not info.truncated and info.notes == ()
     assert info.frames == 11 and info.duration_ns == 10 * 33_333_333
     assert info.fps == pytest.approx(30.0, rel=1e-6)
     assert (info.width, info.height) == (64, 48) and info.intrinsics["fx"] == pytest.approx(0.78 * 64)
     assert info.background_frames == 3 and info.missing_depth == 1 and info.missing_skeleton == 2
-    assert info.ground_truth_frames == 8 and info.calibration_messages == 1
+    assert info.ground_truth_frames == 8 and info.calibration_messages == n_chunks  # a copy per chunk
     assert info.metadata["generator"] == "hand"
     counts = {t.topic: t.message_count for t in info.topics}
     assert counts == {fmt.COLOR_TOPIC: 11, fmt.DEPTH_TOPIC: 10, fmt.SKELETON_TOPIC: 9,
-                      fmt.GROUND_TRUTH_TOPIC: 8, fmt.CALIBRATION_TOPIC: 1}
+                      fmt.GROUND_TRUTH_TOPIC: 8, fmt.CALIBRATION_TOPIC: n_chunks}
     as_json = __import__("json").loads(info.to_json())
     assert as_json["topics"][0]["topic"] == fmt.CALIBRATION_TOPIC and as_json["frames"] == 11
 
@@ -187,15 +188,17 @@ def test_depth_not_aligned_to_colour(tmp_path, write_messages):
     path = write_messages(tmp_path / "m.mcap", _frame_messages(10, (640, 400), (320, 200)))
     with pytest.raises(RecordingError, match="/camera/depth is 320x200 but /camera/color is 640x400 in frame 0"):
         McapReplay(path).open()
-    # a mismatch later in the file stops the replay there, after the good frames
-    messages = _frame_messages(10) + _frame_messages(20, calibration=False) + _frame_messages(30, depth_size=(32, 24), calibration=False)
+    # a mismatch later in the file (issue 14 item 6): that frame is yielded without depth, counted and reported
+    messages = (_frame_messages(10) + _frame_messages(20, calibration=False)
+                + _frame_messages(30, depth_size=(32, 24), calibration=False) + _frame_messages(40, calibration=False))
     path = write_messages(tmp_path / "late.mcap", messages)
     with McapReplay(path) as replay:
-        got = []
-        with pytest.raises(RecordingError, match="/camera/depth is 32x24 but /camera/color is 64x48 in frame 2"):
-            for frame in replay:
-                got.append(frame.timestamp_ns)
-        assert got == [10, 20]
+        got = [(frame.timestamp_ns, frame.depth is not None) for frame in replay]
+        assert got == [(10, True), (20, True), (30, False), (40, True)]
+        assert replay.stats.skipped_parts == {"depth": 1} and replay.stats.dropped == 0
+        assert any("/camera/depth is 32x24 but /camera/color is 64x48 in frame 2" in n for n in replay.stats.notes)
+        assert replay.stats.loss_summary() == (
+            "skipped 0 frames: 1 depth message unreadable (frames kept without depth)")
 
 
 def test_calibration_size_must_match(tmp_path, write_messages):
