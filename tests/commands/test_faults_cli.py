@@ -168,7 +168,7 @@ def test_setup_installs_python3_venv_when_python_cannot_make_a_venv(tmp_path):
                           env={**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "PYTHON": "python3"})
     assert proc.returncode != 0  # the fake python3 cannot make the venv; apt was asked first
     installs = [line.split() for line in log.read_text().splitlines() if line.startswith("install")]
-    version = "%d.%d" % sys.version_info[:2]
+    version = "{}.{}".format(*sys.version_info[:2])
     assert installs and "python3-venv" in installs[0] and f"python{version}-venv" in installs[0]
 
 
