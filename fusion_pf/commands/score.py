@@ -94,6 +94,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
     reference = read_reference(args.reference, args.ground_truth, read_topic)
     ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol, read_topic=read_topic)
+    if args.reference is not None:
+        from fusion_pf.annotate.db import check_reference_matches
+
+        meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}
+        check_reference_matches(args.reference, ev.table.frame.tolist(), ev.table.timestamp_ns.tolist(),
+                                source_sha256=meta.get("source_sha256"), what=str(args.tracked))
     sweep = None
     if counts is not None:
         meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}

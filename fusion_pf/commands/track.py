@@ -20,7 +20,9 @@ DESCRIPTION = (
     "comes from --background, else the recording's own background frames, else the median of its "
     "first --background-k frames. Pixels are colour-image pixels, 3-D points camera-frame "
     "millimetres. The same --seed gives a byte-identical CSV (latency columns are left empty unless "
-    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130) and on errors (exit 2)."
+    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130) and on errors (exit 2). A damaged "
+    "recording is tracked as far as it can be read: the frames skipped and why are printed and the "
+    "exit status is 3 (partial)."
 )
 
 
@@ -126,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     from drivers import ReplaySource, open_source
     from drivers.mcap_record import McapRecorder
     from drivers.tracker_topics import TrackerTopics
-    from fusion_pf.errors import InputError
+    from fusion_pf.annotate.db import recording_sha256
+    from fusion_pf.errors import PARTIAL_EXIT_CODE, InputError
     from fusion_pf.geometry import write_roi_ply
     from fusion_pf.pipeline import STATES, TrackCsv, TrackStats, track
     from fusion_pf.signals import sigint_deferred
@@ -143,10 +146,12 @@ def run(args: argparse.Namespace) -> int:
     with open_source(args.source) as src, ExitStack() as stack:
         options = _recorder_options(src, args)
         options["metadata"]["tracker"] = json.dumps(config.settings(), sort_keys=True)
-        recorder = stack.enter_context(McapRecorder(args.output, **options))
+        if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
+            options["metadata"]["source_sha256"] = recording_sha256(args.source)
         table = None
-        if args.csv is not None:
+        if args.csv is not None:  # opened first: a CSV that cannot be written leaves no MCAP behind
             table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
+        recorder = stack.enter_context(McapRecorder(args.output, **options))
         total = len(src) if isinstance(src, ReplaySource) else None
         bar = stack.enter_context(
             tqdm(total=total, unit="frame", desc=src.describe(), disable=True if args.no_progress else None, file=sys.stderr)
@@ -176,4 +181,8 @@ def run(args: argparse.Namespace) -> int:
           + (f", {args.csv}" if args.csv is not None else ""), file=sys.stderr)
     print(f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
           f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses", file=sys.stderr)
+    stats = getattr(src, "stats", None)
+    if stats is not None and stats.partial:
+        print(f"fusion-pf: warning: {stats.loss_summary()}", file=sys.stderr)
+        return PARTIAL_EXIT_CODE
     return 0

@@ -273,3 +273,19 @@ def test_options_reach_the_tracker(recording, tmp_path, capsys):
     assert settings["process_noise"] == [4.0, 1.5] and settings["likelihood"] == "gaussian"
     estimates = [json.loads(d) for _, _, d in messages(out)["/tracker/estimate"]]
     assert {e["n_particles"] for e in estimates} == {20}
+
+
+def test_damaged_recording_is_tracked_as_far_as_it_reads_and_says_what_it_skipped(recording, tmp_path):
+    data = bytearray(recording.read_bytes())
+    middle = len(data) // 2
+    data[middle] ^= 0xFF  # one flipped byte in a chunk in the middle
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data[: int(len(data) * 0.95)]))  # and the end cut off
+    table = tmp_path / "d.csv"
+    proc = fusion_pf("track", damaged, "-o", tmp_path / "d.mcap", "--csv", table, "--no-progress")
+    assert proc.returncode == 3, proc.stderr
+    assert "Traceback" not in proc.stderr
+    warning = [line for line in proc.stderr.splitlines() if line.startswith("fusion-pf: warning: skipped")]
+    assert len(warning) == 1 and "is corrupt" in warning[0] and "truncated" in warning[0]
+    rows = len(table.read_text().splitlines()) - 1
+    assert 0 < rows < 40  # 40 person frames in the intact file
