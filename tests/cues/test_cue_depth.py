@@ -49,18 +49,31 @@ def test_stage_names_shapes_and_dtypes(scene):
 
 
 def test_invalid_depth_never_counts_as_foreground(scene):
+    """The paper's reading (invalid_far=False): no depth, in the frame or the background, is never foreground."""
     s = scene()
     depth = s["depth"].copy()
     depth[150:190, 150:230] = 0  # a band of invalid depth far bigger than the hand
     bg = s["bg_depth"].copy()
     bg[5:30, 5:60] = 0  # unknown background where the frame has (near) depth
     depth[5:30, 5:60] = 800
-    m = DepthCue(**HAND_BAND)(depth, bg).measurement
+    m = DepthCue(**HAND_BAND, invalid_far=False)(depth, bg).measurement
     assert _err(m, s["truth"]) < 1.0
     zero = np.zeros_like(depth)
     assert DepthCue(**HAND_BAND)(zero, s["bg_depth"]).measurement is None
     assert DepthCue(lower=0)(zero, s["bg_depth"]).measurement is None
-    assert DepthCue(**HAND_BAND)(s["depth"], zero).measurement is None
+    assert DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], zero).measurement is None
+
+
+def test_invalid_background_counts_as_far_by_default(scene):
+    """A hand in front of a background without depth (out of range) is foreground by default."""
+    s = scene()
+    u, v = int(round(s["truth"][0])), int(round(s["truth"][1]))
+    bg = s["bg_depth"].copy()
+    bg[max(v - 40, 0):v + 40, max(u - 40, 0):u + 40] = 0  # the wall behind the hand is out of range
+    m = DepthCue(**HAND_BAND)(s["depth"], bg).measurement
+    assert m is not None and _err(m, s["truth"]) < 3.0
+    assert DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement is None or \
+        _err(DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement, s["truth"]) > 3.0
 
 
 def test_temporal_difference_follows_the_moving_hand_not_static_clutter(scene):

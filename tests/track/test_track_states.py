@@ -15,6 +15,8 @@ from fusion_pf.pipeline import TrackConfig, track
 
 SIZE = (160, 120)
 SKIN = np.array([225, 172, 140], np.uint8)
+#: The disc's skin blob is exact: tell the filter so (the default is for a hand with its forearm).
+EXACT = {"skin_rgb": 1.0, "depth": 1.0}
 
 
 def disc_frames(path, *, depth=None, start_ns=0):
@@ -57,7 +59,7 @@ def errors(results, frames):
 
 def test_acquisition_without_skeleton_or_prior():
     frames = disc_frames(circle(60))
-    results = list(track(frames, TrackConfig(cues=("skin_rgb",), background_mode="median")))
+    results = list(track(frames, TrackConfig(cues=("skin_rgb",), noise_px=EXACT, background_mode="median")))
     assert results[0].estimate is not None and results[0].state == "tracking"
     e = errors(results, frames)
     assert len(e) == 60 and np.median(e) < 2.0
@@ -65,12 +67,12 @@ def test_acquisition_without_skeleton_or_prior():
 
 def test_a_palm_that_leaves_is_lost_and_found_again():
     frames = disc_frames(circle(90, leave=slice(30, 55)))
-    config = TrackConfig(cues=("skin_rgb",), silent_frames=5)
+    config = TrackConfig(cues=("skin_rgb",), noise_px=EXACT, silent_frames=5)
     results = list(track(frames, config))
     states = [r.state for r in results]
     assert states[:30] == ["tracking"] * 30
-    assert states[30:35] == ["tracking"] * 5  # coasting while the cue is silent
-    assert set(states[36:55]) == {"lost"} and all(r.estimate is None for r in results[36:55])
+    assert states[30:34] == ["tracking"] * 4  # coasting while the cue is silent (4 of silent_frames=5)
+    assert set(states[34:55]) == {"lost"} and all(r.estimate is None for r in results[34:55])
     assert states[55] == "tracking" and set(states[55:]) == {"tracking"}
     w, h = SIZE
     for r in results:
@@ -81,8 +83,8 @@ def test_a_palm_that_leaves_is_lost_and_found_again():
 
 
 def test_sample_without_skeleton_tracks_nearly_as_well():
-    src = SynthSource(frames=90, seed=2, size=(320, 200), background_frames=10, depth_model="basic")
-    frames = list(src)
+    with SynthSource(frames=90, seed=2, size=(320, 200), background_frames=10, depth_model="basic") as src:
+        frames = list(src)
     bare = [dataclasses.replace(f, joints=None) for f in frames]
     config = TrackConfig()
     with_skeleton = list(track(frames, config))
@@ -97,7 +99,8 @@ def test_sample_without_skeleton_tracks_nearly_as_well():
 
 @pytest.mark.parametrize("mode", ["adaptive", "median"])
 def test_no_empty_scene_the_hand_in_view_from_the_first_frame(mode):
-    frames = list(SynthSource(frames=80, seed=4, size=(320, 200), background_frames=0, depth_model="basic"))
+    with SynthSource(frames=80, seed=4, size=(320, 200), background_frames=0, depth_model="basic") as src:
+        frames = list(src)
     results = list(track(frames, TrackConfig(background_mode=mode)))
     e = errors(results, frames)
     assert len(e) >= 0.95 * sum(f.ground_truth is not None for f in frames)
@@ -108,16 +111,19 @@ def test_depth_cue_sees_a_hand_in_front_of_an_invalid_background():
     w, h = SIZE
     wall = np.zeros((h, w), np.uint16)  # out of range: no depth anywhere behind the hand
     wall[:10] = 2500
-    frames = disc_frames(circle(30), depth=(wall, 600))
+    path = circle(35)
+    path[:5] = np.nan  # five empty-scene frames first: the background
+    frames = disc_frames(path, depth=(wall, 600))
+    frames = [dataclasses.replace(f, background=k < 5) for k, f in enumerate(frames)]
     grey = [dataclasses.replace(f, color=np.full_like(f.color, 60)) for f in frames]  # colour gives nothing
-    found = list(track(grey, TrackConfig(cues=("depth",), background_mode="median")))
+    found = list(track(grey, TrackConfig(cues=("depth",), noise_px=EXACT)))
     e = errors(found, frames)
     assert len(e) == 30 and np.median(e) < 2.0
-    paper = TrackConfig(cues=("depth",), background_mode="median", cue_options=CueOptions(depth_invalid_far=False))
+    paper = TrackConfig(cues=("depth",), noise_px=EXACT, cue_options=CueOptions(depth_invalid_far=False))
     assert all(r.estimate is None for r in track(grey, paper))
 
 
 def test_init_starts_the_filter_at_the_given_point():
     frames = disc_frames(circle(10))
-    first = next(iter(track(frames, TrackConfig(cues=("skin_rgb",), init=(120.0, 60.0), particles=500))))
+    first = next(iter(track(frames, TrackConfig(cues=("skin_rgb",), noise_px=EXACT, init=(120.0, 60.0), particles=500))))
     assert math.hypot(first.estimate.u - 120.0, first.estimate.v - 60.0) < 5.0
