@@ -160,6 +160,12 @@ class Click:
         operator, frame, timestamp_ns, u, v, visible, clicked_ns = row
         return cls(operator, int(frame), int(timestamp_ns), u, v, bool(visible), int(clicked_ns))
 
+    @property
+    def uv(self) -> tuple[float, float]:
+        """``(u, v)`` of a visible click (the table's CHECK gives visible clicks both numbers)."""
+        assert self.u is not None and self.v is not None, "a visible click has a position"
+        return self.u, self.v
+
     def to_json(self) -> dict:
         """The click as a JSON-ready dict (the keys of the attributes)."""
         return {
@@ -574,7 +580,7 @@ def summarize_frame(clicks: list[Click]) -> dict:
         distance of the visible clicks to that mean; 0.0 for one click, None when
         nobody saw the palm).
     """
-    seen = [(c.u, c.v) for c in clicks if c.visible]
+    seen = [c.uv for c in clicks if c.visible]
     out = {"n_operators": len(clicks), "n_not_visible": len(clicks) - len(seen)}
     if not seen:
         return {**out, "mean_u": None, "mean_v": None, "spread_px": None}
@@ -660,11 +666,12 @@ def operator_table(db_path: str | Path) -> list[dict]:
                 s["disagree"] += bool(seen)
                 continue
             s["disagree"] += n_hidden > 0
-            others = [o for o in seen if o.operator != c.operator]
+            others = [o.uv for o in seen if o.operator != c.operator]
             if others:
-                mu = math.fsum(o.u for o in others) / len(others)
-                mv = math.fsum(o.v for o in others) / len(others)
-                s["dists"].append(math.hypot(c.u - mu, c.v - mv))
+                mu = math.fsum(u for u, _ in others) / len(others)
+                mv = math.fsum(v for _, v in others) / len(others)
+                cu, cv = c.uv
+                s["dists"].append(math.hypot(cu - mu, cv - mv))
     table = []
     for operator, s in sorted(stats.items()):
         d = s["dists"]

@@ -57,6 +57,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from flask import Flask, Response, jsonify, request, send_from_directory
+from flask.json.provider import DefaultJSONProvider
 from werkzeug.exceptions import HTTPException
 
 from fusion_pf.errors import InputError, RecordingError
@@ -92,8 +93,8 @@ class ApiError(Exception):
 def _frame_view(db: AnnotationDB, frame: int, operator: str) -> dict:
     clicks = db.frame_clicks(frame)
     own = next((c for c in clicks if c.operator == operator), None)
-    view = {"frame": frame, "own": own.to_json() if own else None, "hidden": own is None,
-            "others": None, "reference": None}
+    view: dict[str, object] = {"frame": frame, "own": own.to_json() if own else None, "hidden": own is None,
+                               "others": None, "reference": None}
     if own is not None:
         view["others"] = [c.to_json() for c in clicks if c.operator != operator]
         view["reference"] = summarize_frame(clicks)
@@ -188,6 +189,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     app = Flask(__name__, static_folder=str(STATIC_DIR), static_url_path="/static")
     app.config["MAX_CONTENT_LENGTH"] = MAX_BODY_BYTES
     app.url_map.merge_slashes = False  # no HTML redirects: '//x' is just an unknown path
+    assert isinstance(app.json, DefaultJSONProvider)  # Flask's default provider: it has sort_keys
     app.json.sort_keys = False
     first = images.meta(0)
 
@@ -307,7 +309,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
         operator = validate_operator(body["operator"])
         frame, u, v = db.check_click(body["frame"], body["u"], body["v"])
         meta = images.meta(frame)
-        if u is not None and not (u <= meta.width - 0.5 and v <= meta.height - 0.5):
+        if u is not None and v is not None and not (u <= meta.width - 0.5 and v <= meta.height - 0.5):
             raise ApiError(400, f"({u}, {v}) is outside the {meta.width}x{meta.height} image of frame {frame}")
         db.set_click(operator, frame, meta.timestamp_ns, u, v)
         view = _frame_view(db, frame, operator)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
@@ -27,7 +28,7 @@ def _meta(text: str) -> tuple[str, str]:
     return key, value
 
 
-def _positive(kind: type) -> object:
+def _positive(kind: type) -> Callable[[str], object]:
     def parse(text: str) -> object:
         try:
             value = kind(text)
@@ -128,8 +129,9 @@ def _record(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with source as src:
         metadata = {"source": args.source}
-        if callable(getattr(src, "metadata", None)):
-            metadata.update(src.metadata())
+        source_metadata = getattr(src, "metadata", None)
+        if callable(source_metadata):
+            metadata.update(source_metadata())
         metadata.update(dict(args.meta))
         total = len(src) if isinstance(src, ReplaySource) else None
         if args.frames is not None:

@@ -161,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         for result in track(src, config, background=background, stats=track_stats):
             with sigint_deferred():
                 t0 = time.perf_counter_ns()
+                assert result.source_frame is not None  # track() sets it on every result
                 if args.copy_input:
                     recorder.write(result.source_frame)
                 topics.write(result)

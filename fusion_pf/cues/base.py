@@ -20,6 +20,8 @@ from ..frame import SOURCES, Measurement
 
 if TYPE_CHECKING:
     from ..frame import Frame
+    from .background import BackgroundModel
+    from .roi import Roi
 
 __all__ = ["NEEDS", "SOURCES", "Cue", "CueContext", "CueResult", "Measurement"]
 
@@ -71,8 +73,8 @@ class CueContext:
         frame border are kept (an arm enters from the border).
     """
 
-    roi: object | None = None
-    background: object | None = None
+    roi: Roi | None = None
+    background: BackgroundModel | None = None
     joint: str = "right_hand"
     stages: bool = False
     prior: tuple[float, float] | None = None
@@ -89,8 +91,10 @@ class Cue(Protocol):
     ``reset`` forgets per-stream state (e.g. the depth cue's previous frame).
     """
 
-    name: str
     needs: frozenset[str]
+
+    @property
+    def name(self) -> str: ...
 
     def measure(self, frame: "Frame", ctx: CueContext) -> CueResult: ...
 

@@ -164,6 +164,7 @@ class ColourCue:
         out: dict[str, np.ndarray] = {}
         if not has_bg or roi.empty:
             return CueResult(None, out, time.perf_counter_ns() - t0)
+        assert background is not None  # _check_pair is False without a background
         c1 = roi.crop(color)
         c2 = cv2.absdiff(c1, roi.crop(background))  # I_C2 = |I - B| per channel
         c3 = cv2.cvtColor(c2, cv2.COLOR_RGB2GRAY)  # I_C3 = grayscale difference

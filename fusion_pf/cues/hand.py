@@ -229,7 +229,8 @@ def weighted_nms(det: PalmDetections, iou_threshold: float = 0.3, max_out: int |
     ``det`` must be sorted by score (as :func:`decode_palms` returns it).
     Returns at most ``max_out`` detections (all when None).
     """
-    scores, boxes, kps = [], [], []
+    scores: list[float] = []
+    boxes, kps = [], []
     rest = np.arange(len(det))
     while rest.size and (max_out is None or len(scores) < max_out):
         group = box_iou(det.boxes[rest[0]], det.boxes[rest]) > iou_threshold
@@ -478,8 +479,8 @@ class HandLandmarker:
                 return obs, "hint"
         det = self.palms(rgb)
         order = np.arange(len(det))
-        if len(det) and (hint is not None or previous is not None):
-            ref = np.array([hint.u, hint.v]) if hint is not None else previous.palm
+        ref = np.array([hint.u, hint.v]) if hint is not None else None if previous is None else previous.palm
+        if len(det) and ref is not None:
             order = np.argsort(np.hypot(*(det.keypoints[:, [0, 2]].mean(axis=1) - ref).T), kind="stable")
         for i in order:
             obs = self.landmarks(rgb, palm_roi(det.boxes[i], det.keypoints[i]))

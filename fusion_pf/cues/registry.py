@@ -16,6 +16,7 @@ import inspect
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..errors import InputError
 from ..options import option, parse_tuple, validate
@@ -29,7 +30,7 @@ from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
 __all__ = ["CUES", "CueInfo", "CueOptions", "build_cue", "build_cues", "check_cue_names", "register"]
 
 
-def _default(cls: type, name: str):
+def _default(cls: type[Any], name: str):
     """The keyword default of ``cls.__init__`` (where each cue's default is defined)."""
     return inspect.signature(cls.__init__).parameters[name].default
 

@@ -100,19 +100,19 @@ class TrackCsv:
 def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str] = SOURCES) -> list[str]:
     """The CSV cells of one result, in :func:`csv_columns` order."""
     e = result.estimate
-    cells = [str(result.frame), str(result.timestamp_ns), _f(e and e.u, 3), _f(e and e.v, 3)]
+    cells = [str(result.frame), str(result.timestamp_ns), _f(None if e is None else e.u, 3), _f(None if e is None else e.v, 3)]
     for s in sources:
         m = result.cues.get(s)
-        cells += [_f(m and m.u, 3), _f(m and m.v, 3)]
+        cells += [_f(None if m is None else m.u, 3), _f(None if m is None else m.v, 3)]
     xyz = result.xyz_mm
-    cells += [_f(None if xyz is None else float(c), 1) for c in (xyz if xyz is not None else (None,) * 3)]
-    cells += [_f(e and e.ess, 3), "" if e is None else str(int(e.resampled)), "" if e is None else str(e.n_particles)]
+    cells += [_f(float(c), 1) for c in xyz] if xyz is not None else [_f(None, 1)] * 3
+    cells += [_f(None if e is None else e.ess, 3), "" if e is None else str(int(e.resampled)), "" if e is None else str(e.n_particles)]
     for stage in (*stages(sources), "sinks"):
         ns = result.latency_ns.get(stage)
         cells.append(_f(ns / 1e6, 3) if latency and ns is not None else "")
     for s in sources:
         m = result.cues.get(s)
-        cells.append(_f(m and m.quality, 3))
+        cells.append(_f(None if m is None else m.quality, 3))
     cells.append(result.state)
     return cells
 

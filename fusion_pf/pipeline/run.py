@@ -295,6 +295,7 @@ def _with_background(
 
 
 def _check_size(model: BackgroundModel, index: int, frame: Frame) -> None:
+    assert model.color is not None, "the background model has no colour image yet"
     h, w = model.color.shape[:2]
     if (w, h) != frame.size:
         raise InputError(f"background is {w}x{h} but frame {index} is {frame.size[0]}x{frame.size[1]}")
@@ -360,6 +361,7 @@ class _CueStage:
             self.cues = build_cues(self.names, self.config.cue_options)
         lat = {"decode": decode_ns}
         search = prior is None
+        roi: Roi | None
         if search:
             s = pixel_scale(frame.size, self.config)
             roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
@@ -498,6 +500,7 @@ class _FilterStage:
         """
         if not ms:
             return
+        assert self.tracker is not None  # created by the first __call__, before adapting
         ref = min(ms, key=lambda m: self._base[m.source])
         var_ref = self._var[ref.source]
         for m in ms:
@@ -537,7 +540,8 @@ class _FilterStage:
         size = (row.intrinsics.width, row.intrinsics.height)
         if self.tracker is None:
             self._start(size)
-        tracker = self.tracker
+        tracker, states = self.tracker, self.states
+        assert tracker is not None and states is not None  # created by _start
         ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
         if self.config.adapt_noise:
             self._adapt(ms, self.prediction(row.timestamp_ns) if len(self._history) == 2 else None)
@@ -546,7 +550,11 @@ class _FilterStage:
             tracker.reset(prior=(best.u, best.v))  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
         if not tracker.initialised and (ms or self.init is not None):
-            tracker.reset(prior=self.init if self.init is not None else (best.u, best.v))
+            prior = self.init
+            if prior is None:
+                assert best is not None  # ms is not empty
+                prior = (best.u, best.v)
+            tracker.reset(prior=prior)
         self.init = None
         estimate = tracker.step(row.timestamp_ns, ms)
         cov = None if estimate is None else estimate.cov
@@ -554,7 +562,7 @@ class _FilterStage:
         self._spread = None if cov is None else spread
         position = None if estimate is None else (estimate.u, estimate.v)
         before = self.status.state
-        self.status = step_state(self.status, Evidence(position, spread_px=spread, cues=len(ms)), self.states)
+        self.status = step_state(self.status, Evidence(position, spread_px=spread, cues=len(ms)), states)
         if self.status.state == TrackState.LOST and estimate is not None:
             self.losses += before == TrackState.TRACKING
             tracker.reset()
