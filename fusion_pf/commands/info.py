@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 from pathlib import Path
 
 NAME = "info"
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     with McapReplay(args.file) as replay:
         info = replay.info()
-        verified = None
+        verified: dict[str, Any] | None = None
         if args.verify:
             decoded = sum(1 for _ in replay)
             stats = replay.stats
