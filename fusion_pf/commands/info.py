@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 NAME = "info"
 HELP = "describe a recording: topics, counts, duration, fps, calibration, truncation"
