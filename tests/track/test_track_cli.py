@@ -175,7 +175,7 @@ def test_background_from_a_separate_file(tmp_path):
     (["--filter", "kf", "--likelihood", "robust"], "the Kalman filter (filter kf) is Gaussian only, got likelihood 'robust'"),
     (["--roi-prior", "face"], "roi_prior (--roi-prior) must be one of auto, filter, skeleton, got 'face'"),
     (["--noise", "colour=x"], "--noise: expected NAME=NUMBER,... (e.g. colour=4,depth=8), got 'colour=x'"),
-    (["--noise", "hand=3"], "noise_px (--noise) has unknown source(s) hand"),
+    (["--noise", "sonar=3"], "noise_px (--noise) has unknown source(s) sonar"),
     (["--noise", "depth=0"], "noise_px (--noise): depth must be a number in [0.01, 10000] px, got 0.0"),
     (["--process-noise", "3"], "--process-noise: expected 2 comma-separated numbers, got '3'"),
     (["--sources", "colour,sonar"], "sources (--sources): cues must be distinct names among colour, depth, skeleton"),
