@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
+
 NAME = "demo"
 HELP = "track + score the sample recording (recordings/sample.mcap): figures 8-10 and tables"
 DESCRIPTION = (
@@ -28,9 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out") / "demo", metavar="DIR", help="output directory")
     p.add_argument("--recording", type=Path, default=None, metavar="REC.mcap",
                    help=f"recording with ground truth; not given: {SAMPLE} of the repository")
-    p.add_argument("--sweep", default="5,10,25,50,75,100,125,150,200,250", metavar="N1,N2,...",
+    p.add_argument("--sweep", default=",".join(map(str, PAPER_PARTICLE_COUNTS)), metavar="N1,N2,...",
                    help="particle counts of the sweep (paper 003 §4.4)")
-    p.add_argument("--runs", type=int, default=20, help="runs (seeds) per particle count (paper: 20)")
+    p.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
     p.add_argument("--particles", type=int, default=100, help="particle count of the tracked output")
     p.add_argument("--seed", type=int, default=0, help="seed of the tracked output and base seed of the sweep")
     p.add_argument("--cue-noise", default=None, metavar="SRC=PX,...",

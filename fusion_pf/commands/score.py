@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
+
 NAME = "score"
 HELP = "RMSE, coverage, p95 and BestMax of a tracker output; particle-count sweeps and figures"
 DESCRIPTION = (
@@ -33,10 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-tol", type=float, default=1e-6, metavar="PX",
                    help="BestMax: errors within this many pixels of the best tie (each tied source scores)")
     s = p.add_argument_group("particle-count sweep (paper 003 §4.4-4.5)")
-    s.add_argument("--sweep", metavar="N1,N2,...", nargs="?", const="5,10,25,50,75,100,125,150,200,250",
+    s.add_argument("--sweep", metavar="N1,N2,...", nargs="?", const=",".join(map(str, PAPER_PARTICLE_COUNTS)),
                    help="re-run the filter for these particle counts (alone: the paper's "
-                        "5,10,25,50,75,100,125,150,200,250)")
-    s.add_argument("--runs", type=int, default=20, help="runs (seeds) per particle count")
+                        f"{','.join(map(str, PAPER_PARTICLE_COUNTS))})")
+    s.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
     s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
     s.add_argument("--workers", type=int, default=None,
                    help="worker processes of the local Dask cluster; not given: one per core; 1: in this process")

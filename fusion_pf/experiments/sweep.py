@@ -49,11 +49,7 @@ __all__ = [
     "run_sweep",
 ]
 
-#: Particle counts of paper 003 §4.4.
-PAPER_PARTICLE_COUNTS = (5, 10, 25, 50, 75, 100, 125, 150, 200, 250)
-
-#: Runs per particle count of paper 003 §4.5.
-PAPER_RUNS = 20
+from .paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
 
 
 def parse_counts(text: str) -> tuple[int, ...]:
