@@ -123,8 +123,15 @@ def pf_step_bench(n: int, repeats: int, *, likelihood: str = "gaussian", warmup:
 
     cues = _cue_path(warmup + repeats + 1, np.random.default_rng(seed))
     frames = [[Measurement(s, *cues[k, j]) for j, s in enumerate(NOISE_PX)] for k in range(cues.shape[0])]
-    pf = ParticleFilter(n_particles=n, process_noise=PROCESS_NOISE, noise_px=NOISE_PX, likelihood=likelihood,
-                        ess_threshold=1.0, keep_particles=False, rng=seed)
+    pf = ParticleFilter(
+        n_particles=n,
+        process_noise=PROCESS_NOISE,
+        noise_px=NOISE_PX,
+        likelihood=likelihood,
+        ess_threshold=1.0,
+        keep_particles=False,
+        rng=seed,
+    )
     pf.step(0, frames[0])
     resampled = []
 
@@ -168,8 +175,14 @@ def stonesoup_step_bench(n: int, repeats: int, *, warmup: int = 1, seed: int = 0
     steps = warmup + repeats
     cues = _cue_path(steps + 1, np.random.default_rng(seed))
     detections = [
-        [Detection(np.array([[cues[k, j, 0]], [cues[k, j, 1]]]), timestamp=t0 + _dt.timedelta(seconds=k),
-                   measurement_model=models[s]) for j, s in enumerate(NOISE_PX)]
+        [
+            Detection(
+                np.array([[cues[k, j, 0]], [cues[k, j, 1]]]),
+                timestamp=t0 + _dt.timedelta(seconds=k),
+                measurement_model=models[s],
+            )
+            for j, s in enumerate(NOISE_PX)
+        ]
         for k in range(steps + 1)
     ]
     sv = StateVectors(np.vstack([rng.normal(320, 20, n), np.zeros(n), rng.normal(200, 20, n), np.zeros(n)]))
@@ -297,8 +310,11 @@ def _track_latencies(path: Path, roi: bool, workdir: Path) -> dict:
     stages: dict[str, list[int]] = {s: [] for s in (*STAGES, "sinks")}
     cues_filter: list[int] = []
     tag = f"{path.stem}_{'roi' if roi else 'full'}"
-    with McapReplay(path) as src, McapRecorder(workdir / f"{tag}.mcap") as rec, \
-            TrackCsv(workdir / f"{tag}.csv", latency=True) as csv_out:
+    with (
+        McapReplay(path) as src,
+        McapRecorder(workdir / f"{tag}.mcap") as rec,
+        TrackCsv(workdir / f"{tag}.csv", latency=True) as csv_out,
+    ):
         topics = TrackerTopics(rec, config)
         for result in track(src, config):
             t0 = time.perf_counter_ns()
@@ -330,8 +346,11 @@ def pipeline_bench(workdir: Path, *, frames: tuple[int, int] = (150, 80)) -> dic
         path = workdir / f"synth_{size[0]}x{size[1]}.mcap"
         _record_synth(path, n + 10, size, background_frames=10)
         key = f"{size[0]}x{size[1]}"
-        out[key] = {"frames": n, "roi": _track_latencies(path, True, workdir),
-                    "full_frame": _track_latencies(path, False, workdir)}
+        out[key] = {
+            "frames": n,
+            "roi": _track_latencies(path, True, workdir),
+            "full_frame": _track_latencies(path, False, workdir),
+        }
     return out
 
 
@@ -368,11 +387,23 @@ def replay_child(path: str, csv_path: str) -> None:
 
 
 def _run_child(path: Path, workdir: Path) -> dict:
-    code = ("import sys; sys.path.insert(0, sys.argv[3]); from bench import replay_child; "
-            "replay_child(sys.argv[1], sys.argv[2])")
-    proc = subprocess.run([sys.executable, "-c", code, str(path), str(workdir / f"{path.stem}.csv"),
-                           str(Path(__file__).resolve().parent)],
-                          capture_output=True, text=True, check=False)
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[3]); from bench import replay_child; "
+        "replay_child(sys.argv[1], sys.argv[2])"
+    )
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code,
+            str(path),
+            str(workdir / f"{path.stem}.csv"),
+            str(Path(__file__).resolve().parent),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if proc.returncode != 0:
         raise RuntimeError(f"replay of {path} failed: {proc.stderr.strip().splitlines()[-1:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -405,7 +436,7 @@ def _meta(quick: bool) -> dict:
         "cpu_count": os.cpu_count(),
         "loadavg_start": list(os.getloadavg()),
         "noise_note": "wall-clock medians on a machine whose cores may be shared; compare loadavg "
-                      "to cpu_count: a load above it means other processes competed for the CPUs",
+        "to cpu_count: a load above it means other processes competed for the CPUs",
     }
 
 
@@ -416,31 +447,56 @@ def _targets(result: dict) -> list[dict]:
     ss = {r["n"]: r for r in result.get("stonesoup_step", [])}
     for n, limit in ((10_000, 1.0), (1_000_000, 100.0)):
         if n in pf:
-            rows.append({"target": f"PF step N={n:.0e} <= {limit:g} ms", "measured": pf[n]["median_ms"],
-                         "unit": "ms", "met": pf[n]["median_ms"] <= limit})
+            rows.append(
+                {
+                    "target": f"PF step N={n:.0e} <= {limit:g} ms",
+                    "measured": pf[n]["median_ms"],
+                    "unit": "ms",
+                    "met": pf[n]["median_ms"] <= limit,
+                }
+            )
     common = sorted(set(pf) & set(ss))
     if common:
         worst = min(ss[n]["median_ms"] / pf[n]["median_ms"] for n in common)
-        rows.append({"target": ">= 10x faster than Stone Soup (worst N)", "measured": worst, "unit": "x",
-                     "met": worst >= 10.0})
+        rows.append(
+            {"target": ">= 10x faster than Stone Soup (worst N)", "measured": worst, "unit": "x", "met": worst >= 10.0}
+        )
     res = {r["n"]: r for r in result.get("resampling", [])}
     if 1_000_000 in res:
         r = res[1_000_000]["ratio_vs_particles"]
-        rows.append({"target": "residual resampling N=1e6 at least parity with particles", "measured": r,
-                     "unit": "ours/theirs", "met": r <= 1.0})
+        rows.append(
+            {
+                "target": "residual resampling N=1e6 at least parity with particles",
+                "measured": r,
+                "unit": "ours/theirs",
+                "met": r <= 1.0,
+            }
+        )
     pipe = result.get("pipeline", {}).get("640x400")
     if pipe:
         m = pipe["roi"]["cues_plus_filter"]["median_ms"]
-        rows.append({"target": "cues + PF (N=100, ROI) 640x400 median <= 2 ms", "measured": m, "unit": "ms",
-                     "met": m <= 2.0})
+        rows.append(
+            {"target": "cues + PF (N=100, ROI) 640x400 median <= 2 ms", "measured": m, "unit": "ms", "met": m <= 2.0}
+        )
     rep = result.get("replay", {})
     if rep:
         key = "sample" if "sample" in rep else "short"
-        rows.append({"target": f"replay end to end ({key}) >= 200 frames/s", "measured": rep[key]["fps"],
-                     "unit": "frames/s", "met": rep[key]["fps"] >= 200.0})
-        rows.append({"target": "peak RSS of a 4x longer replay within 1.25x (streaming)",
-                     "measured": rep["rss_ratio_long_over_short"], "unit": "x",
-                     "met": rep["rss_ratio_long_over_short"] <= 1.25})
+        rows.append(
+            {
+                "target": f"replay end to end ({key}) >= 200 frames/s",
+                "measured": rep[key]["fps"],
+                "unit": "frames/s",
+                "met": rep[key]["fps"] >= 200.0,
+            }
+        )
+        rows.append(
+            {
+                "target": "peak RSS of a 4x longer replay within 1.25x (streaming)",
+                "measured": rep["rss_ratio_long_over_short"],
+                "unit": "x",
+                "met": rep["rss_ratio_long_over_short"] <= 1.25,
+            }
+        )
     return rows
 
 
@@ -515,8 +571,9 @@ def run_bench(
             result["resampling"].append(resample_bench(n, repeats(n)))
     if "robustness" in sections:
         say("robustness (lying source)")
-        result["robustness"] = robustness_bench(n_particles=500 if quick else 1000,
-                                                seeds=(0, 1) if quick else (0, 1, 2, 3, 4))
+        result["robustness"] = robustness_bench(
+            n_particles=500 if quick else 1000, seeds=(0, 1) if quick else (0, 1, 2, 3, 4)
+        )
     with tempfile.TemporaryDirectory(prefix="fusion-pf-bench-") as tmp:
         if "pipeline" in sections:
             say("pipeline per-stage latency")
@@ -572,11 +629,19 @@ def to_markdown(result: dict) -> str:
         ]
         for r in result["pf_step"]:
             s = ss.get(r["n"])
-            ref = (f"{_fmt(s['median_ms'])} | {r['median_ms'] / s['median_ms']:.4f} | "
-                   f"{s['median_ms'] / r['median_ms']:.1f}x") if s else "- | - | -"
+            ref = (
+                (
+                    f"{_fmt(s['median_ms'])} | {r['median_ms'] / s['median_ms']:.4f} | "
+                    f"{s['median_ms'] / r['median_ms']:.1f}x"
+                )
+                if s
+                else "- | - | -"
+            )
             robust = _fmt(rob[r["n"]]["median_ms"]) if r["n"] in rob else "-"
-            lines.append(f"| {r['n']:.0e} | {_fmt(r['median_ms'])} | {_fmt(r['p95_ms'])} | "
-                         f"{r['updates_per_s']:.3g} | {ref} | {robust} |")
+            lines.append(
+                f"| {r['n']:.0e} | {_fmt(r['median_ms'])} | {_fmt(r['p95_ms'])} | "
+                f"{r['updates_per_s']:.3g} | {ref} | {robust} |"
+            )
         lines.append("")
     if result.get("resampling"):
         lines += [
@@ -611,8 +676,12 @@ def to_markdown(result: dict) -> str:
     pipe = result.get("pipeline")
     if pipe:
         stages = ("decode", "colour", "depth", "skeleton", "filter", "sinks", "total", "cues_plus_filter")
-        lines += ["## Pipeline per-frame latency (median / p95 ms, PF N=100)", "",
-                  "| size | ROI | " + " | ".join(stages) + " |", "|---|---|" + "---|" * len(stages)]
+        lines += [
+            "## Pipeline per-frame latency (median / p95 ms, PF N=100)",
+            "",
+            "| size | ROI | " + " | ".join(stages) + " |",
+            "|---|---|" + "---|" * len(stages),
+        ]
         for size, r in pipe.items():
             for mode in ("roi", "full_frame"):
                 cells = " | ".join(f"{_fmt(r[mode][s]['median_ms'])} / {_fmt(r[mode][s]['p95_ms'])}" for s in stages)
@@ -620,8 +689,12 @@ def to_markdown(result: dict) -> str:
         lines.append("")
     rep = result.get("replay")
     if rep:
-        lines += ["## Replay end to end (track + CSV, subprocess)", "",
-                  "| recording | frames | frames/s | peak RSS MiB |", "|---|---|---|---|"]
+        lines += [
+            "## Replay end to end (track + CSV, subprocess)",
+            "",
+            "| recording | frames | frames/s | peak RSS MiB |",
+            "|---|---|---|---|",
+        ]
         for key in ("sample", "short", "long"):
             if key in rep:
                 r = rep[key]
@@ -668,14 +741,30 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark from the command line and print the Markdown report."""
     p = argparse.ArgumentParser(prog="python benchmarks/bench.py", description=DESCRIPTION)
     p.add_argument("--quick", action="store_true", help="fewer repeats, smaller recordings (< 5 min)")
-    p.add_argument("--out", type=Path, default=Path("bench-out"), metavar="DIR",
-                   help="directory for bench.json and bench.md")
-    p.add_argument("--sizes", type=_sizes, default="1e2,1e3,1e4,1e5,1e6", metavar="N,N,...",
-                   help="particle counts of the PF-step and resampling sections")
-    p.add_argument("--sections", type=_sections, default=",".join(SECTIONS), metavar="NAME,...",
-                   help=f"which sections to run, among {','.join(SECTIONS)}")
-    p.add_argument("--sample", type=Path, default=Path("recordings/sample.mcap"), metavar="FILE.mcap",
-                   help="recording replayed end to end if it exists (else only synthetic ones)")
+    p.add_argument(
+        "--out", type=Path, default=Path("bench-out"), metavar="DIR", help="directory for bench.json and bench.md"
+    )
+    p.add_argument(
+        "--sizes",
+        type=_sizes,
+        default="1e2,1e3,1e4,1e5,1e6",
+        metavar="N,N,...",
+        help="particle counts of the PF-step and resampling sections",
+    )
+    p.add_argument(
+        "--sections",
+        type=_sections,
+        default=",".join(SECTIONS),
+        metavar="NAME,...",
+        help=f"which sections to run, among {','.join(SECTIONS)}",
+    )
+    p.add_argument(
+        "--sample",
+        type=Path,
+        default=Path("recordings/sample.mcap"),
+        metavar="FILE.mcap",
+        help="recording replayed end to end if it exists (else only synthetic ones)",
+    )
     args = p.parse_args(argv)
     import importlib.util
 

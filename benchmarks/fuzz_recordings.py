@@ -223,8 +223,10 @@ def main(argv: list[str] | None = None) -> int:
         base = Path(tmp) / "base.mcap"
         expected = make_recording(base, frames=args.frames)
         data = base.read_bytes()
-        print(f"code under test: {Path(drivers.__file__).parent.parent}; recording {len(data)} bytes, "
-              f"{expected} frames", flush=True)
+        print(
+            f"code under test: {Path(drivers.__file__).parent.parent}; recording {len(data)} bytes, {expected} frames",
+            flush=True,
+        )
         for k in range(args.mutations):
             what, mutated = mutate(data, rng)
             path = Path(tmp) / f"m{k}.mcap"
@@ -242,8 +244,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("info", "replay"):
         counts = Counter(r[name]["class"] for r in results)
         print(f"{name:7s} " + "  ".join(f"{c}={counts.get(c, 0)}" for c in CLASSES))
-    print("frames over the runs that read the file (not refused): read / reported lost / unaccounted "
-          "(neither read nor counted; includes truncated tails)")
+    print(
+        "frames over the runs that read the file (not refused): read / reported lost / unaccounted "
+        "(neither read nor counted; includes truncated tails)"
+    )
     for name in ("info", "replay"):
         runs = [r[name] for r in results if "frames" in r[name]]
         read = sum(r["frames"] for r in runs)
@@ -252,8 +256,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:7s} runs={len(runs)} read={read} reported_lost={lost} unaccounted={gone}")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"seed": args.seed, "mutations": args.mutations, "expected": expected,
-                                        "elapsed_s": elapsed, "results": results}, indent=1))
+        args.out.write_text(
+            json.dumps(
+                {
+                    "seed": args.seed,
+                    "mutations": args.mutations,
+                    "expected": expected,
+                    "elapsed_s": elapsed,
+                    "results": results,
+                },
+                indent=1,
+            )
+        )
     return 0
 
 

@@ -48,8 +48,12 @@ def make_ros2(folder: Path, frames: list) -> Path:
     Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
     Image, Info = ts.types["sensor_msgs/msg/Image"], ts.types["sensor_msgs/msg/CameraInfo"]
     Roi, Compressed = ts.types["sensor_msgs/msg/RegionOfInterest"], ts.types["sensor_msgs/msg/CompressedImage"]
-    topics = {"/camera/color/image_raw": Image, "/camera/aligned_depth_to_color/image_raw": Image,
-              "/camera/color/camera_info": Info, "/camera/color/image_raw/compressed": Compressed}
+    topics = {
+        "/camera/color/image_raw": Image,
+        "/camera/aligned_depth_to_color/image_raw": Image,
+        "/camera/color/camera_info": Info,
+        "/camera/color/image_raw/compressed": Compressed,
+    }
     with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conns = {t: writer.add_connection(t, c.__msgtype__, typestore=ts) for t, c in topics.items()}
         for f in frames:
@@ -57,17 +61,34 @@ def make_ros2(folder: Path, frames: list) -> Path:
             hdr = Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="camera_color_optical_frame")
             k = f.intrinsics
             msgs = {
-                "/camera/color/image_raw": Image(header=hdr, height=480, width=640, encoding="rgb8", is_bigendian=0,
-                                                 step=1920, data=f.color.ravel()),
+                "/camera/color/image_raw": Image(
+                    header=hdr, height=480, width=640, encoding="rgb8", is_bigendian=0, step=1920, data=f.color.ravel()
+                ),
                 "/camera/aligned_depth_to_color/image_raw": Image(
-                    header=hdr, height=480, width=640, encoding="16UC1", is_bigendian=0, step=1280,
-                    data=f.depth.view(np.uint8).ravel()),
+                    header=hdr,
+                    height=480,
+                    width=640,
+                    encoding="16UC1",
+                    is_bigendian=0,
+                    step=1280,
+                    data=f.depth.view(np.uint8).ravel(),
+                ),
                 "/camera/color/camera_info": Info(
-                    header=hdr, height=480, width=640, distortion_model="plumb_bob", d=np.zeros(5),
-                    k=k.K.ravel(), r=np.eye(3).ravel(), p=np.hstack([k.K, np.zeros((3, 1))]).ravel(), binning_x=0,
-                    binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)),
+                    header=hdr,
+                    height=480,
+                    width=640,
+                    distortion_model="plumb_bob",
+                    d=np.zeros(5),
+                    k=k.K.ravel(),
+                    r=np.eye(3).ravel(),
+                    p=np.hstack([k.K, np.zeros((3, 1))]).ravel(),
+                    binning_x=0,
+                    binning_y=0,
+                    roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+                ),
                 "/camera/color/image_raw/compressed": Compressed(
-                    header=hdr, format="jpeg", data=cv2.imencode(".jpg", f.color[:, :, ::-1])[1].ravel()),
+                    header=hdr, format="jpeg", data=cv2.imencode(".jpg", f.color[:, :, ::-1])[1].ravel()
+                ),
             }
             for topic, msg in msgs.items():
                 writer.write(conns[topic], t, ts.serialize_cdr(msg, msg.__msgtype__))
@@ -109,15 +130,24 @@ def time_k4a(out: Path, n: int, compression: str) -> tuple[int, int, float, floa
         for k in range(n):
             for frame in src:
                 rec.write(replace(frame, timestamp_ns=frame.timestamp_ns + k * 33_333_333))
-        return (rec.frames_written, src.stats.frames - src.stats.missing_depth, setup, time.perf_counter() - started,
-                time.process_time() - cpu)
+        return (
+            rec.frames_written,
+            src.stats.frames - src.stats.missing_depth,
+            setup,
+            time.perf_counter() - started,
+            time.process_time() - cpu,
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=150, help="frames per input (k4a: a third of them)")
-    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
-                        help="output chunk compression (zstd, the default of fusion-pf import, dominates)")
+    parser.add_argument(
+        "--compression",
+        choices=("zstd", "lz4", "none"),
+        default="zstd",
+        help="output chunk compression (zstd, the default of fusion-pf import, dominates)",
+    )
     parser.add_argument("--workdir", type=Path, help="where inputs and outputs go (default: a temporary folder)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -129,20 +159,26 @@ def main() -> None:
             "folder": (make_folder(work / "folder", frames), {}),
             "video": (make_video(work / "video.mp4", frames), {}),
         }
-        print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}; {os.cpu_count()} CPUs; "
-              f"output compression {args.compression}")
+        print(
+            f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}; {os.cpu_count()} CPUs; "
+            f"output compression {args.compression}"
+        )
         for name, (path, options) in inputs.items():
             out = work / f"{name}.mcap"
             started, cpu = time.perf_counter(), time.process_time()
             summary = write_recording(open_import(path, **options), out, progress=False, compression=args.compression)
             seconds, cpu = time.perf_counter() - started, time.process_time() - cpu
-            print(f"{name:7s} {summary.frames:4d} frames 640x480, {summary.with_depth:4d} with depth: "
-                  f"{summary.frames / seconds:6.1f} frames/s ({seconds:.1f} s; {summary.frames / cpu:6.1f} frames per "
-                  "CPU second)")
+            print(
+                f"{name:7s} {summary.frames:4d} frames 640x480, {summary.with_depth:4d} with depth: "
+                f"{summary.frames / seconds:6.1f} frames/s ({seconds:.1f} s; {summary.frames / cpu:6.1f} frames per "
+                "CPU second)"
+            )
         n, with_depth, setup, seconds, cpu = time_k4a(work / "k4a.mcap", max(1, args.frames // 3), args.compression)
-        print(f"k4a     {n:4d} frames 1280x720, {with_depth:4d} with depth: {n / seconds:6.1f} frames/s "
-              f"({seconds:.1f} s; {n / cpu:6.1f} frames per CPU second; after {setup:.1f} s of set-up: "
-              "calibration and depth ray table)")
+        print(
+            f"k4a     {n:4d} frames 1280x720, {with_depth:4d} with depth: {n / seconds:6.1f} frames/s "
+            f"({seconds:.1f} s; {n / cpu:6.1f} frames per CPU second; after {setup:.1f} s of set-up: "
+            "calibration and depth ray table)"
+        )
         print(f"load average {os.getloadavg()[0]:.2f} after")
 
 

@@ -101,7 +101,7 @@ def load_frames(folder: Path, view: str) -> np.ndarray:
         if view == "canvas1280":
             x, y, w, h = (int(a) for a in box[k])
             full = np.full((CANVAS[1], CANVAS[0], 3), GREY, np.uint8)
-            full[y:y + h, x:x + w] = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
+            full[y : y + h, x : x + w] = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
             rgb = full
         out.append(rgb)
     return np.stack(out)
@@ -120,8 +120,10 @@ def mediapipe_worker(frames_path: str) -> None:
     frames = np.load(frames_path, mmap_mode="r")
     h, w = frames.shape[1:3]
     opts = dict(max_num_hands=1, model_complexity=1, min_detection_confidence=0.5, min_tracking_confidence=0.5)
-    with mp.solutions.hands.Hands(static_image_mode=False, **opts) as video, \
-            mp.solutions.hands.Hands(static_image_mode=True, **opts) as static:
+    with (
+        mp.solutions.hands.Hands(static_image_mode=False, **opts) as video,
+        mp.solutions.hands.Hands(static_image_mode=True, **opts) as static,
+    ):
         for hands in (video, static):
             hands.process(np.full((h, w, 3), GREY, np.uint8))  # warm-up: graph start, no hand
         for line in sys.stdin:
@@ -133,7 +135,9 @@ def mediapipe_worker(frames_path: str) -> None:
             ms = (time.perf_counter() - t0) * 1e3
             vals = []
             if res.multi_hand_landmarks:
-                vals = [v for q in res.multi_hand_landmarks[0].landmark for v in (q.x * w - 0.5, q.y * h - 0.5, q.z * w)]
+                vals = [
+                    v for q in res.multi_hand_landmarks[0].landmark for v in (q.x * w - 0.5, q.y * h - 0.5, q.z * w)
+                ]
             print(" ".join(f"{v:.6f}" for v in [ms, *vals]), flush=True)
 
 
@@ -142,8 +146,14 @@ class MediaPipePeer:
 
     def __init__(self, python: str, frames_path: Path) -> None:
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-        self.proc = subprocess.Popen([python, __file__, "--worker", str(frames_path)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+        self.proc = subprocess.Popen(
+            [python, __file__, "--worker", str(frames_path)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            env=env,
+        )
 
     def __call__(self, mode: str, i: int) -> tuple[float, np.ndarray | None]:
         """Wall ms of frame ``i`` in ``mode`` (``video`` or ``static``) and its landmarks ``(21, 3)`` (None = no hand)."""
@@ -177,8 +187,10 @@ def run_pass(frames: np.ndarray, frames_path: Path, python: str, num_threads: in
         h.detect(np.full(frames.shape[1:], GREY, np.uint8))  # warm-up: both models once
     peer = MediaPipePeer(python, frames_path)
     n = frames.shape[0]
-    out = {name: {"landmarks": np.full((n, 21, 3), np.nan), "ms": np.zeros(n), "acquire": np.zeros(n, bool)}
-           for name in ("mediapipe", "fusion-pf", "fusion-pf-norecentre", "mediapipe-static", "fusion-pf-detect")}
+    out = {
+        name: {"landmarks": np.full((n, 21, 3), np.nan), "ms": np.zeros(n), "acquire": np.zeros(n, bool)}
+        for name in ("mediapipe", "fusion-pf", "fusion-pf-norecentre", "mediapipe-static", "fusion-pf-detect")
+    }
 
     def put(name: str, i: int, ms: float, lm: np.ndarray | None, acquire: bool) -> None:
         out[name]["ms"][i], out[name]["acquire"][i] = ms, acquire
@@ -193,12 +205,22 @@ def run_pass(frames: np.ndarray, frames_path: Path, python: str, num_threads: in
             had_hand = lm is not None
             t0 = time.perf_counter()
             prev, mode = hl.track(frames[i], prev)
-            put("fusion-pf", i, (time.perf_counter() - t0) * 1e3, None if prev is None else prev.landmarks,
-                mode == "detect")
+            put(
+                "fusion-pf",
+                i,
+                (time.perf_counter() - t0) * 1e3,
+                None if prev is None else prev.landmarks,
+                mode == "detect",
+            )
             t0 = time.perf_counter()
             prev_plain, mode = plain.track(frames[i], prev_plain)
-            put("fusion-pf-norecentre", i, (time.perf_counter() - t0) * 1e3,
-                None if prev_plain is None else prev_plain.landmarks, mode == "detect")
+            put(
+                "fusion-pf-norecentre",
+                i,
+                (time.perf_counter() - t0) * 1e3,
+                None if prev_plain is None else prev_plain.landmarks,
+                mode == "detect",
+            )
             ms, lm = peer("static", i)
             put("mediapipe-static", i, ms, lm, True)
             t0 = time.perf_counter()
@@ -216,7 +238,7 @@ def stats(palm: np.ndarray, gt: np.ndarray, ms: np.ndarray, acquire: np.ndarray)
     track = ~acquire
     return {
         "coverage": float(ok.mean()),
-        "rmse": float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan"),
+        "rmse": float(np.sqrt(np.mean(err**2))) if err.size else float("nan"),
         "median": float(np.median(err)) if err.size else float("nan"),
         "p95": float(np.percentile(err, 95)) if err.size else float("nan"),
         "max": float(err.max()) if err.size else float("nan"),
@@ -249,8 +271,10 @@ def main(argv: list[str] | None = None) -> int:
             frames = load_frames(args.data, view)
             _, gt = ground_truth(args.data, crop=256 if view == "crop256" else None)
             np.save(Path(tmp) / "frames.npy", frames)
-            passes_out = [run_pass(frames, Path(tmp) / "frames.npy", args.mediapipe_python, args.threads)
-                          for _ in range(args.passes)]
+            passes_out = [
+                run_pass(frames, Path(tmp) / "frames.npy", args.mediapipe_python, args.threads)
+                for _ in range(args.passes)
+            ]
             runs = {name: [p[name] for p in passes_out] for name in passes_out[0]}
             table = {}
             for name, passes in runs.items():
@@ -264,24 +288,33 @@ def main(argv: list[str] | None = None) -> int:
                 row["identical_passes"] = same
                 table[name] = row
             table["ratio_track_ms"] = table["fusion-pf"]["ms_track_median"] / table["mediapipe"]["ms_track_median"]
-            table["ratio_acquire_ms"] = (table["fusion-pf-detect"]["ms_acquire_median"]
-                                         / table["mediapipe-static"]["ms_acquire_median"])
+            table["ratio_acquire_ms"] = (
+                table["fusion-pf-detect"]["ms_acquire_median"] / table["mediapipe-static"]["ms_acquire_median"]
+            )
             results["views"][view] = {"frames": int(frames.shape[0]), "size": list(frames.shape[2:0:-1]), **table}
     results["load_after"] = os.getloadavg()
 
-    print(f"frames {DEV_FRAMES.start}-{DEV_FRAMES.stop - 1} (dev), {args.passes} passes alternating per frame, "
-          f"load {results['load_before'][0]:.2f} -> {results['load_after'][0]:.2f}")
-    head = (f"{'view':<11} {'tracker':<20} {'cover':>6} {'RMSE':>6} {'median':>6} {'p95':>6} {'max':>6} "
-            f"{'track ms (n)':>13} {'acq ms (n)':>11}")
+    print(
+        f"frames {DEV_FRAMES.start}-{DEV_FRAMES.stop - 1} (dev), {args.passes} passes alternating per frame, "
+        f"load {results['load_before'][0]:.2f} -> {results['load_after'][0]:.2f}"
+    )
+    head = (
+        f"{'view':<11} {'tracker':<20} {'cover':>6} {'RMSE':>6} {'median':>6} {'p95':>6} {'max':>6} "
+        f"{'track ms (n)':>13} {'acq ms (n)':>11}"
+    )
     print(head)
     for view, r in results["views"].items():
         for name in ("mediapipe", "fusion-pf", "fusion-pf-norecentre", "mediapipe-static", "fusion-pf-detect"):
             s = r[name]
-            print(f"{view:<11} {name:<20} {s['coverage']:6.1%} {s['rmse']:6.1f} {s['median']:6.1f} {s['p95']:6.1f} "
-                  f"{s['max']:6.1f} {s['ms_track_median']:6.2f} ({s['n_track']:3d}) {s['ms_acquire_median']:5.1f} "
-                  f"({s['n_acquire']:2d})")
-        print(f"{view:<11} ms ratio fusion-pf / MediaPipe: tracking frames {r['ratio_track_ms']:.2f}, "
-              f"acquisition frames {r['ratio_acquire_ms']:.2f} (medians)")
+            print(
+                f"{view:<11} {name:<20} {s['coverage']:6.1%} {s['rmse']:6.1f} {s['median']:6.1f} {s['p95']:6.1f} "
+                f"{s['max']:6.1f} {s['ms_track_median']:6.2f} ({s['n_track']:3d}) {s['ms_acquire_median']:5.1f} "
+                f"({s['n_acquire']:2d})"
+            )
+        print(
+            f"{view:<11} ms ratio fusion-pf / MediaPipe: tracking frames {r['ratio_track_ms']:.2f}, "
+            f"acquisition frames {r['ratio_acquire_ms']:.2f} (medians)"
+        )
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

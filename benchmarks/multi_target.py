@@ -46,13 +46,16 @@ def methods(seed: int) -> dict[str, object]:
     rng = np.random.default_rng(seed)
     return {
         "k-means PF + supervision": KMeansParticleFilter(TARGETS, n_particles=300, noise_px=NOISE_PX, rng=seed),
-        "k-means PF, no supervision": KMeansParticleFilter(TARGETS, n_particles=300, noise_px=NOISE_PX,
-                                                           supervision=False, rng=seed),
+        "k-means PF, no supervision": KMeansParticleFilter(
+            TARGETS, n_particles=300, noise_px=NOISE_PX, supervision=False, rng=seed
+        ),
         "independent PFs (N=100)": IndependentTrackers(
-            TARGETS, lambda: ParticleFilter(n_particles=100, noise_px=NOISE_PX, rng=rng)),
+            TARGETS, lambda: ParticleFilter(n_particles=100, noise_px=NOISE_PX, rng=rng)
+        ),
         "per-target KFs": IndependentTrackers(TARGETS, lambda: KalmanFilter(noise_px=NOISE_PX)),
         "SSPF per target (N=30)": IndependentTrackers(
-            TARGETS, lambda: ScatterSearchPF(n_particles=30, noise_px=NOISE_PX, rng=rng)),
+            TARGETS, lambda: ScatterSearchPF(n_particles=30, noise_px=NOISE_PX, rng=rng)
+        ),
         "joint SSPF (N=100, b=6)": JointScatterSearchPF(TARGETS, n_particles=100, noise_px=NOISE_PX, rng=seed),
     }
 
@@ -68,13 +71,18 @@ def table(inputs, seed: int) -> None:
         dt = time.perf_counter() - t0
         r = [rmse(run, inputs, t) for t in TARGETS]
         swaps = identity_swaps(run, inputs, HANDS, SWAP_SEPARATION_PX)
-        print(f"{name:28s} {r[0]:7.2f} {r[1]:7.2f} {r[2]:7.2f} {swaps:5d} {sum(run.restarts.values()):8d} "
-              f"{run.evaluations.mean():8.0f} {dt:5.1f}")
+        print(
+            f"{name:28s} {r[0]:7.2f} {r[1]:7.2f} {r[2]:7.2f} {swaps:5d} {sum(run.restarts.values()):8d} "
+            f"{run.evaluations.mean():8.0f} {dt:5.1f}"
+        )
         states[name] = {t: state_counts(run, t) for t in HANDS}
     print("\nframes per state (right hand / left hand):")
     for name, per in states.items():
-        cells = ", ".join(f"{s} {per['right_hand'][s]}/{per['left_hand'][s]}"
-                          for s in per["right_hand"] if per["right_hand"][s] or per["left_hand"][s])
+        cells = ", ".join(
+            f"{s} {per['right_hand'][s]}/{per['left_hand'][s]}"
+            for s in per["right_hand"]
+            if per["right_hand"][s] or per["left_hand"][s]
+        )
         print(f"  {name:28s} {cells}")
 
 
@@ -85,8 +93,11 @@ def equal_rmse(inputs, seed: int) -> None:
     for kind, ns in (("PF", (10, 25, 50, 100, 200, 400)), ("SSPF", (10, 20, 30))):
         for n in ns:
             rng = np.random.default_rng(seed)
-            make = ((lambda n=n, rng=rng: ParticleFilter(n_particles=n, noise_px=NOISE_PX, rng=rng)) if kind == "PF"
-                    else (lambda n=n, rng=rng: ScatterSearchPF(n_particles=n, noise_px=NOISE_PX, rng=rng)))
+            make = (
+                (lambda n=n, rng=rng: ParticleFilter(n_particles=n, noise_px=NOISE_PX, rng=rng))
+                if kind == "PF"
+                else (lambda n=n, rng=rng: ScatterSearchPF(n_particles=n, noise_px=NOISE_PX, rng=rng))
+            )
             run = run_tracker(IndependentTrackers(HANDS, make), inputs)
             e = run.evaluations.mean() / len(HANDS)
             r = float(np.mean([rmse(run, inputs, t) for t in HANDS]))
@@ -96,7 +107,11 @@ def equal_rmse(inputs, seed: int) -> None:
         if kind != "SSPF":
             continue
         match = [(pe, pn) for pk, pn, pe, pr in rows if pk == "PF" and pr <= r]
-        text = f"PF needs N={min(match)[1]} ({min(match)[0]:.0f} evals/frame)" if match else "no PF N in the sweep reaches it"
+        text = (
+            f"PF needs N={min(match)[1]} ({min(match)[0]:.0f} evals/frame)"
+            if match
+            else "no PF N in the sweep reaches it"
+        )
         print(f"SSPF N={n}: RMSE {r:.2f} px with {e:.0f} evals/frame per target; {text}")
 
 
@@ -110,15 +125,18 @@ def scripted(seed: int) -> None:
     print(f"{'filter':16s} {'N':>5s} {'evals/f':>8s} {'RMSE':>8s}")
     for kind, ns in (("PF", (100, 200, 400, 800, 1600)), ("SSPF", (10, 20, 30))):
         for n in ns:
-            f = (ParticleFilter(n_particles=n, rng=seed, **model) if kind == "PF"
-                 else ScatterSearchPF(n_particles=n, rng=seed, **model))
+            f = (
+                ParticleFilter(n_particles=n, rng=seed, **model)
+                if kind == "PF"
+                else ScatterSearchPF(n_particles=n, rng=seed, **model)
+            )
             est, evals = [], []
             for k in range(len(t)):
                 e = f.step(k * 33_333_333, [Measurement("colour", *z[k])])
                 est.append((e.u, e.v))
                 evals.append(getattr(f, "evaluations", n))
             err = np.hypot(*(np.array(est) - truth).T)[5:]
-            print(f"{kind:16s} {n:5d} {np.mean(evals):8.0f} {np.sqrt((err ** 2).mean()):8.2f}")
+            print(f"{kind:16s} {n:5d} {np.mean(evals):8.0f} {np.sqrt((err**2).mean()):8.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,8 +149,10 @@ def main(argv: list[str] | None = None) -> int:
     with open_source(args.source) as src:
         t0 = time.perf_counter()
         inputs = frame_inputs(iter(src), TARGETS, skin, skeleton=not args.skin_only)
-    print(f"{args.source}: {len(inputs)} person frames, measurements in {time.perf_counter() - t0:.1f} s, "
-          f"{'skin blobs only' if args.skin_only else 'skin blobs + skeleton joints'}\n")
+    print(
+        f"{args.source}: {len(inputs)} person frames, measurements in {time.perf_counter() - t0:.1f} s, "
+        f"{'skin blobs only' if args.skin_only else 'skin blobs + skeleton joints'}\n"
+    )
     if not all(set(HANDS) <= set(fi.truths) for fi in inputs):
         print("the source has no per-hand ground truth (make it with --hands 2)", file=sys.stderr)
         return 2

@@ -123,7 +123,9 @@ def load_hgc_dev(folder: Path) -> dict[str, np.ndarray]:
     names = [str(p).strip() for p in params["image_path"][dev]]
     expected = [f"images/{i:05d}.jpg" for i in dev]
     if names != expected:
-        raise InputError(f"{folder}/params.mat image_path rows {DEV_FIRST}-{DEV_LAST} are not {expected[0]}..; got {names[0]}..")
+        raise InputError(
+            f"{folder}/params.mat image_path rows {DEV_FIRST}-{DEV_LAST} are not {expected[0]}..; got {names[0]}.."
+        )
     return {
         "index": dev,
         "cam": params["cam_param"][dev].astype(np.float64),
@@ -164,10 +166,18 @@ def prepare_hgc(folder: Path, out: Path) -> list[Path]:
     video = Intrinsics(1280, 720, *dev["cam"][0])
     if not np.all(dev["cam"] == dev["cam"][0]):
         raise InputError(f"{folder}/params.mat: the dev frames have more than one camera; expected one")
-    with McapRecorder(crop_path, color_format="png", metadata={**meta, "view": "256x256 crops"}) as crop, \
-            McapRecorder(canvas_path, color_format="png", metadata={
-                **meta, "view": "1280x720 canvas",
-                "canvas": "crop resized into its box; outside the box constant grey 128, not real pixels"}) as canvas:
+    with (
+        McapRecorder(crop_path, color_format="png", metadata={**meta, "view": "256x256 crops"}) as crop,
+        McapRecorder(
+            canvas_path,
+            color_format="png",
+            metadata={
+                **meta,
+                "view": "1280x720 canvas",
+                "canvas": "crop resized into its box; outside the box constant grey 128, not real pixels",
+            },
+        ) as canvas,
+    ):
         for k, i in enumerate(dev["index"]):
             path = folder / "images" / f"{i:05d}.jpg"
             bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -179,7 +189,7 @@ def prepare_hgc(folder: Path, out: Path) -> list[Path]:
             crop.write(Frame(t, int(i), rgb, None, k_crop, ground_truth=project(k_crop, palms[k])))
             x, y, w, h = dev["bbox"][k]
             full = np.full((720, 1280, 3), GREY, np.uint8)
-            full[y:y + h, x:x + w] = cv2.resize(rgb, (int(w), int(h)), interpolation=cv2.INTER_LINEAR)
+            full[y : y + h, x : x + w] = cv2.resize(rgb, (int(w), int(h)), interpolation=cv2.INTER_LINEAR)
             canvas.write(Frame(t, int(i), full, None, video, ground_truth=project(video, palms[k])))
     return [crop_path, canvas_path]
 
@@ -247,8 +257,20 @@ def _column(rows: list[dict[str, str]], name: str) -> np.ndarray:
 def track_one(rec: Path, work: Path) -> dict:
     """Run ``fusion-pf track`` on ``rec`` and measure it against the recording's ground truth."""
     out, table = work / f"{rec.stem}.tracked.mcap", work / f"{rec.stem}.csv"
-    cmd = [sys.executable, "-m", "fusion_pf", "track", str(rec), "-o", str(out), "--csv", str(table),
-           "--csv-latency", "--force", "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "fusion_pf",
+        "track",
+        str(rec),
+        "-o",
+        str(out),
+        "--csv",
+        str(table),
+        "--csv-latency",
+        "--force",
+        "--no-progress",
+    ]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
@@ -265,8 +287,12 @@ def track_one(rec: Path, work: Path) -> dict:
     frames = [int(r["frame"]) for r in rows]
     sources = [c[:-2] for c in columns if c.endswith("_u") and c != "u" and f"{c[:-2]}_v" in columns]
     lines = (proc.stdout.strip() or proc.stderr.strip()).splitlines()
-    res: dict = {"recording": rec.name, "size": (info.width, info.height), "frames": len(rows),
-                 "summary": lines[-1] if lines else ""}
+    res: dict = {
+        "recording": rec.name,
+        "size": (info.width, info.height),
+        "frames": len(rows),
+        "summary": lines[-1] if lines else "",
+    }
     est = np.c_[_column(rows, "u"), _column(rows, "v")]
     w, h = info.width, info.height
     have = np.isfinite(est).all(axis=1)
@@ -292,8 +318,12 @@ def track_one(rec: Path, work: Path) -> dict:
         res["rows"] = {"fused": {"coverage": float(have.mean()), "rmse": math.nan, "median": math.nan, "p95": math.nan}}
         for s in sources:
             pts = np.c_[_column(rows, f"{s}_u"), _column(rows, f"{s}_v")]
-            res["rows"][s] = {"coverage": float(np.isfinite(pts).all(axis=1).mean()),
-                              "rmse": math.nan, "median": math.nan, "p95": math.nan}
+            res["rows"][s] = {
+                "coverage": float(np.isfinite(pts).all(axis=1).mean()),
+                "rmse": math.nan,
+                "median": math.nan,
+                "p95": math.nan,
+            }
     return res
 
 
@@ -306,24 +336,36 @@ def print_table(results: list[dict]) -> None:
     for r in results:
         w, h = r["size"]
         lost = "n/a (no state column)" if r["lost"] is None else str(r["lost"])
-        print(f"\n{r['recording']}  {w}x{h}, {r['frames']} tracked frames; lost {lost}; "
-              f"without estimate {r['no_estimate']}; estimates outside the image {r['outside']}; "
-              f"latency median {_fmt(r['latency_ms'], 2)} ms/frame, whole command {_fmt(r['wall_ms'], 1)} ms/frame")
+        print(
+            f"\n{r['recording']}  {w}x{h}, {r['frames']} tracked frames; lost {lost}; "
+            f"without estimate {r['no_estimate']}; estimates outside the image {r['outside']}; "
+            f"latency median {_fmt(r['latency_ms'], 2)} ms/frame, whole command {_fmt(r['wall_ms'], 1)} ms/frame"
+        )
         if r["summary"]:
             print(f"  track says: {r['summary']}")
         print(f"  {'':18s} {'coverage':>9s} {'RMSE':>8s} {'median':>8s} {'p95':>8s}")
         for name, s in r["rows"].items():
-            print(f"  {name:18s} {100 * s['coverage']:8.1f}% {_fmt(s['rmse']):>8s} {_fmt(s['median']):>8s} {_fmt(s['p95']):>8s}")
+            print(
+                f"  {name:18s} {100 * s['coverage']:8.1f}% {_fmt(s['rmse']):>8s} {_fmt(s['median']):>8s} {_fmt(s['p95']):>8s}"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     pp = sub.add_parser("prepare", help="write the recordings")
-    pp.add_argument("--hgc", type=Path, default=DATA / "hand-graph-cnn" / "real_world_testset",
-                    help="folder with params.mat, pose_gt.mat and images/00477.jpg..00582.jpg")
-    pp.add_argument("--sr305", type=Path, default=DATA / "hand-recognition" / "custom",
-                    help="LadaOndris/hand-recognition datasets/custom folder")
+    pp.add_argument(
+        "--hgc",
+        type=Path,
+        default=DATA / "hand-graph-cnn" / "real_world_testset",
+        help="folder with params.mat, pose_gt.mat and images/00477.jpg..00582.jpg",
+    )
+    pp.add_argument(
+        "--sr305",
+        type=Path,
+        default=DATA / "hand-recognition" / "custom",
+        help="LadaOndris/hand-recognition datasets/custom folder",
+    )
     pp.add_argument("--sequence", default="20210326-231615", help="SR305 sequence to convert")
     pp.add_argument("--out", type=Path, default=DATA / "real")
     pr = sub.add_parser("run", help="track every recording and print the table")
@@ -336,8 +378,10 @@ def main(argv: list[str] | None = None) -> int:
             for path in prepare_hgc(args.hgc, args.out) + [prepare_sr305(args.sr305, args.sequence, args.out)]:
                 with McapReplay(path) as rec:
                     info = rec.info()
-                print(f"wrote {path}: {info.frames} frames {info.width}x{info.height}, "
-                      f"{info.ground_truth_frames} with ground truth, {path.stat().st_size / 1e6:.1f} MB")
+                print(
+                    f"wrote {path}: {info.frames} frames {info.width}x{info.height}, "
+                    f"{info.ground_truth_frames} with ground truth, {path.stat().st_size / 1e6:.1f} MB"
+                )
             return 0
         recs = args.recordings or sorted(p for p in args.out.glob("*.mcap") if not p.name.endswith(".tracked.mcap"))
         if not recs:

@@ -189,7 +189,9 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "required": ["target", "u", "v"],
         "properties": {
             "target": {"type": "string", "minLength": 1},
-            "u": _NUMBER, "v": _NUMBER, "occluded": {"type": "boolean"},
+            "u": _NUMBER,
+            "v": _NUMBER,
+            "occluded": {"type": "boolean"},
         },
     },
     ESTIMATE_SCHEMA: {
@@ -297,18 +299,14 @@ def _parse(message_class: type[Message], data: bytes | memoryview, where: str) -
     try:
         return message_class.FromString(data)
     except DecodeError as exc:
-        raise RecordingError(
-            f"{where}: not a valid {message_class.DESCRIPTOR.full_name} message ({exc})"
-        ) from None
+        raise RecordingError(f"{where}: not a valid {message_class.DESCRIPTOR.full_name} message ({exc})") from None
 
 
 def _check_raw_size(msg: Any, bytes_per_pixel: int, where: str) -> None:
     if msg.width <= 0 or msg.height <= 0:
         raise RecordingError(f"{where}: image size must be positive, got {msg.width}x{msg.height}")
     if msg.step < msg.width * bytes_per_pixel:
-        raise RecordingError(
-            f"{where}: step {msg.step} is smaller than width {msg.width} x {bytes_per_pixel} bytes"
-        )
+        raise RecordingError(f"{where}: step {msg.step} is smaller than width {msg.width} x {bytes_per_pixel} bytes")
     if len(msg.data) < msg.step * msg.height:
         raise RecordingError(
             f"{where}: {msg.encoding} image {msg.width}x{msg.height} (step {msg.step}) needs "
@@ -357,8 +355,13 @@ def encode_color(
     h, w = rgb.shape[:2]
     if fmt == "raw":
         return RawImage(
-            timestamp=_timestamp(timestamp_ns), frame_id=FRAME_ID, width=w, height=h,
-            encoding="rgb8", step=w * 3, data=np.ascontiguousarray(rgb).tobytes(),
+            timestamp=_timestamp(timestamp_ns),
+            frame_id=FRAME_ID,
+            width=w,
+            height=h,
+            encoding="rgb8",
+            step=w * 3,
+            data=np.ascontiguousarray(rgb).tobytes(),
         )
     bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
     if fmt == "jpeg":
@@ -408,7 +411,9 @@ def decode_color(schema_name: str, data: bytes | memoryview, where: str = COLOR_
             )
         bgr = _imdecode(msg.data, cv2.IMREAD_COLOR, fmt, where)
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-    raise RecordingError(f"{where}: schema {schema_name!r} is not supported; expected {RAW_IMAGE} or {COMPRESSED_IMAGE}")
+    raise RecordingError(
+        f"{where}: schema {schema_name!r} is not supported; expected {RAW_IMAGE} or {COMPRESSED_IMAGE}"
+    )
 
 
 # --------------------------------------------------------------------------- depth
@@ -436,8 +441,13 @@ def encode_depth(depth: np.ndarray, timestamp_ns: int, fmt: str = "raw") -> RawI
     if fmt == "raw":
         data = np.ascontiguousarray(depth, dtype="<u2").tobytes()
         return RawImage(
-            timestamp=_timestamp(timestamp_ns), frame_id=FRAME_ID, width=w, height=h,
-            encoding="16UC1", step=w * 2, data=data,
+            timestamp=_timestamp(timestamp_ns),
+            frame_id=FRAME_ID,
+            width=w,
+            height=h,
+            encoding="16UC1",
+            step=w * 2,
+            data=data,
         )
     if fmt == "png":
         data = _imencode(".png", np.ascontiguousarray(depth), [cv2.IMWRITE_PNG_COMPRESSION, 1])
@@ -488,7 +498,9 @@ def decode_depth(schema_name: str, data: bytes | memoryview, where: str = DEPTH_
                 f"{where}: depth PNG must be 16-bit single-channel, got {depth.dtype} with {channels} channel(s)"
             )
         return depth
-    raise RecordingError(f"{where}: schema {schema_name!r} is not supported; expected {RAW_IMAGE} or {COMPRESSED_IMAGE}")
+    raise RecordingError(
+        f"{where}: schema {schema_name!r} is not supported; expected {RAW_IMAGE} or {COMPRESSED_IMAGE}"
+    )
 
 
 # --------------------------------------------------------------------------- calibration
@@ -512,8 +524,12 @@ def encode_calibration(intrinsics: Intrinsics, timestamp_ns: int) -> CameraCalib
     """
     i = intrinsics
     return CameraCalibration(
-        timestamp=_timestamp(timestamp_ns), frame_id=FRAME_ID, width=i.width, height=i.height,
-        distortion_model=i.distortion_model, D=list(i.distortion),
+        timestamp=_timestamp(timestamp_ns),
+        frame_id=FRAME_ID,
+        width=i.width,
+        height=i.height,
+        distortion_model=i.distortion_model,
+        D=list(i.distortion),
         K=[i.fx, 0.0, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0],
         R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
         P=[i.fx, 0.0, i.cx, 0.0, 0.0, i.fy, i.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
@@ -584,9 +600,15 @@ def calibration_metadata(intrinsics: Intrinsics, timestamp_ns: int) -> dict[str,
     """
     i = intrinsics
     return {
-        "timestamp_ns": str(int(timestamp_ns)), "width": str(i.width), "height": str(i.height),
-        "fx": repr(float(i.fx)), "fy": repr(float(i.fy)), "cx": repr(float(i.cx)), "cy": repr(float(i.cy)),
-        "distortion_model": i.distortion_model, "distortion": ",".join(repr(float(c)) for c in i.distortion),
+        "timestamp_ns": str(int(timestamp_ns)),
+        "width": str(i.width),
+        "height": str(i.height),
+        "fx": repr(float(i.fx)),
+        "fy": repr(float(i.fy)),
+        "cx": repr(float(i.cx)),
+        "cy": repr(float(i.cy)),
+        "distortion_model": i.distortion_model,
+        "distortion": ",".join(repr(float(c)) for c in i.distortion),
     }
 
 
@@ -606,8 +628,14 @@ def decode_calibration_metadata(record: Mapping[str, str], where: str = CALIBRAT
         check_timestamp(t, f"{where} timestamp_ns")
         distortion = tuple(float(c) for c in record["distortion"].split(",") if c)
         intrinsics = Intrinsics(
-            int(record["width"]), int(record["height"]), float(record["fx"]), float(record["fy"]),
-            float(record["cx"]), float(record["cy"]), record["distortion_model"], distortion,
+            int(record["width"]),
+            int(record["height"]),
+            float(record["fx"]),
+            float(record["fy"]),
+            float(record["cx"]),
+            float(record["cy"]),
+            record["distortion_model"],
+            distortion,
         )
     except (ValueError, InputError) as exc:
         raise RecordingError(f"{where}: {exc}") from None
@@ -690,8 +718,12 @@ def encode_hands(hands: Sequence[HandObservation]) -> dict[str, Any]:
         rows = [[float(u), float(v), None if np.isnan(z) else float(z)] for u, v, z in hand.landmarks]
         palm = hand.palm
         out.append(
-            {"landmarks": rows, "palm": [float(palm[0]), float(palm[1])], "score": hand.score,
-             "handedness": hand.handedness}
+            {
+                "landmarks": rows,
+                "palm": [float(palm[0]), float(palm[1])],
+                "score": hand.score,
+                "handedness": hand.handedness,
+            }
         )
     return {"hands": out}
 
@@ -718,9 +750,7 @@ def decode_hands(obj: Any, where: str = HAND_TOPIC) -> tuple[HandObservation, ..
         if missing:
             raise RecordingError(f"{where}: hand {k} has no {', '.join(map(repr, missing))}")
         rows = item["landmarks"]
-        if not isinstance(rows, list) or len(rows) != 21 or any(
-            not isinstance(r, list) or len(r) != 3 for r in rows
-        ):
+        if not isinstance(rows, list) or len(rows) != 21 or any(not isinstance(r, list) or len(r) != 3 for r in rows):
             raise RecordingError(f"{where}: hand {k} landmarks must be 21 [u, v, z] triples")
         try:
             lm = np.array([[r[0], r[1], np.nan if r[2] is None else r[2]] for r in rows], dtype=np.float64)
@@ -734,8 +764,7 @@ def decode_hands(obj: Any, where: str = HAND_TOPIC) -> tuple[HandObservation, ..
             or not np.allclose(np.asarray(palm, dtype=np.float64), hand.palm, rtol=1e-9, atol=1e-6)
         ):
             raise RecordingError(
-                f"{where}: hand {k} palm {palm!r} is not the mean of landmarks 0, 5, 9, 13, 17 "
-                f"({hand.palm.tolist()})"
+                f"{where}: hand {k} palm {palm!r} is not the mean of landmarks 0, 5, 9, 13, 17 ({hand.palm.tolist()})"
             )
         hands.append(hand)
     return tuple(hands)

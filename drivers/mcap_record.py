@@ -143,8 +143,11 @@ class McapRecorder(Sink):
         fh = open(self.path, "wb")
         try:
             writer = Writer(
-                fh, chunk_size=_NEVER, compression=COMPRESSIONS[self.compression],
-                enable_crcs=True, enable_data_crcs=True,
+                fh,
+                chunk_size=_NEVER,
+                compression=COMPRESSIONS[self.compression],
+                enable_crcs=True,
+                enable_data_crcs=True,
             )
             writer.start(profile="", library=f"fusion-pf {__version__}; mcap-python {mcap.__version__}")
             writer.add_metadata(fmt.RECORDING_METADATA, self._metadata)
@@ -190,9 +193,7 @@ class McapRecorder(Sink):
     def _failure(self) -> RecordingError:
         exc = self.error
         why = exc.strerror or str(exc) if exc is not None else "unknown error"
-        return RecordingError(
-            f"writing {self.path} failed ({why}); the file keeps the chunks that reached the disk"
-        )
+        return RecordingError(f"writing {self.path} failed ({why}); the file keeps the chunks that reached the disk")
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
         try:
@@ -215,7 +216,9 @@ class McapRecorder(Sink):
 
     # ------------------------------------------------------------------ channels
 
-    def _channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str) -> int:
+    def _channel(
+        self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str
+    ) -> int:
         writer = self._require_writer()
         known = self._channels.get(topic)
         if known is not None:
@@ -229,10 +232,17 @@ class McapRecorder(Sink):
             self._schemas[key] = schema_id
         channel_id = writer.register_channel(topic=topic, message_encoding=message_encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
-        self._metadata_record(writer, fmt.CHANNEL_METADATA, {
-            "id": str(channel_id), "topic": topic, "message_encoding": message_encoding,
-            "schema_name": schema_name, "schema_encoding": schema_encoding,
-        })
+        self._metadata_record(
+            writer,
+            fmt.CHANNEL_METADATA,
+            {
+                "id": str(channel_id),
+                "topic": topic,
+                "message_encoding": message_encoding,
+                "schema_name": schema_name,
+                "schema_encoding": schema_encoding,
+            },
+        )
         return channel_id
 
     def _proto_channel(self, topic: str, message: Message) -> int:
@@ -256,7 +266,10 @@ class McapRecorder(Sink):
         with sigint_deferred():
             try:
                 writer.add_message(
-                    channel_id=channel_id, log_time=timestamp_ns, publish_time=timestamp_ns, data=data,
+                    channel_id=channel_id,
+                    log_time=timestamp_ns,
+                    publish_time=timestamp_ns,
+                    data=data,
                     sequence=sequence & 0xFFFFFFFF,
                 )
             except OSError as exc:
@@ -308,8 +321,7 @@ class McapRecorder(Sink):
         t = frame.timestamp_ns
         if self._last_ns is not None and t <= self._last_ns:
             raise InputError(
-                f"frame timestamps must increase: frame seq {frame.seq} has timestamp_ns={t} "
-                f"after {self._last_ns}"
+                f"frame timestamps must increase: frame seq {frame.seq} has timestamp_ns={t} after {self._last_ns}"
             )
         if frame.background and self._foreground:
             raise InputError(
@@ -339,8 +351,12 @@ class McapRecorder(Sink):
             self._foreground = True
             self._announce_background(writer)
         payloads = [
-            (self._proto_channel(topic, proto), proto.SerializeToString()) if proto is not None
-            else (self._json_channel(topic, schema_name, None), fmt.encode_json(obj, f"{topic} of frame seq {frame.seq}"))
+            (self._proto_channel(topic, proto), proto.SerializeToString())
+            if proto is not None
+            else (
+                self._json_channel(topic, schema_name, None),
+                fmt.encode_json(obj, f"{topic} of frame seq {frame.seq}"),
+            )
             for topic, proto, schema_name, obj in messages
         ]
         size = sum(_MESSAGE_OVERHEAD + len(data) for _, data in payloads)

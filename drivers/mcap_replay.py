@@ -99,13 +99,13 @@ _BLOCK_CACHE = 4
 _CALIBRATION_CACHE = 4096
 
 
-
 def _put(parts: dict, kind: str, record: tuple[int, memoryview, int]) -> None:
     """File a message of a frame: one per kind, except ground truth (one per target)."""
     if kind == "truth":
         parts.setdefault(kind, []).append(record)
     else:
         parts[kind] = record
+
 
 class _Corrupt(Exception):
     """A record that cannot be parsed (internal; turned into notes or RecordingError)."""
@@ -221,6 +221,7 @@ def _structure_ok(opcode: int, length: int, body: bytes, strict: bool = True) ->
     Without ``strict`` (a record where one is expected) a chunk's message
     times are not checked, so parsing it can say what is wrong with them.
     """
+
     def u(at: int, n: int) -> int | None:
         return int.from_bytes(body[at : at + n], "little") if at + n <= len(body) else None
 
@@ -483,9 +484,7 @@ class McapReplay(ReplaySource):
         if self._fd is None:
             raise RuntimeError(f"{type(self).__name__} is closed")
         if offset < 0 or length < 0 or offset + length > self._size:
-            raise _Corrupt(
-                f"a record of {length} bytes at byte {offset} does not fit in the {self._size}-byte file"
-            )
+            raise _Corrupt(f"a record of {length} bytes at byte {offset} does not fit in the {self._size}-byte file")
         data = os.pread(self._fd, length, offset)
         if len(data) != length:
             raise _Corrupt(f"the file ends at byte {offset + len(data)}, inside a record ending at {offset + length}")
@@ -534,7 +533,13 @@ class McapReplay(ReplaySource):
         for ch in summary.channels.values():
             schema = summary.schemas.get(ch.schema_id)
             self._add_channel(
-                _Channel(ch.id, ch.topic, ch.message_encoding, schema.name if schema else "", schema.encoding if schema else "")
+                _Channel(
+                    ch.id,
+                    ch.topic,
+                    ch.message_encoding,
+                    schema.name if schema else "",
+                    schema.encoding if schema else "",
+                )
             )
         times: dict[int, list[np.ndarray]] = {}
         try:
@@ -545,8 +550,14 @@ class McapReplay(ReplaySource):
                 if opcode != _OP_CHUNK or 9 + length != ci.chunk_length:
                     raise _Corrupt(f"the chunk index points at byte {ci.chunk_start_offset}, where no such chunk is")
                 self._blocks.append(
-                    _Block(ci.chunk_start_offset, ci.chunk_length, True, ci.message_start_time,
-                           ci.message_end_time, frozenset(ci.message_index_offsets))
+                    _Block(
+                        ci.chunk_start_offset,
+                        ci.chunk_length,
+                        True,
+                        ci.message_start_time,
+                        ci.message_end_time,
+                        frozenset(ci.message_index_offsets),
+                    )
                 )
                 start = min(ci.message_index_offsets.values())
                 buf = memoryview(self._pread(start, ci.message_index_length))
@@ -669,10 +680,15 @@ class McapReplay(ReplaySource):
 
         while pos + 9 <= size:
             found = self._record_at(pos, strict=False)
-            if found is None or (in_summary and found[0] not in (_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, *_SUMMARY_OPCODES)):
+            if found is None or (
+                in_summary and found[0] not in (_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, *_SUMMARY_OPCODES)
+            ):
                 opcode, length = _RECORD_HEADER.unpack(os.pread(self._fd, 9, pos))  # type: ignore[arg-type]
-                why = (f"a record (opcode 0x{opcode:02x}) of {length} bytes that does not fit"
-                       if pos + 9 + length > size else f"an unreadable record (opcode 0x{opcode:02x}, {length} bytes)")
+                why = (
+                    f"a record (opcode 0x{opcode:02x}) of {length} bytes that does not fit"
+                    if pos + 9 + length > size
+                    else f"an unreadable record (opcode 0x{opcode:02x}, {length} bytes)"
+                )
                 nxt = self._resync(pos + 1)
                 if nxt is None:
                     if not in_summary:
@@ -682,8 +698,14 @@ class McapReplay(ReplaySource):
                             cut_hint = self._chunk_times(memoryview(os.pread(self._fd, 16, pos + 9)))  # type: ignore[arg-type]
                     break
                 if not in_summary:
-                    damage.append(_Damage(pos, f"{nxt - pos} damaged bytes at byte {pos} ({why})",
-                                          max(last_color) if last_color else None, None))
+                    damage.append(
+                        _Damage(
+                            pos,
+                            f"{nxt - pos} damaged bytes at byte {pos} ({why})",
+                            max(last_color) if last_color else None,
+                            None,
+                        )
+                    )
                 pos = nxt
                 continue
             opcode, length = found
@@ -733,19 +755,36 @@ class McapReplay(ReplaySource):
                         message(cid, log_time)
                     if found_messages:
                         stamps = [log_time for _cid, _seq, log_time in found_messages]
-                        self._blocks.append(_Block(pos, 9 + length, True, min(stamps), max(stamps),
-                                                   frozenset(cid for cid, _seq, _t in found_messages)))
+                        self._blocks.append(
+                            _Block(
+                                pos,
+                                9 + length,
+                                True,
+                                min(stamps),
+                                max(stamps),
+                                frozenset(cid for cid, _seq, _t in found_messages),
+                            )
+                        )
             except (_Corrupt, struct.error) as exc:
                 kind = "chunk" if opcode == _OP_CHUNK else f"record (opcode 0x{opcode:02x})"
                 hint = self._chunk_times(body) if opcode == _OP_CHUNK else None
-                damage.append(_Damage(pos, f"{kind} at byte {pos} is corrupt ({exc})",
-                                      max(last_color) if last_color else None, hint))
+                damage.append(
+                    _Damage(
+                        pos, f"{kind} at byte {pos} is corrupt ({exc})", max(last_color) if last_color else None, hint
+                    )
+                )
                 nxt = self._resync(pos + 1)
                 if nxt is None:
                     break
                 if nxt > end:  # the damage goes on past the corrupt record
-                    damage.append(_Damage(end, f"{nxt - end} unreadable bytes at byte {end}",
-                                          max(last_color) if last_color else None, None))
+                    damage.append(
+                        _Damage(
+                            end,
+                            f"{nxt - end} unreadable bytes at byte {end}",
+                            max(last_color) if last_color else None,
+                            None,
+                        )
+                    )
                 pos = nxt
                 continue
             pos = end
@@ -754,10 +793,18 @@ class McapReplay(ReplaySource):
             self._add_channel(_Channel(cid, topic, encoding, name, schema_encoding))
         for cid, fields in spare.items():  # channels whose own record was in a damaged chunk
             if cid not in self._channels and cid <= 0xFFFF:
-                self._add_channel(_Channel(cid, fields.get("topic", ""), fields.get("message_encoding", ""),
-                                           fields.get("schema_name", ""), fields.get("schema_encoding", "")))
-                self._notes.append(f"channel {cid} ({fields.get('topic', '')}) taken from its "
-                                   f"{fmt.CHANNEL_METADATA} metadata copy")
+                self._add_channel(
+                    _Channel(
+                        cid,
+                        fields.get("topic", ""),
+                        fields.get("message_encoding", ""),
+                        fields.get("schema_name", ""),
+                        fields.get("schema_encoding", ""),
+                    )
+                )
+                self._notes.append(
+                    f"channel {cid} ({fields.get('topic', '')}) taken from its {fmt.CHANNEL_METADATA} metadata copy"
+                )
         self._times = {cid: np.sort(np.asarray(t, np.int64)) for cid, t in times.items()}
         self._counts = {cid: len(t) for cid, t in times.items()}
         self._truncated = not end_seen or reason == "no footer"
@@ -769,7 +816,9 @@ class McapReplay(ReplaySource):
             if end_seen:
                 stop = f"the data section is complete but the file ends at byte {size} without a valid footer"
             where = stop or f"the file ends at byte {size} without a footer"
-            self._notes.insert(0, f"file truncated (the writer did not finish it): {where}; replaying every complete message")
+            self._notes.insert(
+                0, f"file truncated (the writer did not finish it): {where}; replaying every complete message"
+            )
         else:
             self._notes.insert(0, f"file has no usable index ({reason}); scanned it")
 
@@ -838,9 +887,14 @@ class McapReplay(ReplaySource):
                 n = int(round((cut[1] - cut[0]) / period)) + 1
                 self._scan_losses.append(FrameLoss(n, f"the chunk at byte {at} is cut off by the end of the file", at))
             after = f" after t={last} ns" if last is not None else ""
-            self._scan_losses.append(FrameLoss(
-                None, f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost", at,
-                tail=True))
+            self._scan_losses.append(
+                FrameLoss(
+                    None,
+                    f"the file is truncated at byte {self._size}: any later frames recorded{after} are lost",
+                    at,
+                    tail=True,
+                )
+            )
 
     def _check_statistics(self) -> None:
         """Compare the frames read and counted lost with the colour message count of the summary, if read.
@@ -863,9 +917,13 @@ class McapReplay(ReplaySource):
             x = self._scan_losses[unknown[0]]
             self._scan_losses[unknown[0]] = FrameLoss(missing, x.reason, x.offset, x.tail)
         elif not unknown:
-            self._scan_losses.append(FrameLoss(
-                missing, f"the summary counts {counted} {fmt.COLOR_TOPIC} messages, {missing} more than were read "
-                "or found in damaged records"))
+            self._scan_losses.append(
+                FrameLoss(
+                    missing,
+                    f"the summary counts {counted} {fmt.COLOR_TOPIC} messages, {missing} more than were read "
+                    "or found in damaged records",
+                )
+            )
 
     def _topic_times(self, kind: str) -> np.ndarray:
         parts = [self._times[cid] for cid, k in self._kind.items() if k == kind and cid in self._times]
@@ -914,7 +972,9 @@ class McapReplay(ReplaySource):
             )
         n_color = sum(self._counts.get(cid, 0) for cid, k in self._kind.items() if k == "color")
         if n_color > len(self._all):
-            self._notes.append(f"{n_color - len(self._all)} {fmt.COLOR_TOPIC} messages share a timestamp; kept one each")
+            self._notes.append(
+                f"{n_color - len(self._all)} {fmt.COLOR_TOPIC} messages share a timestamp; kept one each"
+            )
         if self._cal_times[0] > self._all[0]:
             before = int(np.searchsorted(self._all, self._cal_times[0]))
             self._notes.append(f"{before} frames precede the first calibration; they use the first calibration")
@@ -1053,7 +1113,9 @@ class McapReplay(ReplaySource):
             seen.add(index)
             self.stats.skipped_parts[part] = len(seen)
 
-    def _build(self, index: int, t: int, parts: dict[str, tuple[int, memoryview, int]], *, strict: bool = False) -> Frame:
+    def _build(
+        self, index: int, t: int, parts: dict[str, tuple[int, memoryview, int]], *, strict: bool = False
+    ) -> Frame:
         """Decode the parts of the frame with file index ``index`` at time ``t``.
 
         A malformed depth, skeleton or ground truth is left out and counted
@@ -1080,8 +1142,12 @@ class McapReplay(ReplaySource):
             raise _Corrupt(str(exc)) from None
         optional: dict[str, Any] = {"depth": None, "skeleton": None, "truth": None, "hands": None}
         truths: dict[str, PalmPoint] = {}
-        topics = {"depth": fmt.DEPTH_TOPIC, "skeleton": fmt.SKELETON_TOPIC, "truth": fmt.GROUND_TRUTH_TOPIC,
-                  "hands": fmt.HAND_TOPIC}
+        topics = {
+            "depth": fmt.DEPTH_TOPIC,
+            "skeleton": fmt.SKELETON_TOPIC,
+            "truth": fmt.GROUND_TRUTH_TOPIC,
+            "hands": fmt.HAND_TOPIC,
+        }
         names = {"depth": "depth", "skeleton": "skeleton", "truth": "ground truth", "hands": "hand landmarks"}
         for kind in ("depth", "skeleton", "truth", "hands"):
             if kind not in parts:
@@ -1113,8 +1179,18 @@ class McapReplay(ReplaySource):
                     value = None
                 optional[kind] = value
         seq = seq if self._own_sequences else index
-        return Frame(t, seq, color, optional["depth"], intrinsics, optional["skeleton"], optional["truth"],
-                     background=index < self._background, ground_truths=truths or None, hands=optional["hands"])
+        return Frame(
+            t,
+            seq,
+            color,
+            optional["depth"],
+            intrinsics,
+            optional["skeleton"],
+            optional["truth"],
+            background=index < self._background,
+            ground_truths=truths or None,
+            hands=optional["hands"],
+        )
 
     def _lose(self, index: int, reason: str, offset: int | None) -> None:
         """Record that the frame with file index ``index`` could not be read, and why."""
@@ -1294,8 +1370,12 @@ class McapReplay(ReplaySource):
         if cal is None:
             raise RecordingError(f"{self.path}: no calibration can be read: {problem}")
         intrinsics = {
-            "fx": cal.fx, "fy": cal.fy, "cx": cal.cx, "cy": cal.cy,
-            "distortion_model": cal.distortion_model, "distortion": list(cal.distortion),
+            "fx": cal.fx,
+            "fy": cal.fy,
+            "cx": cal.cx,
+            "cy": cal.cy,
+            "distortion_model": cal.distortion_model,
+            "distortion": list(cal.distortion),
         }
         width, height = cal.width, cal.height
 
@@ -1303,17 +1383,28 @@ class McapReplay(ReplaySource):
             return int(n - np.count_nonzero(np.isin(self._all, self._topic_times(kind))))
 
         return RecordingInfo(
-            path=str(self.path), size_bytes=self._size, library=self._library, profile=self._profile,
-            indexed=self._indexed, truncated=self._truncated, topics=topics, frames=n,
-            start_ns=start, end_ns=end, duration_ns=duration,
+            path=str(self.path),
+            size_bytes=self._size,
+            library=self._library,
+            profile=self._profile,
+            indexed=self._indexed,
+            truncated=self._truncated,
+            topics=topics,
+            frames=n,
+            start_ns=start,
+            end_ns=end,
+            duration_ns=duration,
             fps=(n - 1) / (duration / 1e9) if n > 1 and duration > 0 else None,
-            width=width, height=height, intrinsics=intrinsics,
+            width=width,
+            height=height,
+            intrinsics=intrinsics,
             calibration_messages=len(self._cal_times),
-            color_format=self._formats[0], depth_format=self._formats[1],
+            color_format=self._formats[0],
+            depth_format=self._formats[1],
             background_frames=self._background,
-            missing_depth=missing("depth"), missing_skeleton=missing("skeleton"),
+            missing_depth=missing("depth"),
+            missing_skeleton=missing("skeleton"),
             ground_truth_frames=n - missing("truth"),
-            metadata=dict(self._metadata), notes=tuple(self._notes + [
-                note for note in self.stats.notes if note not in self._notes
-            ]),
+            metadata=dict(self._metadata),
+            notes=tuple(self._notes + [note for note in self.stats.notes if note not in self._notes]),
         )

@@ -223,9 +223,7 @@ def colour_to_rgb(img: Any) -> np.ndarray:
     accepted = (kinds.BGR888i, kinds.RGB888i, kinds.BGR888p, kinds.RGB888p, kinds.NV12)
     kind = img.getType()
     if kind not in accepted:
-        raise InputError(
-            f"colour frame type must be one of {', '.join(k.name for k in accepted)}, got {kind.name}"
-        )
+        raise InputError(f"colour frame type must be one of {', '.join(k.name for k in accepted)}, got {kind.name}")
     bgr = img.getCvFrame()
     return np.ascontiguousarray(bgr[:, :, ::-1])
 
@@ -284,8 +282,7 @@ def pose_tensor(nn: Any) -> np.ndarray:
     fitting = [n for n in names if np.asarray(nn.getTensor(n)).size == 51]
     if len(fitting) != 1:
         raise InputError(
-            f"pose network output must hold one tensor {MOVENET_OUTPUT!r} or one 51-value tensor, "
-            f"got layers {names}"
+            f"pose network output must hold one tensor {MOVENET_OUTPUT!r} or one 51-value tensor, got layers {names}"
         )
     return np.asarray(nn.getTensor(fitting[0]))
 
@@ -319,9 +316,7 @@ def intrinsics_from_calibration(calib: Any, width: int, height: int) -> Intrinsi
     if not calib.hasCameraCalibration(socket):
         raise DeviceError("the OAK device has no calibration for its colour camera CAM_A")
     k = np.asarray(calib.getCameraIntrinsics(socket, width, height), dtype=np.float64)
-    return _intrinsics(
-        dai, width, height, k, calib.getDistortionModel(socket), calib.getDistortionCoefficients(socket)
-    )
+    return _intrinsics(dai, width, height, k, calib.getDistortionModel(socket), calib.getDistortionCoefficients(socket))
 
 
 def _intrinsics(dai: Any, width: int, height: int, k: np.ndarray, model: Any, coefficients: Any) -> Intrinsics:
@@ -639,8 +634,10 @@ def _parse_size(value: object) -> tuple[int, int]:
         if not sep or not w.strip().isdigit() or not h.strip().isdigit():
             raise InputError(f"oak size must look like WIDTHxHEIGHT (e.g. 640x400), got {value!r}")
         return int(w), int(h)
-    if isinstance(value, (tuple, list)) and len(value) == 2 and all(
-        isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in value
+    if (
+        isinstance(value, (tuple, list))
+        and len(value) == 2
+        and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in value)
     ):
         return int(value[0]), int(value[1])
     raise InputError(f"oak size must be 'WxH' or (width, height), got {value!r}")
@@ -732,9 +729,7 @@ class OakConfig:
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise InputError(f"unknown oak option(s) {', '.join(unknown)}; expected: {', '.join(_OPTIONS)}")
-        kwargs: dict[str, Any] = {
-            k: v for k, v in options.items() if k in ("size", "fps", "pose", "ir_laser", "hands")
-        }
+        kwargs: dict[str, Any] = {k: v for k, v in options.items() if k in ("size", "fps", "pose", "ir_laser", "hands")}
         if options.get("device") is not None:
             kwargs["device"] = str(options["device"])
         if "timeout" in options:
@@ -916,6 +911,4 @@ class OakSource(Source):
         worker.join(CLOSE_TIMEOUT_S)
         self.stats.notes.extend(notes)
         if worker.is_alive():
-            self.stats.notes.append(
-                f"closing the OAK device did not finish within {CLOSE_TIMEOUT_S:g} s; abandoned"
-            )
+            self.stats.notes.append(f"closing the OAK device did not finish within {CLOSE_TIMEOUT_S:g} s; abandoned")

@@ -389,9 +389,7 @@ def resolve_pose_model(spec: str, platform: str) -> PoseModel | None:
     elif spec.startswith("zoo:"):
         cache = os.environ.get("DEPTHAI_ZOO_CACHE_PATH", "")
         if not cache:
-            raise InputError(
-                f"pose={spec} needs DEPTHAI_ZOO_CACHE_PATH set to the model-zoo cache directory"
-            )
+            raise InputError(f"pose={spec} needs DEPTHAI_ZOO_CACHE_PATH set to the model-zoo cache directory")
         description = dai.NNModelDescription(spec[4:], platform)
         try:
             path = Path(dai.getModelFromZoo(description, useCached=True, cacheDirectory=cache))
@@ -403,9 +401,7 @@ def resolve_pose_model(spec: str, platform: str) -> PoseModel | None:
     elif spec.endswith(".tar.xz"):
         model = _archive_model(dai, _existing(spec))
     else:
-        raise InputError(
-            f"pose must be lightning, thunder, none, PATH.blob, PATH.tar.xz or zoo:SLUG, got {spec!r}"
-        )
+        raise InputError(f"pose must be lightning, thunder, none, PATH.blob, PATH.tar.xz or zoo:SLUG, got {spec!r}")
     model.check_platform(platform)
     return model
 

@@ -100,9 +100,8 @@ class Letterbox:
     def __post_init__(self) -> None:
         for name in ("frame_size", "input_size"):
             size = getattr(self, name)
-            if (
-                len(size) != 2
-                or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s <= 0 for s in size)
+            if len(size) != 2 or any(
+                isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s <= 0 for s in size
             ):
                 raise InputError(f"letterbox {name} must be two positive ints (width, height), got {size!r}")
 
@@ -163,8 +162,7 @@ def decode_movenet(values: np.ndarray, letterbox: Letterbox) -> np.ndarray:
     flat = np.asarray(values, dtype=np.float64).reshape(-1)
     if flat.size != 3 * len(MOVENET_KEYPOINTS):
         raise InputError(
-            f"pose network output has {flat.size} values; expected 51 "
-            f"(MoveNet: 17 keypoints x (y, x, score))"
+            f"pose network output has {flat.size} values; expected 51 (MoveNet: 17 keypoints x (y, x, score))"
         )
     if not np.all(np.isfinite(flat)):
         raise InputError("pose network output must be finite, got NaN or inf")

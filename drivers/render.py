@@ -114,8 +114,8 @@ def _particles(data: bytes, where: str) -> np.ndarray:
     stride = cloud.point_stride
     n = len(cloud.data) // stride
     raw = np.frombuffer(cloud.data, np.uint8, count=n * stride).reshape(n, stride)
-    x = raw[:, names["x"].offset:names["x"].offset + 4].copy().view("<f4")[:, 0]
-    y = raw[:, names["y"].offset:names["y"].offset + 4].copy().view("<f4")[:, 0]
+    x = raw[:, names["x"].offset : names["x"].offset + 4].copy().view("<f4")[:, 0]
+    y = raw[:, names["y"].offset : names["y"].offset + 4].copy().view("<f4")[:, 0]
     return np.stack([x, y], axis=1).astype(np.float64)
 
 
@@ -331,7 +331,7 @@ def contact_sheet(tiles: list[np.ndarray], columns: int, tile_width: int) -> np.
     for k, tile in enumerate(tiles):
         r, c = divmod(k, cols)
         small = cv2.resize(tile, (tw, th), interpolation=cv2.INTER_AREA)
-        sheet[r * (th + gap):r * (th + gap) + th, c * (tw + gap):c * (tw + gap) + tw] = small
+        sheet[r * (th + gap) : r * (th + gap) + th, c * (tw + gap) : c * (tw + gap) + tw] = small
     return sheet
 
 

@@ -429,8 +429,9 @@ class SynthSource(ReplaySource):
     def describe(self) -> str:
         w, h = self.size
         hands = " hands=2" if self.hands == 2 else ""
-        return (f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}"
-                + ("" if self.depth_model == "realistic" else f" depth_model={self.depth_model}"))
+        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}" + (
+            "" if self.depth_model == "realistic" else f" depth_model={self.depth_model}"
+        )
 
     def timestamp_ns(self, index: int) -> int:
         """Capture time of frame ``index`` in integer nanoseconds."""
@@ -471,9 +472,16 @@ class SynthSource(ReplaySource):
             "size": f"{w}x{h}",
             "fps": repr(self.fps),
             "depth_model": self.depth_model,
-            **({"depth_noise_c_per_mm": repr(DEPTH_NOISE_C)} if self.depth_model == "basic" else {
-                "disparity_noise_px": repr(DISPARITY_NOISE_PX), "baseline_mm": repr(BASELINE_MM),
-                "subpixel_steps": str(SUBPIXEL_STEPS), "max_disparity_px": repr(MAX_DISPARITY_PX)}),
+            **(
+                {"depth_noise_c_per_mm": repr(DEPTH_NOISE_C)}
+                if self.depth_model == "basic"
+                else {
+                    "disparity_noise_px": repr(DISPARITY_NOISE_PX),
+                    "baseline_mm": repr(BASELINE_MM),
+                    "subpixel_steps": str(SUBPIXEL_STEPS),
+                    "max_disparity_px": repr(MAX_DISPARITY_PX),
+                }
+            ),
             "occluded_overlap": repr(OCCLUDED_OVERLAP),
             **extra,
         }
@@ -640,8 +648,9 @@ class SynthSource(ReplaySource):
 
         depth_m = np.asarray(depth_m, dtype=np.float32)
         if depth_m.shape != (self.size[1], self.size[0]) or not (depth_m > 0).all():
-            raise InputError(f"depth_m must be a positive ({self.size[1]}, {self.size[0]}) array, "
-                             f"got shape {depth_m.shape}")
+            raise InputError(
+                f"depth_m must be a positive ({self.size[1]}, {self.size[0]}) array, got shape {depth_m.shape}"
+            )
         return self._depth_image(depth_m, self._stereo_valid(depth_m), as_rng(rng))
 
     def _depth_image(self, depth_m: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:

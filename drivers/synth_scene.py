@@ -287,8 +287,10 @@ def illumination(a: Appearance, index: int, xn: np.ndarray) -> np.ndarray:
         ``1 + global drift + gradient drift * xn``.
     """
     two_pi = 2.0 * math.pi
-    drift = sum(amp * math.sin(two_pi * index / period + phase)
-                for amp, period, phase in zip(a.drift_amps, a.drift_periods, a.drift_phases))
+    drift = sum(
+        amp * math.sin(two_pi * index / period + phase)
+        for amp, period, phase in zip(a.drift_amps, a.drift_periods, a.drift_phases)
+    )
     slope = a.gradient_amp * math.sin(two_pi * index / a.gradient_period + a.gradient_phase)
     return (1.0 + drift + slope * xn).astype(np.float32)
 
@@ -313,8 +315,7 @@ def motion_kernel(du: float, dv: float) -> np.ndarray:
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = x - x0, y - y0
     kernel = np.zeros((k, k), np.float64)
-    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
-                        (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+    for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
         np.add.at(kernel, (y0 + dy, x0 + dx), wgt)
     return (kernel / kernel.sum()).astype(np.float32)
 
@@ -350,8 +351,10 @@ def pose_at(m: Motion, t: float) -> Pose:
     r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
     l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
 
-    theta = two_pi * t / m.palm_period + m.palm_phase + m.palm_mod_depth * math.sin(
-        two_pi * t / m.palm_mod_period + m.palm_mod_phase
+    theta = (
+        two_pi * t / m.palm_period
+        + m.palm_phase
+        + m.palm_mod_depth * math.sin(two_pi * t / m.palm_mod_period + m.palm_mod_phase)
     )
     s = math.sin(theta)
     pz = tz - 0.22 - 0.10 * (s + 1.0) / 2.0
@@ -413,9 +416,7 @@ def _grid(intr: Intrinsics, u0: float, u1: float, v0: float, v1: float, clip: bo
     return slice(r0, r1), slice(c0, c1), uu, vv
 
 
-def ellipse_mask(
-    intr: Intrinsics, centre: np.ndarray, half_w: float, half_h: float, angle: float, clip: bool = True
-):
+def ellipse_mask(intr: Intrinsics, centre: np.ndarray, half_w: float, half_h: float, angle: float, clip: bool = True):
     """Rasterise an image-plane ellipse of a disc at 3-D ``centre``.
 
     ``half_w``/``half_h`` are semi-axes in metres (scaled by ``f / z``), ``angle``
@@ -505,9 +506,16 @@ def torso_outline(pose: Pose) -> list[np.ndarray]:
     x, z = pose.torso[0], pose.torso[2]
     ys = SHOULDER_Y
     pts = [
-        (-0.20, ys + 0.03), (-0.07, ys - 0.01), (0.07, ys - 0.01), (0.20, ys + 0.03),
-        (CHEST_HALF_WIDTH, ys + 0.16), (0.16, 0.22), (0.17, HIP_Y), (-0.17, HIP_Y),
-        (-0.16, 0.22), (-CHEST_HALF_WIDTH, ys + 0.16),
+        (-0.20, ys + 0.03),
+        (-0.07, ys - 0.01),
+        (0.07, ys - 0.01),
+        (0.20, ys + 0.03),
+        (CHEST_HALF_WIDTH, ys + 0.16),
+        (0.16, 0.22),
+        (0.17, HIP_Y),
+        (-0.17, HIP_Y),
+        (-0.16, 0.22),
+        (-CHEST_HALF_WIDTH, ys + 0.16),
     ]
     return [np.array([x + dx, y, z]) for dx, y in pts]
 
@@ -536,8 +544,10 @@ def _fill_polygon(intr: Intrinsics, points3: list[np.ndarray], rows: slice, cols
 
 def _neck_outline(pose: Pose) -> list[np.ndarray]:
     x, z = pose.torso[0], pose.torso[2] - 0.04
-    return [np.array([x + dx, y, z]) for dx, y in
-            ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))]
+    return [
+        np.array([x + dx, y, z])
+        for dx, y in ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))
+    ]
 
 
 def body_region(intr: Intrinsics, pose: Pose, rows: slice, cols: slice) -> np.ndarray:
@@ -572,29 +582,51 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
     x, z = pose.torso[0], pose.torso[2]
     parts = []
     for side in (-1.0, 1.0):
-        leg = [np.array([x + side * dx, y, z + 0.02]) for dx, y in
-               ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))]
+        leg = [
+            np.array([x + side * dx, y, z + 0.02])
+            for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
+        ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
-    parts.append(_ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2,
-                               0.08, HAIR_RGB, LABEL_CLOTH))
-    parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2,
-                               0.07, SKIN_RGB, LABEL_SKIN))
+    parts.append(
+        _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
+    )
+    parts.append(
+        _ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2, 0.07, SKIN_RGB, LABEL_SKIN)
+    )
     parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
     parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_ellipse_part(intr, pose.left_hand, 0.045, 0.06,
-                               _hand_angle(intr, pose.left_wrist, pose.left_hand),
-                               PALM_THICKNESS, SKIN_RGB, LABEL_SKIN))
+    parts.append(
+        _ellipse_part(
+            intr,
+            pose.left_hand,
+            0.045,
+            0.06,
+            _hand_angle(intr, pose.left_wrist, pose.left_hand),
+            PALM_THICKNESS,
+            SKIN_RGB,
+            LABEL_SKIN,
+        )
+    )
     parts.append(_capsule_part(intr, pose.right_shoulder, pose.right_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
     sleeve_edge = pose.right_wrist + sleeve_fraction * (pose.right_elbow - pose.right_wrist)
     arm = [
         _capsule_part(intr, pose.right_elbow, sleeve_edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-        _capsule_part(intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN,
-                      round_start=False),
-        _ellipse_part(intr, pose.right_hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH,
-                      _hand_angle(intr, pose.right_wrist, pose.right_hand),
-                      PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True),
+        _capsule_part(
+            intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False
+        ),
+        _ellipse_part(
+            intr,
+            pose.right_hand,
+            PALM_HALF_WIDTH,
+            PALM_HALF_LENGTH,
+            _hand_angle(intr, pose.right_wrist, pose.right_hand),
+            PALM_THICKNESS,
+            SKIN_RGB,
+            LABEL_PALM,
+            on_top=True,
+        ),
     ]
     for p in arm:
         if p is not None:
@@ -602,8 +634,15 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
     return [p for p in parts + arm if p is not None]
 
 
-def _draw(color: np.ndarray, depth: np.ndarray, labels: np.ndarray, vignette: np.ndarray,
-          parts: list[Part], r0: int = 0, c0: int = 0) -> np.ndarray:
+def _draw(
+    color: np.ndarray,
+    depth: np.ndarray,
+    labels: np.ndarray,
+    vignette: np.ndarray,
+    parts: list[Part],
+    r0: int = 0,
+    c0: int = 0,
+) -> np.ndarray:
     """Z-buffer ``parts`` into the arrays (whose pixel ``(0, 0)`` is image pixel ``(r0, c0)``).
 
     Returns the boolean coverage of the drawn parts.
@@ -662,8 +701,9 @@ def composite(
     c1 = min(max(p.cols.stop for p in moving) + pad, w)
     base = color[r0:r1, c0:c1].copy()
     layer = np.zeros_like(base)
-    alpha = _draw(layer, depth[r0:r1, c0:c1], labels[r0:r1, c0:c1], bg.vignette[r0:r1, c0:c1],
-                  moving, r0, c0).astype(np.float32)
+    alpha = _draw(layer, depth[r0:r1, c0:c1], labels[r0:r1, c0:c1], bg.vignette[r0:r1, c0:c1], moving, r0, c0).astype(
+        np.float32
+    )
     layer = cv2.filter2D(layer, -1, blur, borderType=cv2.BORDER_REPLICATE)
     alpha = cv2.filter2D(alpha, -1, blur, borderType=cv2.BORDER_REPLICATE)
     color[r0:r1, c0:c1] = layer + (1.0 - alpha)[..., None] * base
@@ -813,25 +853,44 @@ def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Par
     x, z = pose.torso[0], pose.torso[2]
     parts = []
     for side in (-1.0, 1.0):
-        leg = [np.array([x + side * dx, y, z + 0.02]) for dx, y in
-               ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))]
+        leg = [
+            np.array([x + side * dx, y, z + 0.02])
+            for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
+        ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
-    parts.append(_ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2,
-                               0.08, HAIR_RGB, LABEL_CLOTH))
+    parts.append(
+        _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
+    )
     parts.append(_ellipse_part(intr, face_centre(pose), 0.074, 0.1, math.pi / 2, 0.07, SKIN_RGB, LABEL_SKIN))
     arms = []
-    for sh, el, wr, hand in ((pose.right_shoulder, pose.right_elbow, pose.right_wrist, pose.right_hand),
-                             (pose.left_shoulder, pose.left_elbow, pose.left_wrist, pose.left_hand)):
+    for sh, el, wr, hand in (
+        (pose.right_shoulder, pose.right_elbow, pose.right_wrist, pose.right_hand),
+        (pose.left_shoulder, pose.left_elbow, pose.left_wrist, pose.left_hand),
+    ):
         edge = wr + sleeve_fraction * (el - wr)
-        arms.append((float(hand[2]), [
-            _capsule_part(intr, sh, el, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-            _capsule_part(intr, el, edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-            _capsule_part(intr, edge, wr, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False),
-            _ellipse_part(intr, hand, PALM_HALF_WIDTH, PALM_HALF_LENGTH, _hand_angle(intr, wr, hand),
-                          PALM_THICKNESS, SKIN_RGB, LABEL_PALM, on_top=True),
-        ]))
+        arms.append(
+            (
+                float(hand[2]),
+                [
+                    _capsule_part(intr, sh, el, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+                    _capsule_part(intr, el, edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+                    _capsule_part(intr, edge, wr, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False),
+                    _ellipse_part(
+                        intr,
+                        hand,
+                        PALM_HALF_WIDTH,
+                        PALM_HALF_LENGTH,
+                        _hand_angle(intr, wr, hand),
+                        PALM_THICKNESS,
+                        SKIN_RGB,
+                        LABEL_PALM,
+                        on_top=True,
+                    ),
+                ],
+            )
+        )
     for _, arm in sorted(arms, key=lambda a: -a[0]):
         parts.extend(arm)
     return [p for p in parts if p is not None]

@@ -163,36 +163,62 @@ def overlay(result: TrackResult):
         return Color(r=r, g=g, b=b, a=a)
 
     if result.particles is not None:
-        msg.points.append(PointsAnnotation(
-            timestamp=ts, type=PointsAnnotation.POINTS, outline_color=colour("particles"), thickness=2.0,
-            points=[Point2(x=float(u), y=float(v)) for u, v in result.particles],
-        ))
+        msg.points.append(
+            PointsAnnotation(
+                timestamp=ts,
+                type=PointsAnnotation.POINTS,
+                outline_color=colour("particles"),
+                thickness=2.0,
+                points=[Point2(x=float(u), y=float(v)) for u, v in result.particles],
+            )
+        )
     if result.roi is not None and not result.roi.empty:
         r = result.roi
         corners = [(r.x0, r.y0), (r.x1, r.y0), (r.x1, r.y1), (r.x0, r.y1)]
-        msg.points.append(PointsAnnotation(
-            timestamp=ts, type=PointsAnnotation.LINE_LOOP, outline_color=colour("roi"), thickness=1.0,
-            points=[Point2(x=float(x) - 0.5, y=float(y) - 0.5) for x, y in corners],
-        ))
+        msg.points.append(
+            PointsAnnotation(
+                timestamp=ts,
+                type=PointsAnnotation.LINE_LOOP,
+                outline_color=colour("roi"),
+                thickness=1.0,
+                points=[Point2(x=float(x) - 0.5, y=float(y) - 0.5) for x, y in corners],
+            )
+        )
     for s, m in result.cues.items():
         if m is None:
             continue
-        msg.points.append(PointsAnnotation(
-            timestamp=ts, type=PointsAnnotation.POINTS, outline_color=colour(s), thickness=8.0,
-            points=[Point2(x=m.u, y=m.v)],
-        ))
-        msg.texts.append(TextAnnotation(
-            timestamp=ts, position=Point2(x=m.u + 6.0, y=m.v - 6.0), text=s, font_size=12.0,
-            text_color=colour(s), background_color=Color(r=0, g=0, b=0, a=0.4),
-        ))
+        msg.points.append(
+            PointsAnnotation(
+                timestamp=ts,
+                type=PointsAnnotation.POINTS,
+                outline_color=colour(s),
+                thickness=8.0,
+                points=[Point2(x=m.u, y=m.v)],
+            )
+        )
+        msg.texts.append(
+            TextAnnotation(
+                timestamp=ts,
+                position=Point2(x=m.u + 6.0, y=m.v - 6.0),
+                text=s,
+                font_size=12.0,
+                text_color=colour(s),
+                background_color=Color(r=0, g=0, b=0, a=0.4),
+            )
+        )
     e = result.estimate
     if e is not None:
         # diameter of the 2-sigma circle of the posterior position, at least 10 px
         sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(e.cov))), 0.0))
-        msg.circles.append(CircleAnnotation(
-            timestamp=ts, position=Point2(x=e.u, y=e.v), diameter=max(10.0, 4.0 * sigma),
-            thickness=2.0, outline_color=colour("estimate"),
-        ))
+        msg.circles.append(
+            CircleAnnotation(
+                timestamp=ts,
+                position=Point2(x=e.u, y=e.v),
+                diameter=max(10.0, 4.0 * sigma),
+                thickness=2.0,
+                outline_color=colour("estimate"),
+            )
+        )
     return msg
 
 
@@ -210,9 +236,12 @@ def particle_cloud(result: TrackResult):
     data[:, 3] = result.weights
     f32 = PackedElementField.FLOAT32
     return PointCloud(
-        timestamp=_timestamp(result.timestamp_ns), frame_id=PARTICLES_FRAME_ID,
+        timestamp=_timestamp(result.timestamp_ns),
+        frame_id=PARTICLES_FRAME_ID,
         pose=Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1)),
         point_stride=16,
-        fields=[PackedElementField(name=name, offset=4 * i, type=f32) for i, name in enumerate(("x", "y", "z", "weight"))],
+        fields=[
+            PackedElementField(name=name, offset=4 * i, type=f32) for i, name in enumerate(("x", "y", "z", "weight"))
+        ],
         data=data.tobytes(),
     )

@@ -77,8 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", 2)
-        print("fusion-pf: interrupted" if signum == 2 else f"fusion-pf: terminated by signal {signum}",
-              file=sys.stderr)
+        print("fusion-pf: interrupted" if signum == 2 else f"fusion-pf: terminated by signal {signum}", file=sys.stderr)
         return 128 + signum
 
 

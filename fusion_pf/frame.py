@@ -109,15 +109,13 @@ class Intrinsics:
             object.__setattr__(self, name, _finite(f"intrinsics {name}", getattr(self, name)))
         if self.distortion_model not in DISTORTION_MODELS:
             raise InputError(
-                f"distortion_model must be one of {sorted(DISTORTION_MODELS)}, "
-                f"got {self.distortion_model!r}"
+                f"distortion_model must be one of {sorted(DISTORTION_MODELS)}, got {self.distortion_model!r}"
             )
         coeffs = tuple(_finite("distortion coefficient", c) for c in self.distortion)
         expected = DISTORTION_MODELS[self.distortion_model]
         if expected is not None and len(coeffs) != expected and any(coeffs):
             raise InputError(
-                f"distortion model {self.distortion_model!r} takes {expected} coefficients, "
-                f"got {len(coeffs)}"
+                f"distortion model {self.distortion_model!r} takes {expected} coefficients, got {len(coeffs)}"
             )
         object.__setattr__(self, "distortion", coeffs)
 
@@ -130,9 +128,14 @@ class Intrinsics:
         """Intrinsics of the same camera resized to ``width`` x ``height`` pixels."""
         sx, sy = width / self.width, height / self.height
         return Intrinsics(
-            width, height, self.fx * sx, self.fy * sy,
-            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
-            self.distortion_model, self.distortion,
+            width,
+            height,
+            self.fx * sx,
+            self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5,
+            (self.cy + 0.5) * sy - 0.5,
+            self.distortion_model,
+            self.distortion,
         )
 
 
@@ -335,16 +338,13 @@ class Frame:
             if depth.dtype != np.uint16:
                 raise InputError(f"depth must be uint16 millimetres, got {depth.dtype}")
             if depth.shape != (h, w):
-                raise InputError(
-                    f"depth must be aligned to color: expected shape {(h, w)}, got {depth.shape}"
-                )
+                raise InputError(f"depth must be aligned to color: expected shape {(h, w)}, got {depth.shape}")
             object.__setattr__(self, "depth", _readonly(depth))
         if not isinstance(self.intrinsics, Intrinsics):
             raise InputError(f"intrinsics must be an Intrinsics, got {type(self.intrinsics).__name__}")
         if (self.intrinsics.width, self.intrinsics.height) != (w, h):
             raise InputError(
-                f"intrinsics size {self.intrinsics.width}x{self.intrinsics.height} "
-                f"does not match color size {w}x{h}"
+                f"intrinsics size {self.intrinsics.width}x{self.intrinsics.height} does not match color size {w}x{h}"
             )
         if self.joints is not None:
             joints = dict(self.joints)
@@ -356,16 +356,16 @@ class Frame:
             object.__setattr__(self, "joints", MappingProxyType(joints))
         if self.hands is not None:
             if isinstance(self.hands, (str, bytes)) or not hasattr(self.hands, "__iter__"):
-                raise InputError(f"hands must be a sequence of HandObservation or None, got {type(self.hands).__name__}")
+                raise InputError(
+                    f"hands must be a sequence of HandObservation or None, got {type(self.hands).__name__}"
+                )
             hands = tuple(self.hands)
             for k, hand in enumerate(hands):
                 if not isinstance(hand, HandObservation):
                     raise InputError(f"hands[{k}] must be a HandObservation, got {type(hand).__name__}")
             object.__setattr__(self, "hands", hands)
         if self.ground_truth is not None and not isinstance(self.ground_truth, PalmPoint):
-            raise InputError(
-                f"ground_truth must be a PalmPoint or None, got {type(self.ground_truth).__name__}"
-            )
+            raise InputError(f"ground_truth must be a PalmPoint or None, got {type(self.ground_truth).__name__}")
         if self.ground_truths is not None:
             truths = dict(self.ground_truths)
             for name, point in truths.items():

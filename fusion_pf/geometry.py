@@ -29,9 +29,7 @@ def _normalised(uv: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Normalised image coordinates ``(x/z, y/z)`` of pixels ``uv``, shape (N, 2)."""
     coeffs = np.asarray(intrinsics.distortion, dtype=np.float64)
     if intrinsics.distortion_model == "none" or not coeffs.any():
-        return np.column_stack(
-            ((uv[:, 0] - intrinsics.cx) / intrinsics.fx, (uv[:, 1] - intrinsics.cy) / intrinsics.fy)
-        )
+        return np.column_stack(((uv[:, 0] - intrinsics.cx) / intrinsics.fx, (uv[:, 1] - intrinsics.cy) / intrinsics.fy))
     pts = uv.reshape(-1, 1, 2)
     if intrinsics.distortion_model == "kannala_brandt":
         out = cv2.fisheye.undistortPoints(pts, intrinsics.K, coeffs)

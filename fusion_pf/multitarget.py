@@ -28,7 +28,14 @@ from fusion_pf.filter.states import TrackState
 from fusion_pf.frame import Frame
 
 __all__ = [
-    "FrameInputs", "Run", "frame_inputs", "identity_swaps", "label_blobs", "rmse", "run_tracker", "state_counts",
+    "FrameInputs",
+    "Run",
+    "frame_inputs",
+    "identity_swaps",
+    "label_blobs",
+    "rmse",
+    "run_tracker",
+    "state_counts",
 ]
 
 
@@ -193,7 +200,7 @@ def _truth(inputs: Sequence[FrameInputs], target: str) -> np.ndarray:
 def rmse(run: Run, inputs: Sequence[FrameInputs], target: str, skip: int = 0) -> float:
     """Root-mean-square position error (px) of ``target`` over frames ``skip..`` with an estimate and a truth."""
     err = run.estimates[target][skip:] - _truth(inputs, target)[skip:]
-    d2 = (err ** 2).sum(axis=1)
+    d2 = (err**2).sum(axis=1)
     d2 = d2[np.isfinite(d2)]
     return float(math.sqrt(d2.mean())) if len(d2) else math.nan
 

@@ -226,8 +226,9 @@ def add_options(
             continue
         flag = _flag(f, spec)
         if spec.kind == "bool":
-            target.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction,
-                                default=argparse.SUPPRESS, help=option_help(f))
+            target.add_argument(
+                flag, dest=f.name, action=argparse.BooleanOptionalAction, default=argparse.SUPPRESS, help=option_help(f)
+            )
             continue
         metavar = spec.metavar or ("|".join(map(str, spec.choices)) if spec.choices else f.name.upper())
         target.add_argument(flag, dest=f.name, default=argparse.SUPPRESS, metavar=metavar, help=option_help(f))

@@ -38,6 +38,4 @@ def as_rng(
         if rng < 0:
             raise InputError(f"rng seed must be a non-negative int, got {rng}")
         return np.random.Generator(bit_generator(int(rng)))
-    raise InputError(
-        f"rng must be a numpy Generator, a non-negative int seed or None, got {type(rng).__name__}"
-    )
+    raise InputError(f"rng must be a numpy Generator, a non-negative int seed or None, got {type(rng).__name__}")

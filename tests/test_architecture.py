@@ -44,12 +44,15 @@ def test_only_the_command_line_layer_imports_drivers():
     assert "drivers" in _imports(PACKAGE / "commands" / "track.py")
 
 
-@pytest.mark.parametrize("module, banned", [
-    ("fusion_pf.filter", ("cv2", "drivers", "matplotlib", "flask")),
-    ("fusion_pf.score", ("cv2", "drivers", "matplotlib", "flask", "mcap")),
-    ("fusion_pf.options", ("cv2", "drivers")),
-    ("fusion_pf.pipeline", ("drivers", "matplotlib", "flask", "mcap")),
-])
+@pytest.mark.parametrize(
+    "module, banned",
+    [
+        ("fusion_pf.filter", ("cv2", "drivers", "matplotlib", "flask")),
+        ("fusion_pf.score", ("cv2", "drivers", "matplotlib", "flask", "mcap")),
+        ("fusion_pf.options", ("cv2", "drivers")),
+        ("fusion_pf.pipeline", ("drivers", "matplotlib", "flask", "mcap")),
+    ],
+)
 def test_core_imports_stay_light(module, banned):
     code = f"import sys, {module}; print(','.join(m for m in {banned!r} if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -75,9 +78,19 @@ def test_help_shows_the_real_defaults(command):
                 assert helps[f.name] == option_help(f)
                 default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
                 spec = f.metadata["spec"]
-                shown = spec.show(default) if spec.show else (
-                    "none" if default is None else ("on" if default else "off") if isinstance(default, bool)
-                    else f"{default:g}" if isinstance(default, float) else str(default))
+                shown = (
+                    spec.show(default)
+                    if spec.show
+                    else (
+                        "none"
+                        if default is None
+                        else ("on" if default else "off")
+                        if isinstance(default, bool)
+                        else f"{default:g}"
+                        if isinstance(default, float)
+                        else str(default)
+                    )
+                )
                 assert f"[default: {shown}]" in helps[f.name], (f.name, helps[f.name])
                 seen += 1
     assert seen >= (10 if command == "track" else 8)

@@ -9,9 +9,7 @@ from fusion_pf.cli import build_parser
 
 
 def run(*args, timeout=60):
-    return subprocess.run(
-        [sys.executable, "-m", "fusion_pf", *args], capture_output=True, text=True, timeout=timeout
-    )
+    return subprocess.run([sys.executable, "-m", "fusion_pf", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_help_lists_every_subcommand():

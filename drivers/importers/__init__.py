@@ -24,8 +24,15 @@ from fusion_pf.errors import InputError
 from .base import ImportSource, ImportSummary, IntrinsicsOption, write_recording
 from .video import VIDEO_SUFFIXES
 
-__all__ = ["open_import", "detect", "ImportSource", "ImportSummary", "IntrinsicsOption", "write_recording",
-           "IMPORT_SPECS"]
+__all__ = [
+    "open_import",
+    "detect",
+    "ImportSource",
+    "ImportSummary",
+    "IntrinsicsOption",
+    "write_recording",
+    "IMPORT_SPECS",
+]
 
 #: What :func:`open_import` accepts, for help texts.
 IMPORT_SPECS = (
@@ -110,8 +117,9 @@ def open_import(
 
         if fps is not None:
             raise InputError(f"--fps does not apply to ROS bags; {path} has its own timestamps")
-        return RosBagSource(path, color_topic=color_topic, depth_topic=depth_topic, info_topic=info_topic,
-                            intrinsics=intrinsics)
+        return RosBagSource(
+            path, color_topic=color_topic, depth_topic=depth_topic, info_topic=info_topic, intrinsics=intrinsics
+        )
     if kind == "k4a":
         from .k4a import AzureKinectSource
 
@@ -121,8 +129,9 @@ def open_import(
     if kind == "folder":
         from .folder import ImageFolderSource
 
-        return ImageFolderSource(path, depth_unit=depth_unit or "1mm", fps=30.0 if fps is None else fps,
-                                 intrinsics=intrinsics)
+        return ImageFolderSource(
+            path, depth_unit=depth_unit or "1mm", fps=30.0 if fps is None else fps, intrinsics=intrinsics
+        )
     from .video import VideoSource
 
     return VideoSource(path, fps=fps, intrinsics=intrinsics)

@@ -397,8 +397,16 @@ def write_recording(
         recorder = McapRecorder(output, metadata=meta, **recorder_options)
         frames = iter(src)
         try:
-            with recorder, tqdm(total=total, unit="frame", desc=src.describe(), disable=None if progress is None
-                                else not progress, file=sys.stderr) as bar:
+            with (
+                recorder,
+                tqdm(
+                    total=total,
+                    unit="frame",
+                    desc=src.describe(),
+                    disable=None if progress is None else not progress,
+                    file=sys.stderr,
+                ) as bar,
+            ):
                 for frame in frames:
                     recorder.write(frame)
                     summary.with_depth += frame.depth is not None
@@ -418,8 +426,9 @@ def write_recording(
     return summary
 
 
-def frame_of(timestamp_ns: int, seq: int, color: np.ndarray, depth: np.ndarray | None, intrinsics: Intrinsics,
-             where: str) -> Frame:
+def frame_of(
+    timestamp_ns: int, seq: int, color: np.ndarray, depth: np.ndarray | None, intrinsics: Intrinsics, where: str
+) -> Frame:
     """A Frame, with a size mismatch between colour and depth reported as an InputError naming ``where``."""
     if depth is not None and depth.shape != color.shape[:2]:
         raise InputError(

@@ -57,8 +57,10 @@ def _pair_key(stem: str) -> str:
 
 
 def _images(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-                  key=lambda p: natural_key(p.name))
+    return sorted(
+        (p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
+        key=lambda p: natural_key(p.name),
+    )
 
 
 def _image_size(path: Path) -> tuple[int, int]:
@@ -102,8 +104,14 @@ class ImageFolderSource(ImportSource):
 
     kind = "folder"
 
-    def __init__(self, path: str | Path, *, depth_unit: str = "1mm", fps: float = 30.0,
-                 intrinsics: IntrinsicsOption | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        depth_unit: str = "1mm",
+        fps: float = 30.0,
+        intrinsics: IntrinsicsOption | None = None,
+    ) -> None:
         super().__init__(path)
         self.mm_per_count = parse_depth_unit(depth_unit)
         self.depth_unit = depth_unit
@@ -208,7 +216,7 @@ class ImageFolderSource(ImportSource):
     def _grey(self, depth_mm: np.ndarray) -> np.ndarray:
         if self._grey_range is None:
             valid = depth_mm[depth_mm > 0]
-            lo, hi = (np.percentile(valid, [1, 99]) if valid.size else (0.0, 1.0))
+            lo, hi = np.percentile(valid, [1, 99]) if valid.size else (0.0, 1.0)
             self._grey_range = (float(lo), float(max(hi, lo + 1.0)))
         lo, hi = self._grey_range
         grey = np.clip(32.0 + 223.0 * (hi - depth_mm.astype(np.float32)) / (hi - lo), 32, 255).astype(np.uint8)
@@ -224,6 +232,5 @@ class ImageFolderSource(ImportSource):
                 if raw.ndim != 2:
                     raise InputError(f"depth image {d} has {raw.shape[2]} channels; expected one channel")
                 depth = to_millimetres(raw, self.mm_per_count)
-            color = (cv2.cvtColor(_read(c, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB) if c is not None
-                     else self._grey(depth))
+            color = cv2.cvtColor(_read(c, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB) if c is not None else self._grey(depth)
             yield frame_of(int(round(i * period)), i, color, depth, self._intrinsics, str(c or d))

@@ -48,13 +48,20 @@ DEPTH_MODES = {
 }
 
 
-def _mode_intrinsics(params: list[float], binned: tuple[float, float], crop: tuple[float, float],
-                     size: tuple[int, int]) -> Intrinsics:
+def _mode_intrinsics(
+    params: list[float], binned: tuple[float, float], crop: tuple[float, float], size: tuple[int, int]
+) -> Intrinsics:
     """Pixel intrinsics (OpenCV convention) of a mode from the normalised JSON parameters."""
     cx, cy, fx, fy, k1, k2, k3, k4, k5, k6, _codx, _cody, p2, p1 = params[:14]
     return Intrinsics(
-        size[0], size[1], fx * binned[0], fy * binned[1], cx * binned[0] - crop[0] - 0.5,
-        cy * binned[1] - crop[1] - 0.5, "rational_polynomial", (k1, k2, p1, p2, k3, k4, k5, k6),
+        size[0],
+        size[1],
+        fx * binned[0],
+        fy * binned[1],
+        cx * binned[0] - crop[0] - 0.5,
+        cy * binned[1] - crop[1] - 0.5,
+        "rational_polynomial",
+        (k1, k2, p1, p2, k3, k4, k5, k6),
     )
 
 
@@ -66,8 +73,13 @@ class K4aCalibration(DepthToColor):
     """
 
     @classmethod
-    def from_json(cls, text: str | bytes, depth_size: tuple[int, int], color_size: tuple[int, int],
-                  where: str = "calibration.json") -> "K4aCalibration":
+    def from_json(
+        cls,
+        text: str | bytes,
+        depth_size: tuple[int, int],
+        color_size: tuple[int, int],
+        where: str = "calibration.json",
+    ) -> "K4aCalibration":
         """Parse ``calibration.json`` for a depth mode and colour resolution (both ``(width, height)``)."""
         try:
             cameras = json.loads(text)["CalibrationInformation"]["Cameras"]
@@ -81,8 +93,10 @@ class K4aCalibration(DepthToColor):
             if model != "CALIBRATION_LensDistortionModelBrownConrady":
                 raise RecordingError(f"{where}: lens model {model} is not supported; expected BrownConrady")
         if depth_size not in DEPTH_MODES:
-            raise RecordingError(f"depth track is {depth_size[0]}x{depth_size[1]}; expected an Azure Kinect depth "
-                                 f"mode size ({', '.join(f'{w}x{h}' for w, h in DEPTH_MODES)})")
+            raise RecordingError(
+                f"depth track is {depth_size[0]}x{depth_size[1]}; expected an Azure Kinect depth "
+                f"mode size ({', '.join(f'{w}x{h}' for w, h in DEPTH_MODES)})"
+            )
         binned, crop = DEPTH_MODES[depth_size]
         k_depth = _mode_intrinsics(depth["Intrinsics"]["ModelParameters"], binned, crop, depth_size)
         params = list(color["Intrinsics"]["ModelParameters"])
@@ -150,8 +164,9 @@ class AzureKinectSource(ImportSource):
                 raise InputError(f"{self.path} has no calibration.json attachment; found {_tracks_found(container)}")
             color_size = (color.codec_context.width, color.codec_context.height)
             depth_size = (depth.codec_context.width, depth.codec_context.height)
-            self.calibration = K4aCalibration.from_json(attachment.data, depth_size, color_size,
-                                                        f"{self.path}: calibration.json")
+            self.calibration = K4aCalibration.from_json(
+                attachment.data, depth_size, color_size, f"{self.path}: calibration.json"
+            )
             self.registration = DepthRegistration(self.calibration)
             self._container = container
             color_ns, depth_ns = self._scan(color, depth)
@@ -164,17 +179,22 @@ class AzureKinectSource(ImportSource):
         k = self.calibration.color
         paired = int((self._pairing >= 0).sum())
         self.total = len(color_ns)
-        self.report.extend([
-            f"colour track {color.metadata.get('K4A_COLOR_MODE', color.codec_context.name)} "
-            f"{color_size[0]}x{color_size[1]}, depth track {depth.metadata.get('K4A_DEPTH_MODE', '?')} "
-            f"{depth_size[0]}x{depth_size[1]} registered to colour (z-buffered)",
-            f"{paired} of {len(color_ns)} colour frames paired with depth within half a frame period, "
-            f"{len(color_ns) - paired} without depth; {len(depth_ns) - paired} depth frames unpaired",
-            f"intrinsics from calibration.json: fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
-            "rational_polynomial",
-        ])
-        others = [s.metadata.get("title", f"stream {s.index}") for s in self._container.streams
-                  if s.type in ("video", "subtitle", "audio", "data") and s.index not in (color.index, depth.index)]
+        self.report.extend(
+            [
+                f"colour track {color.metadata.get('K4A_COLOR_MODE', color.codec_context.name)} "
+                f"{color_size[0]}x{color_size[1]}, depth track {depth.metadata.get('K4A_DEPTH_MODE', '?')} "
+                f"{depth_size[0]}x{depth_size[1]} registered to colour (z-buffered)",
+                f"{paired} of {len(color_ns)} colour frames paired with depth within half a frame period, "
+                f"{len(color_ns) - paired} without depth; {len(depth_ns) - paired} depth frames unpaired",
+                f"intrinsics from calibration.json: fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
+                "rational_polynomial",
+            ]
+        )
+        others = [
+            s.metadata.get("title", f"stream {s.index}")
+            for s in self._container.streams
+            if s.type in ("video", "subtitle", "audio", "data") and s.index not in (color.index, depth.index)
+        ]
         if others:
             self.report.append(f"tracks not imported: {', '.join(others)}")
 

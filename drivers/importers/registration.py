@@ -109,8 +109,9 @@ class DepthRegistration:
         px, py, pz = (self.rays[valid] * z[valid, None]).T
         # p_c = R p_d + t written out per component: a (N, 3) @ (3, 3) product goes through BLAS
         # threads that cost more CPU than the arithmetic
-        cam = np.column_stack([r[0] * px + r[1] * py + r[2] * pz + t
-                               for r, t in zip(c.rotation, c.translation_mm, strict=True)])
+        cam = np.column_stack(
+            [r[0] * px + r[1] * py + r[2] * pz + t for r, t in zip(c.rotation, c.translation_mm, strict=True)]
+        )
         front = cam[:, 2] > 0
         idx = np.flatnonzero(valid)[front]
         cam = cam[front]
@@ -121,9 +122,13 @@ class DepthRegistration:
         grid[idx] = uv
         grid = grid.reshape(hd, wd, 2)
         with np.errstate(invalid="ignore"):
-            spacing = np.stack([_neighbour_max(np.abs(np.diff(grid[:, :, 0], axis=1)), axis=1),
-                                _neighbour_max(np.abs(np.diff(grid[:, :, 1], axis=0)), axis=0)],
-                               axis=-1).reshape(-1, 2)[idx]
+            spacing = np.stack(
+                [
+                    _neighbour_max(np.abs(np.diff(grid[:, :, 0], axis=1)), axis=1),
+                    _neighbour_max(np.abs(np.diff(grid[:, :, 1], axis=0)), axis=0),
+                ],
+                axis=-1,
+            ).reshape(-1, 2)[idx]
             nominal = self.nominal[idx]
             half = np.where(np.isfinite(spacing) & (spacing <= _EDGE * nominal), spacing, nominal) / 2
         # the pixels p with lo <= p < uv + half, enumerated without a loop over points

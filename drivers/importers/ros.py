@@ -47,13 +47,31 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 _IMAGE_TYPES = (IMAGE, COMPRESSED)
 _NOT_COLOR = ("depth", "infra", "/ir", "_ir", "stereo", "disparity", "confidence", "mono", "left", "right")
 _COLOR_CODES = {
-    "rgb8": None, "bgr8": cv2.COLOR_BGR2RGB, "8UC3": cv2.COLOR_BGR2RGB, "rgba8": cv2.COLOR_RGBA2RGB,
-    "bgra8": cv2.COLOR_BGRA2RGB, "mono8": cv2.COLOR_GRAY2RGB, "8UC1": cv2.COLOR_GRAY2RGB,
-    "yuv422": cv2.COLOR_YUV2RGB_UYVY, "uyvy": cv2.COLOR_YUV2RGB_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2RGB_YUY2,
+    "rgb8": None,
+    "bgr8": cv2.COLOR_BGR2RGB,
+    "8UC3": cv2.COLOR_BGR2RGB,
+    "rgba8": cv2.COLOR_RGBA2RGB,
+    "bgra8": cv2.COLOR_BGRA2RGB,
+    "mono8": cv2.COLOR_GRAY2RGB,
+    "8UC1": cv2.COLOR_GRAY2RGB,
+    "yuv422": cv2.COLOR_YUV2RGB_UYVY,
+    "uyvy": cv2.COLOR_YUV2RGB_UYVY,
+    "yuv422_yuy2": cv2.COLOR_YUV2RGB_YUY2,
     "yuyv": cv2.COLOR_YUV2RGB_YUY2,
 }
-_CHANNELS = {"rgb8": 3, "bgr8": 3, "8UC3": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "8UC1": 1,
-             "yuv422": 2, "uyvy": 2, "yuv422_yuy2": 2, "yuyv": 2}
+_CHANNELS = {
+    "rgb8": 3,
+    "bgr8": 3,
+    "8UC3": 3,
+    "rgba8": 4,
+    "bgra8": 4,
+    "mono8": 1,
+    "8UC1": 1,
+    "yuv422": 2,
+    "uyvy": 2,
+    "yuv422_yuy2": 2,
+    "yuyv": 2,
+}
 _DEPTH_SCALE = {"16UC1": 1.0, "mono16": 1.0, "32FC1": 1000.0}
 _PNG_MAGIC = b"\x89PNG"
 
@@ -103,8 +121,9 @@ class _McapBag:
             encodings.add(channel.message_encoding)
         if "cdr" not in encodings:
             self._fh.close()
-            hint = (" (it is already a fusion-pf recording: replay it directly)" if "/camera/color" in self.topics
-                    else "")
+            hint = (
+                " (it is already a fusion-pf recording: replay it directly)" if "/camera/color" in self.topics else ""
+            )
             raise InputError(
                 f"{path} is not a ROS 2 bag: its messages are {sorted(encodings) or 'none'}, not CDR{hint}"
             )
@@ -185,8 +204,11 @@ def _image_array(msg: Any, dtype: np.dtype, channels: int, where: str) -> np.nda
         raise RecordingError(f"{where}: {msg.encoding} image {w}x{h} (step {step}) holds {data.size} bytes")
     rows = data[: step * h].reshape(h, step)[:, : w * item]
     dt = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
-    out = np.ascontiguousarray(rows).view(dt).reshape(h, w, channels) if channels > 1 else \
-        np.ascontiguousarray(rows).view(dt).reshape(h, w)
+    out = (
+        np.ascontiguousarray(rows).view(dt).reshape(h, w, channels)
+        if channels > 1
+        else np.ascontiguousarray(rows).view(dt).reshape(h, w)
+    )
     return out.astype(np.dtype(dtype).newbyteorder("="), copy=False)
 
 
@@ -213,7 +235,7 @@ def decode_depth(msg: Any, compressed: bool, where: str) -> np.ndarray:
         data = bytes(msg.data)
         fmt = msg.format
         start = data.find(_PNG_MAGIC) if "compresseddepth" in fmt.lower() else 0
-        image = cv2.imdecode(np.frombuffer(data[max(start, 0):], np.uint8), cv2.IMREAD_UNCHANGED)
+        image = cv2.imdecode(np.frombuffer(data[max(start, 0) :], np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None or image.ndim != 2 or image.dtype != np.uint16:
             raise RecordingError(f"{where}: CompressedImage format {fmt!r} is not a 16-bit single-channel PNG")
         if "32FC1" in fmt:
@@ -265,9 +287,11 @@ def _common_prefix(a: str, b: str) -> int:
     return n
 
 
-def _transform(tree: dict[str, tuple[str, np.ndarray, np.ndarray]], target: str,
-               source: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _transform(
+    tree: dict[str, tuple[str, np.ndarray, np.ndarray]], target: str, source: str
+) -> tuple[np.ndarray, np.ndarray] | None:
     """``(R, t)`` with ``p_target = R @ p_source + t`` from a tf tree ``{child: (parent, R, t)}``, or None."""
+
     def to_root(frame: str) -> tuple[str, np.ndarray, np.ndarray]:
         rotation, translation = np.eye(3), np.zeros(3)
         seen = {frame}
@@ -302,8 +326,15 @@ class RosBagSource(ImportSource):
 
     kind = "ros"
 
-    def __init__(self, path: str | Path, *, color_topic: str | None = None, depth_topic: str | None = None,
-                 info_topic: str | None = None, intrinsics: IntrinsicsOption | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        color_topic: str | None = None,
+        depth_topic: str | None = None,
+        info_topic: str | None = None,
+        intrinsics: IntrinsicsOption | None = None,
+    ) -> None:
         super().__init__(path)
         self.requested = {"colour": color_topic, "depth": depth_topic, "camera info": info_topic}
         self.intrinsics_option = intrinsics or IntrinsicsOption()
@@ -338,24 +369,39 @@ class RosBagSource(ImportSource):
         if req["colour"] is not None:
             self.color_topic = self._check_topic("colour", req["colour"], _IMAGE_TYPES)
         else:
-            colors = [t for t in images if not any(w in t.lower() for w in _NOT_COLOR)
-                      and not t.lower().endswith("compresseddepth")]
+            colors = [
+                t
+                for t in images
+                if not any(w in t.lower() for w in _NOT_COLOR) and not t.lower().endswith("compresseddepth")
+            ]
             if not colors:
-                raise InputError(f"{self.path} has no colour image topic (sensor_msgs Image or CompressedImage); "
-                                 f"found {self._found()}")
+                raise InputError(
+                    f"{self.path} has no colour image topic (sensor_msgs Image or CompressedImage); "
+                    f"found {self._found()}"
+                )
+
             def colour_score(t: str) -> tuple:
                 low = t.lower()
-                return (any(w in low for w in ("color", "colour", "rgb")), bag.topics[t] == IMAGE,
-                        "image_raw" in low, -len(t), t)
+                return (
+                    any(w in low for w in ("color", "colour", "rgb")),
+                    bag.topics[t] == IMAGE,
+                    "image_raw" in low,
+                    -len(t),
+                    t,
+                )
+
             self.color_topic = max(colors, key=colour_score)
         if req["depth"] is not None:
-            self.depth_topic = (None if req["depth"] == "none"
-                                else self._check_topic("depth", req["depth"], _IMAGE_TYPES))
+            self.depth_topic = (
+                None if req["depth"] == "none" else self._check_topic("depth", req["depth"], _IMAGE_TYPES)
+            )
         else:
             depths = [t for t in images if t != self.color_topic and ("depth" in t.lower() or "stereo" in t.lower())]
+
             def depth_score(t: str) -> tuple:
                 low = t.lower()
                 return ("aligned" in low and "color" in low, "aligned" in low, bag.topics[t] == IMAGE, -len(t), t)
+
             self.depth_topic = max(depths, key=depth_score) if depths else None
         infos = [t for t, ty in bag.topics.items() if ty == CAMERA_INFO]
         if req["camera info"] is not None:
@@ -375,12 +421,14 @@ class RosBagSource(ImportSource):
             raise RecordingError(f"{self.path}: a message of {topic} cannot be decoded ({exc})") from None
 
     def _color(self, data: bytes) -> np.ndarray:
-        return decode_color(self._decoded(self.color_topic, data), self._bag.topics[self.color_topic] == COMPRESSED,
-                            self.color_topic)
+        return decode_color(
+            self._decoded(self.color_topic, data), self._bag.topics[self.color_topic] == COMPRESSED, self.color_topic
+        )
 
     def _depth(self, data: bytes) -> np.ndarray:
-        depth = decode_depth(self._decoded(self.depth_topic, data), self._bag.topics[self.depth_topic] == COMPRESSED,
-                             self.depth_topic)
+        depth = decode_depth(
+            self._decoded(self.depth_topic, data), self._bag.topics[self.depth_topic] == COMPRESSED, self.depth_topic
+        )
         return depth if self._registration is None else self._registration(depth)
 
     def _scan(self) -> tuple[bytes, bytes | None, bytes | None]:
@@ -420,8 +468,10 @@ class RosBagSource(ImportSource):
                 raise InputError(f"camera info {self.info_topic} is for {k.width}x{k.height}, colour is {w}x{h}")
             k = k.scaled(w, h)
         self._intrinsics = k
-        return (f"intrinsics from {self.info_topic} (fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
-                f"{k.distortion_model})")
+        return (
+            f"intrinsics from {self.info_topic} (fx={k.fx:.1f}, fy={k.fy:.1f}, cx={k.cx:.1f}, cy={k.cy:.1f}, "
+            f"{k.distortion_model})"
+        )
 
     def _depth_geometry(self, color_frame: str, depth_frame: str) -> tuple[DepthToColor | None, str]:
         """Depth-to-colour geometry from the depth camera info and /tf_static, or None and why not."""
@@ -442,8 +492,11 @@ class RosBagSource(ImportSource):
             for tf in self._decoded(topic, bytes(data)).transforms:
                 q, v = tf.transform.rotation, tf.transform.translation
                 rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-                tree[tf.child_frame_id.lstrip("/")] = (tf.header.frame_id.lstrip("/"), rotation,
-                                                       1000.0 * np.array([v.x, v.y, v.z]))
+                tree[tf.child_frame_id.lstrip("/")] = (
+                    tf.header.frame_id.lstrip("/"),
+                    rotation,
+                    1000.0 * np.array([v.x, v.y, v.z]),
+                )
         if first_info is None:
             return None, f"{info} holds no messages"
         moved = _transform(tree, color_frame.lstrip("/"), depth_frame.lstrip("/"))
@@ -466,8 +519,10 @@ class RosBagSource(ImportSource):
         ]
         if "aligned" in self.depth_topic.lower():
             if depth.shape != (h, w):
-                raise InputError(f"aligned depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but "
-                                 f"colour topic {self.color_topic} is {w}x{h}")
+                raise InputError(
+                    f"aligned depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but "
+                    f"colour topic {self.color_topic} is {w}x{h}"
+                )
             return lines
         color_frame = self._decoded(self.color_topic, first_color).header.frame_id
         depth_frame = self._decoded(self.depth_topic, first_depth).header.frame_id
@@ -480,8 +535,10 @@ class RosBagSource(ImportSource):
                 f"(translation {t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f} mm)"
             )
         elif depth.shape == (h, w):
-            lines.append(f"warning: depth topic {self.depth_topic} is not aligned and cannot be registered ({why}): "
-                         "its pixels are taken as registered to colour")
+            lines.append(
+                f"warning: depth topic {self.depth_topic} is not aligned and cannot be registered ({why}): "
+                "its pixels are taken as registered to colour"
+            )
         else:
             raise InputError(
                 f"depth topic {self.depth_topic} is {depth.shape[1]}x{depth.shape[0]} but colour topic "
@@ -504,8 +561,11 @@ class RosBagSource(ImportSource):
             else:
                 lines.append("depth: none (colour only)")
             lines.append(intrinsics_line)
-            others = sorted(t for t, ty in bag.topics.items()
-                            if ty in _IMAGE_TYPES and t not in (self.color_topic, self.depth_topic))
+            others = sorted(
+                t
+                for t, ty in bag.topics.items()
+                if ty in _IMAGE_TYPES and t not in (self.color_topic, self.depth_topic)
+            )
             if others:
                 lines.append(f"other image topics not imported: {', '.join(others)}")
             self.report.extend(lines)

@@ -45,8 +45,9 @@ class VideoSource(ImportSource):
 
     kind = "video"
 
-    def __init__(self, path: str | Path, *, fps: float | None = None,
-                 intrinsics: IntrinsicsOption | None = None) -> None:
+    def __init__(
+        self, path: str | Path, *, fps: float | None = None, intrinsics: IntrinsicsOption | None = None
+    ) -> None:
         super().__init__(path)
         if fps is not None and not fps > 0:
             raise InputError(f"fps must be > 0, got {fps}")

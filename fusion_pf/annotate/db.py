@@ -257,8 +257,17 @@ class AnnotationDB:
         recording (another content hash, frame count or image size).
     """
 
-    def __init__(self, path: str | Path, *, recording: str, n_frames: int, width: int, height: int,
-                 sha256: str | None = None, timestamps: "list[int] | None" = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        recording: str,
+        n_frames: int,
+        width: int,
+        height: int,
+        sha256: str | None = None,
+        timestamps: "list[int] | None" = None,
+    ) -> None:
         self.path = Path(path)
         self.n_frames = int(n_frames)
         self.width = int(width)
@@ -298,9 +307,7 @@ class AnnotationDB:
                 if stored is None and have:
                     self._check_clicks_fit(conn, timestamps, recording)
                 wanted["recording_sha256"] = sha256
-            conn.executemany(
-                "INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", sorted(wanted.items())
-            )
+            conn.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", sorted(wanted.items()))
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -311,7 +318,9 @@ class AnnotationDB:
         """Refuse to adopt a hash when a stored click's frame has another timestamp in this recording."""
         rows = conn.execute("SELECT DISTINCT frame, timestamp_ns FROM clicks").fetchall()
         if rows and timestamps is None:
-            raise RecordingError(f"{self.path} has no recording hash; cannot tell whether its clicks are of {recording!r}")
+            raise RecordingError(
+                f"{self.path} has no recording hash; cannot tell whether its clicks are of {recording!r}"
+            )
         for frame, t in rows:
             if not (0 <= frame < len(timestamps or ()) and int(timestamps[frame]) == t):  # type: ignore[index]
                 raise RecordingError(
@@ -386,15 +395,11 @@ class AnnotationDB:
                     f"-0.5 <= {name} <= {size - 0.5}"
                 ) from None
             if not math.isfinite(value) or not -0.5 <= value <= size - 0.5:
-                raise InputError(
-                    f"{name} = {value} is outside the image: expected -0.5 <= {name} <= {size - 0.5}"
-                )
+                raise InputError(f"{name} = {value} is outside the image: expected -0.5 <= {name} <= {size - 0.5}")
             out.append(value)
         return frame, out[0], out[1]
 
-    def set_click(
-        self, operator: str, frame: int, timestamp_ns: int, u: float | None, v: float | None
-    ) -> Click:
+    def set_click(self, operator: str, frame: int, timestamp_ns: int, u: float | None, v: float | None) -> Click:
         """Store (or replace) ``operator``'s click on ``frame`` and commit it.
 
         Parameters
@@ -436,9 +441,11 @@ class AnnotationDB:
 
     def operator_clicks(self, operator: str) -> list[Click]:
         """Every click of ``operator``, by frame."""
-        rows = self._conn().execute(
-            f"SELECT {_COLUMNS} FROM clicks WHERE operator = ? ORDER BY frame", (operator,)
-        ).fetchall()
+        rows = (
+            self._conn()
+            .execute(f"SELECT {_COLUMNS} FROM clicks WHERE operator = ? ORDER BY frame", (operator,))
+            .fetchall()
+        )
         return [Click.from_row(r) for r in rows]
 
     def count_clicks(self, operator: str) -> int:
@@ -447,9 +454,11 @@ class AnnotationDB:
 
     def frame_clicks(self, frame: int) -> list[Click]:
         """Every operator's click on ``frame``, by operator name."""
-        rows = self._conn().execute(
-            f"SELECT {_COLUMNS} FROM clicks WHERE frame = ? ORDER BY operator", (frame,)
-        ).fetchall()
+        rows = (
+            self._conn()
+            .execute(f"SELECT {_COLUMNS} FROM clicks WHERE frame = ? ORDER BY operator", (frame,))
+            .fetchall()
+        )
         return [Click.from_row(r) for r in rows]
 
 
@@ -492,7 +501,11 @@ def read_meta(db_path: str | Path) -> dict[str, str]:
 
 
 def check_reference_matches(
-    db_path: str | Path, frames: "list[int]", timestamps_ns: "list[int]", *, source_sha256: str | None = None,
+    db_path: str | Path,
+    frames: "list[int]",
+    timestamps_ns: "list[int]",
+    *,
+    source_sha256: str | None = None,
     what: str = "the tracked file",
 ) -> None:
     """Raise unless ``what`` (a tracker output) belongs to the recording the database annotates.
@@ -541,7 +554,9 @@ def check_reference_matches(
             )
         compared += 1
     if compared == 0 and tracked and clicks:
-        raise RecordingError(f"{what} has none of the frames annotated in {db_path}; they cannot be of the same recording")
+        raise RecordingError(
+            f"{what} has none of the frames annotated in {db_path}; they cannot be of the same recording"
+        )
 
 
 def read_clicks(db_path: str | Path) -> list[Click]:
@@ -657,9 +672,7 @@ def operator_table(db_path: str | Path) -> list[dict]:
         seen = [c for c in clicks if c.visible]
         n_hidden = len(clicks) - len(seen)
         for c in clicks:
-            s = stats.setdefault(
-                c.operator, {"n_frames": 0, "n_not_visible": 0, "dists": [], "disagree": 0}
-            )
+            s = stats.setdefault(c.operator, {"n_frames": 0, "n_not_visible": 0, "dists": [], "disagree": 0})
             s["n_frames"] += 1
             if not c.visible:
                 s["n_not_visible"] += 1
@@ -675,15 +688,17 @@ def operator_table(db_path: str | Path) -> list[dict]:
     table = []
     for operator, s in sorted(stats.items()):
         d = s["dists"]
-        table.append({
-            "operator": operator,
-            "n_frames": s["n_frames"],
-            "n_not_visible": s["n_not_visible"],
-            "n_compared": len(d),
-            "mean_dist_to_others_px": math.fsum(d) / len(d) if d else None,
-            "max_dist_to_others_px": max(d) if d else None,
-            "n_visibility_disagreements": s["disagree"],
-        })
+        table.append(
+            {
+                "operator": operator,
+                "n_frames": s["n_frames"],
+                "n_not_visible": s["n_not_visible"],
+                "n_compared": len(d),
+                "mean_dist_to_others_px": math.fsum(d) / len(d) if d else None,
+                "max_dist_to_others_px": max(d) if d else None,
+                "n_visibility_disagreements": s["disagree"],
+            }
+        )
     return table
 
 
@@ -691,8 +706,13 @@ def operator_table(db_path: str | Path) -> list[dict]:
 REFERENCE_COLUMNS = ("frame", "timestamp_ns", "n_operators", "n_not_visible", "mean_u", "mean_v", "spread_px")
 #: Column order of :func:`write_operators_csv`.
 OPERATOR_COLUMNS = (
-    "operator", "n_frames", "n_not_visible", "n_compared",
-    "mean_dist_to_others_px", "max_dist_to_others_px", "n_visibility_disagreements",
+    "operator",
+    "n_frames",
+    "n_not_visible",
+    "n_compared",
+    "mean_dist_to_others_px",
+    "max_dist_to_others_px",
+    "n_visibility_disagreements",
 )
 
 

@@ -93,8 +93,13 @@ class ApiError(Exception):
 def _frame_view(db: AnnotationDB, frame: int, operator: str) -> dict:
     clicks = db.frame_clicks(frame)
     own = next((c for c in clicks if c.operator == operator), None)
-    view: dict[str, object] = {"frame": frame, "own": own.to_json() if own else None, "hidden": own is None,
-                               "others": None, "reference": None}
+    view: dict[str, object] = {
+        "frame": frame,
+        "own": own.to_json() if own else None,
+        "hidden": own is None,
+        "others": None,
+        "reference": None,
+    }
     if own is not None:
         view["others"] = [c.to_json() for c in clicks if c.operator != operator]
         view["reference"] = summarize_frame(clicks)
@@ -197,8 +202,9 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     def _same_site() -> None:
         names, port = app.config.get(HOSTS_KEY, (frozenset(), None))
         if not host_allowed(request.host, names, port):
-            raise ApiError(421, f"Host {request.host[:80]!r} is not this server; open it as "
-                                f"http://localhost:{port or '<port>'}/")
+            raise ApiError(
+                421, f"Host {request.host[:80]!r} is not this server; open it as http://localhost:{port or '<port>'}/"
+            )
         if request.method not in ("GET", "HEAD", "OPTIONS"):
             origin = request.headers.get("Origin")
             if origin is not None:
@@ -241,8 +247,7 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
         resp.headers.setdefault("Referrer-Policy", "no-referrer")
         if resp.mimetype == "text/html":
             resp.headers["Content-Security-Policy"] = (
-                "default-src 'self'; img-src 'self' blob:; object-src 'none'; base-uri 'none'; "
-                "frame-ancestors 'none'"
+                "default-src 'self'; img-src 'self' blob:; object-src 'none'; base-uri 'none'; frame-ancestors 'none'"
             )
         if request.path.startswith("/api/") and not request.path.endswith(("/color", "/depth")):
             resp.headers["Cache-Control"] = "no-store"
@@ -259,16 +264,21 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     @app.get("/api/info")
     def info() -> Response:
         return jsonify(
-            recording=recording, n_frames=images.n_frames, width=first.width, height=first.height,
+            recording=recording,
+            n_frames=images.n_frames,
+            width=first.width,
+            height=first.height,
             start_ns=first.timestamp_ns,
-            color_format=images.color_format, max_operator_len=MAX_OPERATOR_LEN,
+            color_format=images.color_format,
+            max_operator_len=MAX_OPERATOR_LEN,
         )
 
     @app.get("/api/frames/<int:index>/meta")
     def frame_meta(index: int) -> Response:
         m = images.meta(_frame_index(index))
-        return jsonify(frame=m.index, timestamp_ns=m.timestamp_ns, width=m.width, height=m.height,
-                       has_depth=m.has_depth)
+        return jsonify(
+            frame=m.index, timestamp_ns=m.timestamp_ns, width=m.width, height=m.height, has_depth=m.has_depth
+        )
 
     @app.get("/api/frames/<int:index>/color")
     def frame_color(index: int) -> Response:
@@ -294,8 +304,9 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     def operator_clicks(name: str) -> Response:
         operator = validate_operator(name)
         clicks = db.operator_clicks(operator)
-        return jsonify(operator=operator, n_frames=images.n_frames, done=len(clicks),
-                       clicks=[c.to_json() for c in clicks])
+        return jsonify(
+            operator=operator, n_frames=images.n_frames, done=len(clicks), clicks=[c.to_json() for c in clicks]
+        )
 
     @app.post("/api/clicks")
     def post_click() -> Response:
@@ -324,8 +335,14 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     return app
 
 
-def serve(app: Flask, host: str = "127.0.0.1", port: int = 8765, *, threads: int = 8,
-          on_ready: Callable[[str], None] | None = None) -> None:
+def serve(
+    app: Flask,
+    host: str = "127.0.0.1",
+    port: int = 8765,
+    *,
+    threads: int = 8,
+    on_ready: Callable[[str], None] | None = None,
+) -> None:
     """Serve ``app`` with waitress until interrupted.
 
     Parameters
@@ -343,10 +360,17 @@ def serve(app: Flask, host: str = "127.0.0.1", port: int = 8765, *, threads: int
     """
     from waitress import create_server
 
-    server = create_server(app, host=host, port=port, threads=threads,
-                           max_request_body_size=1 << 20, ident="fusion-pf",
-                           connection_limit=CONNECTION_LIMIT, channel_timeout=CHANNEL_TIMEOUT_S,
-                           cleanup_interval=min(5, CHANNEL_TIMEOUT_S))
+    server = create_server(
+        app,
+        host=host,
+        port=port,
+        threads=threads,
+        max_request_body_size=1 << 20,
+        ident="fusion-pf",
+        connection_limit=CONNECTION_LIMIT,
+        channel_timeout=CHANNEL_TIMEOUT_S,
+        cleanup_interval=min(5, CHANNEL_TIMEOUT_S),
+    )
     bound_host = server.effective_host
     names = {host.lower().strip("[]")}
     try:

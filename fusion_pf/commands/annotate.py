@@ -26,12 +26,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf annotate``."""
     p.add_argument("recording", type=Path, metavar="REC.mcap", help="recording to annotate")
     p.add_argument("--db", type=Path, required=True, help="SQLite file of the clicks (created if missing)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface to bind; anything but a loopback address exposes the tool to the network")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="interface to bind; anything but a loopback address exposes the tool to the network",
+    )
     p.add_argument("--port", type=int, default=8765, help="TCP port (0 = pick a free one)")
     p.add_argument("--threads", type=int, default=8, help="worker threads serving requests")
-    p.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg",
-                   help="encoding of the colour frames sent to the browser")
+    p.add_argument(
+        "--image-format",
+        choices=("jpeg", "png"),
+        default="jpeg",
+        help="encoding of the colour frames sent to the browser",
+    )
     p.add_argument("--cache", type=int, default=256, help="encoded images kept in memory (LRU)")
 
 
@@ -61,20 +68,32 @@ def run(args: argparse.Namespace) -> int:
     except ValueError:
         loopback = args.host == "localhost"
     if not loopback:
-        print(f"fusion-pf annotate: warning: binding {args.host}, the annotator is reachable from "
-              "the network without any authentication", file=sys.stderr)
+        print(
+            f"fusion-pf annotate: warning: binding {args.host}, the annotator is reachable from "
+            "the network without any authentication",
+            file=sys.stderr,
+        )
     with McapReplay(args.recording) as replay:
         images = FrameImages(ReplayProvider(replay), color_format=args.image_format, cache_size=args.cache)
         first = images.meta(0)
-        db = AnnotationDB(args.db, recording=args.recording.name, n_frames=images.n_frames,
-                          width=first.width, height=first.height, sha256=recording_sha256(args.recording),
-                          timestamps=replay.timestamps.tolist())
+        db = AnnotationDB(
+            args.db,
+            recording=args.recording.name,
+            n_frames=images.n_frames,
+            width=first.width,
+            height=first.height,
+            sha256=recording_sha256(args.recording),
+            timestamps=replay.timestamps.tolist(),
+        )
         try:
             app = create_app(images, db, recording=args.recording.name)
 
             def ready(url: str) -> None:
-                print(f"fusion-pf annotate: {images.n_frames} frames of {args.recording.name}, "
-                      f"clicks in {args.db}; open {url}", flush=True)
+                print(
+                    f"fusion-pf annotate: {images.n_frames} frames of {args.recording.name}, "
+                    f"clicks in {args.db}; open {url}",
+                    flush=True,
+                )
 
             with stop_on_terminate():
                 serve(app, args.host, args.port, threads=args.threads, on_ready=ready)

@@ -26,13 +26,20 @@ DESCRIPTION = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the ``export`` action and its options."""
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    e = sub.add_parser("export", help="write the per-frame reference and per-operator CSVs",
-                       description=DESCRIPTION,
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e = sub.add_parser(
+        "export",
+        help="write the per-frame reference and per-operator CSVs",
+        description=DESCRIPTION,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     e.add_argument("db", type=Path, metavar="DB", help="SQLite file written by fusion-pf annotate")
     e.add_argument("--csv", type=Path, required=True, metavar="OUT", help="per-frame reference CSV")
-    e.add_argument("--operators-csv", type=Path, metavar="OPS",
-                   help="per-operator CSV; when omitted, OUT with '_operators' before the suffix")
+    e.add_argument(
+        "--operators-csv",
+        type=Path,
+        metavar="OPS",
+        help="per-operator CSV; when omitted, OUT with '_operators' before the suffix",
+    )
     e.add_argument("--force", action="store_true", help="overwrite existing CSV files")
 
 

@@ -42,15 +42,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from fusion_pf.pipeline import TrackConfig
 
     p.add_argument("file", type=Path, metavar="REC.mcap", help="recording to read")
-    p.add_argument("--frame", type=int, default=None, metavar="K",
-                   help="frame index (default: the first frame after the empty-scene frames)")
-    p.add_argument("--stages", type=Path, default=None, metavar="DIR",
-                   help="write one PNG contact sheet per cue here (created if missing)")
-    p.add_argument("--prior", choices=("joint", "truth", "full"), default="joint",
-                   help="window centre: the skeleton joint, the ground truth (synthetic), or no window")
+    p.add_argument(
+        "--frame",
+        type=int,
+        default=None,
+        metavar="K",
+        help="frame index (default: the first frame after the empty-scene frames)",
+    )
+    p.add_argument(
+        "--stages",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write one PNG contact sheet per cue here (created if missing)",
+    )
+    p.add_argument(
+        "--prior",
+        choices=("joint", "truth", "full"),
+        default="joint",
+        help="window centre: the skeleton joint, the ground truth (synthetic), or no window",
+    )
     p.add_argument("--at", type=_pair, default=None, metavar="U,V", help="window centre in pixels (overrides --prior)")
-    p.add_argument("--cues", default=None, metavar="CUE,...",
-                   help="cues to run (default: every registered cue the frame can feed; skin_lab with --skin-model)")
+    p.add_argument(
+        "--cues",
+        default=None,
+        metavar="CUE,...",
+        help="cues to run (default: every registered cue the frame can feed; skin_lab with --skin-model)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document")
     skip = [f.name for f in dataclasses.fields(TrackConfig) if f.name not in WINDOW_OPTIONS]
     add_options(p, TrackConfig, exclude=skip, title="window and background (as fusion-pf track)")
@@ -70,7 +88,9 @@ def _background(config, src, n: int):
         return BackgroundModel.from_frames(src.frames(0, k)), f"{k} empty-scene frames of the recording"
     if config.background_k > n:
         raise InputError(f"--background-k must be in [1, {n}] (frames of the recording), got {config.background_k}")
-    return BackgroundModel.from_frames(src.frames(0, config.background_k)), f"median of the first {config.background_k} frames"
+    return BackgroundModel.from_frames(
+        src.frames(0, config.background_k)
+    ), f"median of the first {config.background_k} frames"
 
 
 def _prior(args: argparse.Namespace, config, frame):
@@ -114,12 +134,17 @@ def run(args: argparse.Namespace) -> int:
         if not 0 <= k < n:
             raise InputError(f"--frame must be in [0, {n - 1}], got {k}")
         frame = src.frame(k)
-        parts = {"color", "background"} | ({"depth"} if frame.depth is not None else set()) \
+        parts = (
+            {"color", "background"}
+            | ({"depth"} if frame.depth is not None else set())
             | ({"skeleton"} if frame.joints is not None else set())
+        )
         if args.cues is not None:
             names = tuple(s.strip() for s in args.cues.split(",") if s.strip())
         else:
-            names = tuple(c for c, info in CUES.items() if info.needs <= parts and (c != "skin_lab" or options.skin_model))
+            names = tuple(
+                c for c, info in CUES.items() if info.needs <= parts and (c != "skin_lab" or options.skin_model)
+            )
         cues = build_cues(names, options)
         background, bg_note = _background(config, src, n)
         if background.color is None or background.color.shape != frame.color.shape:
@@ -135,8 +160,14 @@ def run(args: argparse.Namespace) -> int:
     rows = {}
     for name, res in results.items():
         m = res.measurement
-        row: dict[str, object] = {"u": None, "v": None, "quality": None, "area": None, "error_px": None,
-               "latency_ms": res.latency_ns / 1e6}
+        row: dict[str, object] = {
+            "u": None,
+            "v": None,
+            "quality": None,
+            "area": None,
+            "error_px": None,
+            "latency_ms": res.latency_ns / 1e6,
+        }
         if m is not None:
             row.update(u=m.u, v=m.v, quality=m.quality, area=m.extras.get("area"))
             if truth is not None:
@@ -148,24 +179,32 @@ def run(args: argparse.Namespace) -> int:
                 point = (m.u - roi.x0, m.v - roi.y0)
             elif m is not None:
                 point = (m.u, m.v)
-            title = (f"{args.file.name} frame {k} - {name}: " +
-                     (f"u={m.u:.1f} v={m.v:.1f} q={m.quality:.2f}" if m else "no measurement"))
+            title = f"{args.file.name} frame {k} - {name}: " + (
+                f"u={m.u:.1f} v={m.v:.1f} q={m.quality:.2f}" if m else "no measurement"
+            )
             sheet = contact_sheet(res.stages, title=title, point=point, equalize=("I_d1", "I_d2", "I_d3"))
             out = args.stages / f"frame{k:06d}_{name}.png"
             if not cv2.imwrite(str(out), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise InputError(f"cannot write {out}")
             row["sheet"] = str(out)
 
-    doc = {"file": str(args.file), "frame": k, "timestamp_ns": frame.timestamp_ns, "background": bg_note,
-           "roi": roi.as_list() if roi is not None else None,
-           "truth": None if truth is None else {"u": truth.u, "v": truth.v, "occluded": truth.occluded},
-           "cues": rows}
+    doc = {
+        "file": str(args.file),
+        "frame": k,
+        "timestamp_ns": frame.timestamp_ns,
+        "background": bg_note,
+        "roi": roi.as_list() if roi is not None else None,
+        "truth": None if truth is None else {"u": truth.u, "v": truth.v, "occluded": truth.occluded},
+        "cues": rows,
+    }
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
     print(f"frame {k} of {args.file} ({frame.size[0]}x{frame.size[1]}), background: {bg_note}")
-    print(f"roi {doc['roi'] if roi is not None else 'full frame'}"
-          + ("" if truth is None else f"; truth u={truth.u:.1f} v={truth.v:.1f}{' (occluded)' if truth.occluded else ''}"))
+    print(
+        f"roi {doc['roi'] if roi is not None else 'full frame'}"
+        + ("" if truth is None else f"; truth u={truth.u:.1f} v={truth.v:.1f}{' (occluded)' if truth.occluded else ''}")
+    )
     for name, row in rows.items():
         if row["u"] is None:
             text = "none"

@@ -28,18 +28,35 @@ SAMPLE = Path("recordings") / "sample.mcap"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf demo``."""
     p.add_argument("--out", type=Path, default=Path("out") / "demo", metavar="DIR", help="output directory")
-    p.add_argument("--recording", type=Path, default=None, metavar="REC.mcap",
-                   help=f"recording with ground truth; not given: {SAMPLE} of the repository")
-    p.add_argument("--sweep", default=",".join(map(str, PAPER_PARTICLE_COUNTS)), metavar="N1,N2,...",
-                   help="particle counts of the sweep (paper 003 §4.4)")
+    p.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        metavar="REC.mcap",
+        help=f"recording with ground truth; not given: {SAMPLE} of the repository",
+    )
+    p.add_argument(
+        "--sweep",
+        default=",".join(map(str, PAPER_PARTICLE_COUNTS)),
+        metavar="N1,N2,...",
+        help="particle counts of the sweep (paper 003 §4.4)",
+    )
     p.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
     p.add_argument("--particles", type=int, default=100, help="particle count of the tracked output")
     p.add_argument("--seed", type=int, default=0, help="seed of the tracked output and base seed of the sweep")
-    p.add_argument("--cue-noise", default=None, metavar="SRC=PX,...",
-                   help="Gaussian noise (px per axis) added to cue positions, as paper 003 §4.2-4.3 does, "
-                        "e.g. colour=4,depth=4; not given: none")
-    p.add_argument("--workers", type=int, default=None,
-                   help="worker processes of the sweep's local Dask cluster; not given: one per core; 1: in this process")
+    p.add_argument(
+        "--cue-noise",
+        default=None,
+        metavar="SRC=PX,...",
+        help="Gaussian noise (px per axis) added to cue positions, as paper 003 §4.2-4.3 does, "
+        "e.g. colour=4,depth=4; not given: none",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the sweep's local Dask cluster; not given: one per core; 1: in this process",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
 
 
@@ -110,15 +127,22 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"demo: tracking again for N = {', '.join(map(str, counts))} with {args.runs} runs each", file=log)
     person = [(i, f) for i, f in enumerate(frames) if not f.background]
-    uv, _ = align(np.array([i for i, _ in person], dtype=np.int64),
-                  np.array([f.timestamp_ns for _, f in person], dtype=np.int64), reference, name=str(recording))
-    sweep = run_sweep(frames, config, uv, counts, args.runs, seed=args.seed, workers=args.workers,
-                      progress=not args.no_progress)
+    uv, _ = align(
+        np.array([i for i, _ in person], dtype=np.int64),
+        np.array([f.timestamp_ns for _, f in person], dtype=np.int64),
+        reference,
+        name=str(recording),
+    )
+    sweep = run_sweep(
+        frames, config, uv, counts, args.runs, seed=args.seed, workers=args.workers, progress=not args.no_progress
+    )
     files = write_report(ev, args.out, sweep)
     figures = [str(p) for name, p in files.items() if name.endswith(".png")]
     print(markdown(ev, sweep, figures))
     total = time.perf_counter() - t_start
     print(f"Wrote {tracked} and {', '.join(str(p) for p in files.values())}")
-    print(f"Demo took {total:.1f} s (tracking {t_track:.1f} s, sweep {sweep.wall_seconds:.1f} s on "
-          f"{sweep.workers} worker(s)); figures and tables are in {args.out}")
+    print(
+        f"Demo took {total:.1f} s (tracking {t_track:.1f} s, sweep {sweep.wall_seconds:.1f} s on "
+        f"{sweep.workers} worker(s)); figures and tables are in {args.out}"
+    )
     return 0

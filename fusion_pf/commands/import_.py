@@ -28,33 +28,65 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
     ros = p.add_argument_group("ROS bags")
     ros.add_argument("--color-topic", metavar="TOPIC", help="colour image topic; if absent, chosen by type and name")
-    ros.add_argument("--depth-topic", metavar="TOPIC",
-                     help="depth image topic, 16UC1 mm or 32FC1 m, or 'none'; if absent, chosen by type and name "
-                          "(aligned_depth_to_color first)")
-    ros.add_argument("--info-topic", metavar="TOPIC",
-                     help="CameraInfo topic of the colour camera; if absent, the one next to the colour topic")
+    ros.add_argument(
+        "--depth-topic",
+        metavar="TOPIC",
+        help="depth image topic, 16UC1 mm or 32FC1 m, or 'none'; if absent, chosen by type and name "
+        "(aligned_depth_to_color first)",
+    )
+    ros.add_argument(
+        "--info-topic",
+        metavar="TOPIC",
+        help="CameraInfo topic of the colour camera; if absent, the one next to the colour topic",
+    )
     folder = p.add_argument_group("image folders and videos")
-    folder.add_argument("--depth-unit", metavar="UNIT",
-                        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}; "
-                             "if absent, 1mm")
-    folder.add_argument("--fps", type=_positive(float), metavar="F",
-                        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the "
-                             "file's own)")
-    folder.add_argument("--intrinsics", type=Path, metavar="FILE",
-                        help="colour intrinsics, JSON or YAML: width, height, fx, fy, cx, cy; a ROS camera_info "
-                             "YAML; or an Open3D intrinsic JSON")
+    folder.add_argument(
+        "--depth-unit",
+        metavar="UNIT",
+        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}; if absent, 1mm",
+    )
+    folder.add_argument(
+        "--fps",
+        type=_positive(float),
+        metavar="F",
+        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the file's own)",
+    )
+    folder.add_argument(
+        "--intrinsics",
+        type=Path,
+        metavar="FILE",
+        help="colour intrinsics, JSON or YAML: width, height, fx, fy, cx, cy; a ROS camera_info "
+        "YAML; or an Open3D intrinsic JSON",
+    )
     for name in ("fx", "fy", "cx", "cy"):
-        folder.add_argument(f"--{name}", type=float, metavar="PX",
-                            help=f"colour intrinsics {name} in pixels"
-                                 + (" (fy defaults to fx, cx/cy to the image centre)" if name == "fx" else ""))
-    folder.add_argument("--hfov", type=_positive(float), default=DEFAULT_HFOV_DEG, metavar="DEG",
-                        help="horizontal field of view assumed when no intrinsics are given")
+        folder.add_argument(
+            f"--{name}",
+            type=float,
+            metavar="PX",
+            help=f"colour intrinsics {name} in pixels"
+            + (" (fy defaults to fx, cx/cy to the image centre)" if name == "fx" else ""),
+        )
+    folder.add_argument(
+        "--hfov",
+        type=_positive(float),
+        default=DEFAULT_HFOV_DEG,
+        metavar="DEG",
+        help="horizontal field of view assumed when no intrinsics are given",
+    )
     out = p.add_argument_group("output")
     out.add_argument("--frames", type=_positive(int), metavar="N", help="import at most N frames")
-    out.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
-                     help="colour as RawImage rgb8, or CompressedImage jpeg/png")
-    out.add_argument("--depth-format", choices=("raw", "png"), default="raw",
-                     help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage")
+    out.add_argument(
+        "--color-format",
+        choices=("raw", "jpeg", "png"),
+        default="raw",
+        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
+    )
+    out.add_argument(
+        "--depth-format",
+        choices=("raw", "png"),
+        default="raw",
+        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
+    )
     out.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
     out.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
     out.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
@@ -75,12 +107,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give the intrinsics either as --intrinsics FILE or as --fx/--fy/--cx/--cy, not both")
     intrinsics = IntrinsicsOption(args.intrinsics, args.fx, args.fy, args.cx, args.cy, args.hfov)
     source = open_import(
-        args.source, color_topic=args.color_topic, depth_topic=args.depth_topic, info_topic=args.info_topic,
-        depth_unit=args.depth_unit, fps=args.fps, intrinsics=intrinsics,
+        args.source,
+        color_topic=args.color_topic,
+        depth_topic=args.depth_topic,
+        info_topic=args.info_topic,
+        depth_unit=args.depth_unit,
+        fps=args.fps,
+        intrinsics=intrinsics,
     )
     summary = write_recording(
-        source, args.output, max_frames=args.frames, progress=False if args.no_progress else None,
-        color_format=args.color_format, depth_format=args.depth_format, jpeg_quality=args.jpeg_quality,
+        source,
+        args.output,
+        max_frames=args.frames,
+        progress=False if args.no_progress else None,
+        color_format=args.color_format,
+        depth_format=args.depth_format,
+        jpeg_quality=args.jpeg_quality,
         compression=args.compression,
     )
     for line in summary.report:

@@ -38,8 +38,7 @@ def _text(info: dict, verified: dict | None) -> str:
         f"file          {p(info['path'])} ({info['size_bytes']} bytes, {state}, "
         f"{'indexed' if info['indexed'] else 'scanned'})",
         f"writer        {p(info['library']) or 'unknown'}",
-        f"frames        {info['frames']} over {format_ns(info['duration_ns'])} ({fps}), "
-        f"start {info['start_ns']} ns",
+        f"frames        {info['frames']} over {format_ns(info['duration_ns'])} ({fps}), start {info['start_ns']} ns",
         f"resolution    {info['width']}x{info['height']}  colour {info['color_format']}  "
         f"depth {p(info['depth_format'] or 'none')}",
         f"intrinsics    fx={k['fx']:.3f} fy={k['fy']:.3f} cx={k['cx']:.3f} cy={k['cy']:.3f} "
@@ -80,10 +79,13 @@ def run(args: argparse.Namespace) -> int:
             decoded = sum(1 for _ in replay)
             stats = replay.stats
             verified = {
-                "frames": decoded, "dropped": stats.dropped,
-                "losses": [{"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail}
-                           for x in stats.losses],
-                "skipped_parts": dict(stats.skipped_parts), "summary": stats.loss_summary(),
+                "frames": decoded,
+                "dropped": stats.dropped,
+                "losses": [
+                    {"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail} for x in stats.losses
+                ],
+                "skipped_parts": dict(stats.skipped_parts),
+                "summary": stats.loss_summary(),
             }
             info = replay.info()
     out = info.to_dict()
@@ -97,8 +99,9 @@ def run(args: argparse.Namespace) -> int:
         print(_text(out, verified))
     for note in info.notes:
         print(f"fusion-pf: warning: {printable(note)}", file=sys.stderr)
-    if verified is not None and (verified["dropped"] or any(x["frames"] is None and not x["tail"]
-                                                             for x in verified["losses"])):
+    if verified is not None and (
+        verified["dropped"] or any(x["frames"] is None and not x["tail"] for x in verified["losses"])
+    ):
         raise RecordingError(
             f"{args.file} failed verification: {verified['dropped']} frames cannot be read "
             f"({verified['frames']} decoded); {verified['summary']}"

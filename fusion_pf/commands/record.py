@@ -45,24 +45,44 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf record``."""
     p.add_argument("source", metavar="SOURCE", help=f"what to record: {SOURCE_SPECS}")
     p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
-    p.add_argument("--duration", type=_positive(float), metavar="S",
-                   help="stop after S seconds of capture time")
+    p.add_argument("--duration", type=_positive(float), metavar="S", help="stop after S seconds of capture time")
     p.add_argument("--frames", type=_positive(int), metavar="N", help="stop after N frames")
-    p.add_argument("--size", metavar="WxH",
-                   help="colour/depth size in pixels for a camera or synthetic source "
-                        "(default: the source's own, 640x400)")
-    p.add_argument("--fps", type=_positive(float), metavar="F",
-                   help="frame rate for a camera or synthetic source (default: the source's own, 30)")
-    p.add_argument("--ir-laser", type=float, metavar="MA",
-                   help="OAK Pro IR dot-projector current in mA, 0-1200 (default: off)")
-    p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
-                   help="colour as RawImage rgb8, or CompressedImage jpeg/png")
-    p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
-                   help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage")
+    p.add_argument(
+        "--size",
+        metavar="WxH",
+        help="colour/depth size in pixels for a camera or synthetic source (default: the source's own, 640x400)",
+    )
+    p.add_argument(
+        "--fps",
+        type=_positive(float),
+        metavar="F",
+        help="frame rate for a camera or synthetic source (default: the source's own, 30)",
+    )
+    p.add_argument(
+        "--ir-laser", type=float, metavar="MA", help="OAK Pro IR dot-projector current in mA, 0-1200 (default: off)"
+    )
+    p.add_argument(
+        "--color-format",
+        choices=("raw", "jpeg", "png"),
+        default="raw",
+        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
+    )
+    p.add_argument(
+        "--depth-format",
+        choices=("raw", "png"),
+        default="raw",
+        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
+    )
     p.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
-    p.add_argument("--meta", type=_meta, action="append", default=[], metavar="KEY=VALUE",
-                   help="extra key/value for the fusion_pf.recording metadata record (repeatable)")
+    p.add_argument(
+        "--meta",
+        type=_meta,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="extra key/value for the fusion_pf.recording metadata record (repeatable)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
 
 
@@ -113,9 +133,7 @@ def _record(args: argparse.Namespace) -> int:
     if overrides and args.source.lower().endswith(".mcap"):
         from fusion_pf.errors import InputError
 
-        raise InputError(
-            f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}"
-        )
+        raise InputError(f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}")
     if args.ir_laser is not None:
         if not args.source.lower().startswith("oak"):
             from fusion_pf.errors import InputError
@@ -137,8 +155,12 @@ def _record(args: argparse.Namespace) -> int:
         if args.frames is not None:
             total = args.frames if total is None else min(total, args.frames)
         recorder = McapRecorder(
-            args.output, compression=args.compression, color_format=args.color_format,
-            depth_format=args.depth_format, jpeg_quality=args.jpeg_quality, metadata=metadata,
+            args.output,
+            compression=args.compression,
+            color_format=args.color_format,
+            depth_format=args.depth_format,
+            jpeg_quality=args.jpeg_quality,
+            metadata=metadata,
         )
         frames = iter(src)
         try:
@@ -171,8 +193,11 @@ def _record(args: argparse.Namespace) -> int:
                 per_frame = f", {size / n / 1024:.1f} KiB/frame" if n else ""
                 status = {None: "", 2: " (interrupted)"}.get(interrupted, f" (terminated by signal {interrupted})")
                 lost = recorder.frames_written - n
-                unwritten = f" ({lost} more could not be written: {recorder.error.strerror})" if (
-                    recorder.error is not None and lost > 0) else ""
+                unwritten = (
+                    f" ({lost} more could not be written: {recorder.error.strerror})"
+                    if (recorder.error is not None and lost > 0)
+                    else ""
+                )
                 print(
                     f"recorded {n} frames{status}{unwritten} to {args.output} in {time.monotonic() - started:.1f} s: "
                     f"{stats.dropped} dropped, {stats.missing_depth} without depth, "

@@ -28,8 +28,16 @@ class RenderOptions:
     every: int = option(10, kind="int", lo=1, hi=1_000_000, metavar="K", help="contact sheet: every K-th frame")
     columns: int = option(6, kind="int", lo=1, hi=100, metavar="N", help="contact sheet: tiles per row")
     tile_width: int = option(320, kind="int", lo=32, hi=4096, unit="px", help="contact sheet: tile width at most")
-    fps: float | None = option(None, kind="float", lo=0.001, hi=1000.0, optional=True, metavar="FPS",
-                               show=lambda v: "from the frame timestamps", help="video frame rate")
+    fps: float | None = option(
+        None,
+        kind="float",
+        lo=0.001,
+        hi=1000.0,
+        optional=True,
+        metavar="FPS",
+        show=lambda v: "from the frame timestamps",
+        help="video frame rate",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
@@ -41,8 +49,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="OUT.mp4", help="video of every frame (H.264 MP4)")
     p.add_argument("--sheet", type=Path, metavar="OUT.png", help="contact sheet of every K-th frame")
     add_options(p, RenderOptions)
-    p.add_argument("--input", type=Path, metavar="REC.mcap",
-                   help="the recording that was tracked (images), when TRACKED.mcap has none")
+    p.add_argument(
+        "--input",
+        type=Path,
+        metavar="REC.mcap",
+        help="the recording that was tracked (images), when TRACKED.mcap has none",
+    )
     p.add_argument("--force", action="store_true", help="overwrite OUT.mp4 / OUT.png if they exist")
 
 
@@ -67,8 +79,16 @@ def run(args: argparse.Namespace) -> int:
         check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input))
     if args.output is not None and args.sheet is not None and args.output.resolve() == args.sheet.resolve():
         raise InputError(f"-o and --sheet are the same file {args.output}")
-    done = render(args.tracked, video=args.output, sheet=args.sheet, every=every, columns=opts.columns,
-                  tile_width=opts.tile_width, fps=opts.fps, input_path=args.input)
+    done = render(
+        args.tracked,
+        video=args.output,
+        sheet=args.sheet,
+        every=every,
+        columns=opts.columns,
+        tile_width=opts.tile_width,
+        fps=opts.fps,
+        input_path=args.input,
+    )
     w, h = done.size
     parts = []
     if args.output is not None:

@@ -32,22 +32,42 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     ref.add_argument("--ground-truth", metavar="REC.mcap", help="recording with /ground_truth/palm (synthetic)")
     p.add_argument("--plots", metavar="DIR", help="write the PNG figures, score.md and score.json to DIR")
     p.add_argument("--json", action="store_true", help="print the report as JSON instead of Markdown")
-    p.add_argument("--tie-tol", type=float, default=1e-6, metavar="PX",
-                   help="BestMax: errors within this many pixels of the best tie (each tied source scores)")
+    p.add_argument(
+        "--tie-tol",
+        type=float,
+        default=1e-6,
+        metavar="PX",
+        help="BestMax: errors within this many pixels of the best tie (each tied source scores)",
+    )
     s = p.add_argument_group("particle-count sweep (paper 003 §4.4-4.5)")
-    s.add_argument("--sweep", metavar="N1,N2,...", nargs="?", const=",".join(map(str, PAPER_PARTICLE_COUNTS)),
-                   help="re-run the filter for these particle counts (alone: the paper's "
-                        f"{','.join(map(str, PAPER_PARTICLE_COUNTS))})")
+    s.add_argument(
+        "--sweep",
+        metavar="N1,N2,...",
+        nargs="?",
+        const=",".join(map(str, PAPER_PARTICLE_COUNTS)),
+        help="re-run the filter for these particle counts (alone: the paper's "
+        f"{','.join(map(str, PAPER_PARTICLE_COUNTS))})",
+    )
     s.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
     s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
-    s.add_argument("--workers", type=int, default=None,
-                   help="worker processes of the local Dask cluster; not given: one per core; 1: in this process")
-    s.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                   help="run the sweep on this existing Dask scheduler instead of a local cluster")
-    s.add_argument("--recording", metavar="SOURCE",
-                   help="recording to re-track for the sweep; not given: the input named in TRACKED.mcap's "
-                        "metadata (key 'source'), else the --ground-truth recording. The sweep uses the tracker "
-                        "settings stored in TRACKED.mcap (defaults for a CSV)")
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the local Dask cluster; not given: one per core; 1: in this process",
+    )
+    s.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the sweep on this existing Dask scheduler instead of a local cluster",
+    )
+    s.add_argument(
+        "--recording",
+        metavar="SOURCE",
+        help="recording to re-track for the sweep; not given: the input named in TRACKED.mcap's "
+        "metadata (key 'source'), else the --ground-truth recording. The sweep uses the tracker "
+        "settings stored in TRACKED.mcap (defaults for a CSV)",
+    )
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
@@ -71,8 +91,17 @@ def sweep_recording(recording: str, reference, config, counts, args):
     uv, _ = align(frame, ts, reference, name=f"{recording} (re-tracked for the sweep)")
     background = None if config.background is None else load_background(config.background)
     return run_sweep(
-        frames, config, uv, counts, args.runs, seed=args.seed, background=background, workers=args.workers,
-        scheduler=args.scheduler, progress=not args.no_progress, tie_tol=args.tie_tol,
+        frames,
+        config,
+        uv,
+        counts,
+        args.runs,
+        seed=args.seed,
+        background=background,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.no_progress,
+        tie_tol=args.tie_tol,
     )
 
 
@@ -100,8 +129,13 @@ def run(args: argparse.Namespace) -> int:
         from fusion_pf.annotate.db import check_reference_matches
 
         meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}
-        check_reference_matches(args.reference, ev.table.frame.tolist(), ev.table.timestamp_ns.tolist(),
-                                source_sha256=meta.get("source_sha256"), what=str(args.tracked))
+        check_reference_matches(
+            args.reference,
+            ev.table.frame.tolist(),
+            ev.table.timestamp_ns.tolist(),
+            source_sha256=meta.get("source_sha256"),
+            what=str(args.tracked),
+        )
     sweep = None
     if counts is not None:
         meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}

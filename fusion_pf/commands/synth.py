@@ -24,17 +24,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--background-frames", default="0", metavar="K", help="empty-scene frames at the start")
     p.add_argument("--size", default="640x400", metavar="WxH", help="image size in pixels")
     p.add_argument("--fps", default="30", metavar="F", help="frame rate (timestamps 1/F s apart)")
-    p.add_argument("--depth-model", default="realistic", metavar="realistic|basic",
-                   help="depth sensor model: realistic stereo artefacts (noise ~ z^2, 1/8 px disparity steps, "
-                        "flying pixels and holes at depth steps, speckle holes, range limits), or basic "
-                        "(the model recordings/sample.mcap was made with)")
-    p.add_argument("--hands", default="1", metavar="H",
-                   help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
-                        "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)")
-    p.add_argument("--color-format", choices=("raw", "jpeg", "png"), default="raw",
-                   help="colour as RawImage rgb8, or CompressedImage jpeg/png")
-    p.add_argument("--depth-format", choices=("raw", "png"), default="raw",
-                   help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage")
+    p.add_argument(
+        "--depth-model",
+        default="realistic",
+        metavar="realistic|basic",
+        help="depth sensor model: realistic stereo artefacts (noise ~ z^2, 1/8 px disparity steps, "
+        "flying pixels and holes at depth steps, speckle holes, range limits), or basic "
+        "(the model recordings/sample.mcap was made with)",
+    )
+    p.add_argument(
+        "--hands",
+        default="1",
+        metavar="H",
+        help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
+        "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)",
+    )
+    p.add_argument(
+        "--color-format",
+        choices=("raw", "jpeg", "png"),
+        default="raw",
+        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
+    )
+    p.add_argument(
+        "--depth-format",
+        choices=("raw", "png"),
+        default="raw",
+        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
+    )
     p.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
@@ -53,19 +69,39 @@ def run(args: argparse.Namespace) -> int:
 
     from ._paths import check_output
 
-    source = SynthSource.from_options({
-        "frames": args.frames, "seed": args.seed, "background_frames": args.background_frames,
-        "size": args.size, "fps": args.fps, "depth_model": args.depth_model, "hands": args.hands,
-    })
+    source = SynthSource.from_options(
+        {
+            "frames": args.frames,
+            "seed": args.seed,
+            "background_frames": args.background_frames,
+            "size": args.size,
+            "fps": args.fps,
+            "depth_model": args.depth_model,
+            "hands": args.hands,
+        }
+    )
     out: Path = args.output
     check_output(out, force=args.force)
     recorder = McapRecorder(
-        out, compression=args.compression, color_format=args.color_format, depth_format=args.depth_format,
-        jpeg_quality=args.jpeg_quality, metadata=source.metadata(),
+        out,
+        compression=args.compression,
+        color_format=args.color_format,
+        depth_format=args.depth_format,
+        jpeg_quality=args.jpeg_quality,
+        metadata=source.metadata(),
     )
     started = time.monotonic()
-    with source, recorder, tqdm(total=len(source), unit="frame", desc=source.describe(),
-                                disable=True if args.no_progress else None, file=sys.stderr) as bar:
+    with (
+        source,
+        recorder,
+        tqdm(
+            total=len(source),
+            unit="frame",
+            desc=source.describe(),
+            disable=True if args.no_progress else None,
+            file=sys.stderr,
+        ) as bar,
+    ):
         for frame in source:
             recorder.write(frame)
             bar.update()

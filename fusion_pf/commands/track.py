@@ -37,17 +37,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from fusion_pf.pipeline import TrackConfig
 
     p.add_argument("source", metavar="SOURCE", help=f"what to track: {SOURCE_SPECS}")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.mcap",
-                   help="MCAP file to write (tracker topics; with --copy-input also the input frames)")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="OUT.mcap",
+        help="MCAP file to write (tracker topics; with --copy-input also the input frames)",
+    )
     p.add_argument("--csv", type=Path, metavar="OUT.csv", help="also write the per-frame CSV")
-    p.add_argument("--csv-latency", action="store_true",
-                   help="fill the CSV's latency_*_ms columns (wall time: the CSV is then not byte-identical across runs)")
-    p.add_argument("--copy-input", action="store_true",
-                   help="also copy every input frame (colour, depth, calibration, skeleton, ground truth) into OUT.mcap")
-    p.add_argument("--export-ply", type=Path, metavar="DIR",
-                   help="write the ROI point cloud of every tracked frame (mm, camera frame) as DIR/frame_NNNNNN.ply")
-    p.add_argument("--color-format", default="auto", metavar="auto|raw|jpeg|png",
-                   help="colour encoding of copied frames (auto: as the input recording, raw otherwise)")
+    p.add_argument(
+        "--csv-latency",
+        action="store_true",
+        help="fill the CSV's latency_*_ms columns (wall time: the CSV is then not byte-identical across runs)",
+    )
+    p.add_argument(
+        "--copy-input",
+        action="store_true",
+        help="also copy every input frame (colour, depth, calibration, skeleton, ground truth) into OUT.mcap",
+    )
+    p.add_argument(
+        "--export-ply",
+        type=Path,
+        metavar="DIR",
+        help="write the ROI point cloud of every tracked frame (mm, camera frame) as DIR/frame_NNNNNN.ply",
+    )
+    p.add_argument(
+        "--color-format",
+        default="auto",
+        metavar="auto|raw|jpeg|png",
+        help="colour encoding of copied frames (auto: as the input recording, raw otherwise)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap / OUT.csv if they exist")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_options(p, TrackConfig, title="tracker")
@@ -154,7 +174,13 @@ def run(args: argparse.Namespace) -> int:
         recorder = stack.enter_context(McapRecorder(args.output, **options))
         total = len(src) if isinstance(src, ReplaySource) else None
         bar = stack.enter_context(
-            tqdm(total=total, unit="frame", desc=src.describe(), disable=True if args.no_progress else None, file=sys.stderr)
+            tqdm(
+                total=total,
+                unit="frame",
+                desc=src.describe(),
+                disable=True if args.no_progress else None,
+                file=sys.stderr,
+            )
         )
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()
@@ -165,11 +191,19 @@ def run(args: argparse.Namespace) -> int:
                 if args.copy_input:
                     recorder.write(result.source_frame)
                 topics.write(result)
-                if args.export_ply is not None and not result.background and result.roi is not None \
-                        and result.source_frame.depth is not None:
+                if (
+                    args.export_ply is not None
+                    and not result.background
+                    and result.roi is not None
+                    and result.source_frame.depth is not None
+                ):
                     r = result.roi
-                    write_roi_ply(args.export_ply / f"frame_{result.frame:06d}.ply", result.source_frame,
-                                  (r.x0, r.y0, r.x1, r.y1), palm=result.xyz_mm)
+                    write_roi_ply(
+                        args.export_ply / f"frame_{result.frame:06d}.ply",
+                        result.source_frame,
+                        (r.x0, r.y0, r.x1, r.y1),
+                        palm=result.xyz_mm,
+                    )
                 result.latency_ns["sinks"] = time.perf_counter_ns() - t0
                 if table is not None:
                     table.write(result)
@@ -178,10 +212,16 @@ def run(args: argparse.Namespace) -> int:
             tracked += not result.background
             states[result.state] += not result.background
             bar.update(1)
-    print(f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
-          + (f", {args.csv}" if args.csv is not None else ""), file=sys.stderr)
-    print(f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
-          f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses", file=sys.stderr)
+    print(
+        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
+        + (f", {args.csv}" if args.csv is not None else ""),
+        file=sys.stderr,
+    )
+    print(
+        f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
+        f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses",
+        file=sys.stderr,
+    )
     stats = getattr(src, "stats", None)
     if stats is not None and stats.partial:
         print(f"fusion-pf: warning: {stats.loss_summary()}", file=sys.stderr)

@@ -26,7 +26,6 @@ if TYPE_CHECKING:
 __all__ = ["NEEDS", "SOURCES", "Cue", "CueContext", "CueResult", "Measurement"]
 
 
-
 @dataclass(frozen=True, slots=True)
 class CueResult:
     """What a cue extractor returns.

@@ -46,8 +46,13 @@ def skin_blobs(color: np.ndarray, cue: SkinCue, *, max_blobs: int = 8) -> list[M
     order = np.argsort(areas)[::-1][:max_blobs]
     top = float(areas[order[0]])
     return [
-        Measurement(cue.source, float(centroids[i + 1, 0]), float(centroids[i + 1, 1]),
-                    quality=float(areas[i]) / top, extras={"area": int(areas[i])})
+        Measurement(
+            cue.source,
+            float(centroids[i + 1, 0]),
+            float(centroids[i + 1, 1]),
+            quality=float(areas[i]) / top,
+            extras={"area": int(areas[i])},
+        )
         for i in order
         if areas[i] >= max(cue.min_area, 1)
     ]

@@ -176,13 +176,26 @@ class ColourCue:
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
         m = measure(
-            c9, roi.offset, self.source,
+            c9,
+            roi.offset,
+            self.source,
             palm_area=roi.palm_area,
-            min_area=self.min_area, extras={"roi": roi.as_list()},
+            min_area=self.min_area,
+            extras={"roi": roi.as_list()},
         )
         if stages:
-            out = {"I_C1": c1.copy(), "I_C2": c2, "I_C3": c3, "I_C4A": c4a, "I_C4B": c4b,
-                   "I_C5": c5, "I_C6": c6, "I_C7": c7, "I_C8": c8, "I_C9": c9}
+            out = {
+                "I_C1": c1.copy(),
+                "I_C2": c2,
+                "I_C3": c3,
+                "I_C4A": c4a,
+                "I_C4B": c4b,
+                "I_C5": c5,
+                "I_C6": c6,
+                "I_C7": c7,
+                "I_C8": c8,
+                "I_C9": c9,
+            }
         return CueResult(m, out, time.perf_counter_ns() - t0)
 
 

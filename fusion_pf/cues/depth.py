@@ -171,7 +171,9 @@ class DepthCue:
         x0, y0 = max(roi.x0, proi.x0), max(roi.y0, proi.y0)
         x1, y1 = min(roi.x1, proi.x1), min(roi.y1, proi.y1)
         if x1 > x0 and y1 > y0:
-            out[y0 - roi.y0:y1 - roi.y0, x0 - roi.x0:x1 - roi.x0] = mask[y0 - proi.y0:y1 - proi.y0, x0 - proi.x0:x1 - proi.x0]
+            out[y0 - roi.y0 : y1 - roi.y0, x0 - roi.x0 : x1 - roi.x0] = mask[
+                y0 - proi.y0 : y1 - proi.y0, x0 - proi.x0 : x1 - proi.x0
+            ]
         return out
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
@@ -260,11 +262,25 @@ class DepthCue:
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
         m = measure(
-            d10, roi.offset, self.source,
+            d10,
+            roi.offset,
+            self.source,
             palm_area=roi.palm_area,
-            min_area=self.min_area, extras={"roi": roi.as_list(), "moved": moved},
+            min_area=self.min_area,
+            extras={"roi": roi.as_list(), "moved": moved},
         )
         if stages:
-            out = {"I_d1": d1.copy(), "I_d2": d2, "I_d3": d3, "I_d4A": d4a, "I_d4B": d4b, "I_d5": d5,
-                   "I_d6": d6, "I_d7": d7, "I_d8": d8, "I_d9": d9, "I_d10": d10}
+            out = {
+                "I_d1": d1.copy(),
+                "I_d2": d2,
+                "I_d3": d3,
+                "I_d4A": d4a,
+                "I_d4B": d4b,
+                "I_d5": d5,
+                "I_d6": d6,
+                "I_d7": d7,
+                "I_d8": d8,
+                "I_d9": d9,
+                "I_d10": d10,
+            }
         return CueResult(m, out, time.perf_counter_ns() - t0)

@@ -151,8 +151,12 @@ class PalmDetections:
         return PalmDetections(self.scores[index], self.boxes[index], self.keypoints[index])
 
 
-def ssd_anchors(input_size: int = PALM_INPUT, strides: tuple[int, ...] = PALM_STRIDES,
-                anchors_per_layer: int = _ANCHORS_PER_LAYER, offset: float = 0.5) -> np.ndarray:
+def ssd_anchors(
+    input_size: int = PALM_INPUT,
+    strides: tuple[int, ...] = PALM_STRIDES,
+    anchors_per_layer: int = _ANCHORS_PER_LAYER,
+    offset: float = 0.5,
+) -> np.ndarray:
     """Centres of MediaPipe's fixed-size SSD anchors (``SsdAnchorsCalculator``), ``(n, 2)`` ``[x, y]`` in [0, 1].
 
     Consecutive layers with the same stride share one feature map; each cell of
@@ -175,8 +179,14 @@ def ssd_anchors(input_size: int = PALM_INPUT, strides: tuple[int, ...] = PALM_ST
     return np.concatenate(out)
 
 
-def decode_palms(raw_boxes: np.ndarray, raw_scores: np.ndarray, anchors: np.ndarray, *,
-                 input_size: int = PALM_INPUT, min_score: float = 0.5) -> PalmDetections:
+def decode_palms(
+    raw_boxes: np.ndarray,
+    raw_scores: np.ndarray,
+    anchors: np.ndarray,
+    *,
+    input_size: int = PALM_INPUT,
+    min_score: float = 0.5,
+) -> PalmDetections:
     """Decode the palm detector's raw output (``TensorsToDetectionsCalculator``).
 
     Parameters
@@ -257,8 +267,9 @@ def _rotation(start: np.ndarray, end: np.ndarray) -> float:
 
 def _transform(u: float, v: float, w: float, h: float, rotation: float, scale: float, shift_y: float) -> HandRoi:
     """MediaPipe ``RectTransformationCalculator`` in pixels: shift along the rotated y, square the long side, scale."""
-    return HandRoi(u - h * shift_y * math.sin(rotation), v + h * shift_y * math.cos(rotation),
-                   max(w, h) * scale, rotation)
+    return HandRoi(
+        u - h * shift_y * math.sin(rotation), v + h * shift_y * math.cos(rotation), max(w, h) * scale, rotation
+    )
 
 
 def palm_roi(box: np.ndarray, keypoints: np.ndarray) -> HandRoi:
@@ -306,15 +317,21 @@ def hand_measurement(obs: HandObservation, mode: str) -> Measurement:
     if mode not in MODES:
         raise InputError(f"hand measurement mode must be one of {MODES}, got {mode!r}")
     u, v = obs.palm
-    return Measurement("hand", float(u), float(v), quality=float(obs.score),
-                       extras={"landmarks": np.round(obs.landmarks, 3).tolist(),
-                               "handedness": obs.handedness, "mode": mode})
+    return Measurement(
+        "hand",
+        float(u),
+        float(v),
+        quality=float(obs.score),
+        extras={"landmarks": np.round(obs.landmarks, 3).tolist(), "handedness": obs.handedness, "mode": mode},
+    )
 
 
 def _check_rgb(rgb: np.ndarray) -> None:
     if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or 0 in rgb.shape:
-        raise InputError(f"hand cue input must be an (H, W, 3) uint8 RGB array, got {getattr(rgb, 'shape', type(rgb).__name__)!r} "
-                         f"{getattr(rgb, 'dtype', '')}")
+        raise InputError(
+            f"hand cue input must be an (H, W, 3) uint8 RGB array, got {getattr(rgb, 'shape', type(rgb).__name__)!r} "
+            f"{getattr(rgb, 'dtype', '')}"
+        )
 
 
 def _check_unit(name: str, value: float) -> float:
@@ -378,9 +395,17 @@ class HandLandmarker:
     thread or process.
     """
 
-    def __init__(self, *, num_threads: int = 2, min_detection: float = 0.5, min_presence: float = 0.5,
-                 nms_iou: float = 0.3, max_hands: int = 2, recentre: float | None = 0.1,
-                 model_dir: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        num_threads: int = 2,
+        min_detection: float = 0.5,
+        min_presence: float = 0.5,
+        nms_iou: float = 0.3,
+        max_hands: int = 2,
+        recentre: float | None = 0.1,
+        model_dir: str | Path | None = None,
+    ) -> None:
         if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 1:
             raise InputError(f"num_threads must be an int >= 1, got {num_threads!r}")
         if isinstance(max_hands, bool) or not isinstance(max_hands, (int, np.integer)) or max_hands < 1:
@@ -391,15 +416,17 @@ class HandLandmarker:
         if self.nms_iou == 0.0:
             raise InputError("nms_iou must be in (0, 1], got 0")
         self.max_hands = int(max_hands)
-        if recentre is not None and (isinstance(recentre, bool) or not isinstance(recentre, (int, float))
-                                     or not 0 < recentre < math.inf):
+        if recentre is not None and (
+            isinstance(recentre, bool) or not isinstance(recentre, (int, float)) or not 0 < recentre < math.inf
+        ):
             raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
         self.recentre = None if recentre is None else float(recentre)
         self.num_threads = int(num_threads)
         folder = Path(model_dir) if model_dir is not None else Path(str(resources.files("fusion_pf") / "data" / "hand"))
         self._palm = _Model(folder / "palm_detection_full.tflite", self.num_threads, ("Identity", "Identity_1"))
-        self._landmark = _Model(folder / "hand_landmark_full.tflite", self.num_threads,
-                                ("Identity", "Identity_1", "Identity_2"))
+        self._landmark = _Model(
+            folder / "hand_landmark_full.tflite", self.num_threads, ("Identity", "Identity_1", "Identity_2")
+        )
         self._anchors = ssd_anchors()
 
     def palms(self, rgb: np.ndarray) -> PalmDetections:
@@ -408,8 +435,11 @@ class HandLandmarker:
         h, w = rgb.shape[:2]
         frame = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))  # letterbox: the frame centred in a square
         raw_boxes, raw_scores = self._palm(frame.warp(rgb, PALM_INPUT, zero_border=True))
-        det = weighted_nms(decode_palms(raw_boxes, raw_scores, self._anchors, min_score=self.min_detection),
-                           self.nms_iou, self.max_hands)
+        det = weighted_nms(
+            decode_palms(raw_boxes, raw_scores, self._anchors, min_score=self.min_detection),
+            self.nms_iou,
+            self.max_hands,
+        )
         boxes = frame.to_image(det.boxes.reshape(-1, 2)).reshape(-1, 4)
         kps = frame.to_image(det.keypoints.reshape(-1, 2)).reshape(-1, 7, 2)
         return PalmDetections(det.scores, boxes, kps)
@@ -443,8 +473,9 @@ class HandLandmarker:
         found = (self.landmarks(rgb, palm_roi(det.boxes[i], det.keypoints[i])) for i in range(len(det)))
         return [o for o in found if o is not None]
 
-    def track(self, rgb: np.ndarray, previous: HandObservation | None,
-              roi_hint: tuple[float, float, float] | None = None) -> tuple[HandObservation | None, str]:
+    def track(
+        self, rgb: np.ndarray, previous: HandObservation | None, roi_hint: tuple[float, float, float] | None = None
+    ) -> tuple[HandObservation | None, str]:
         """One hand, MediaPipe's video mode: follow the previous landmarks, detect only without a track.
 
         Parameters

@@ -183,7 +183,9 @@ def largest_region(mask: np.ndarray, min_area: int = 1, near: tuple[float, float
     area = int(stats[best, cv2.CC_STAT_AREA])
     if area < max(1, min_area):
         return None
-    x, y, w, h = (int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+    x, y, w, h = (
+        int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
+    )
     cu, cv_ = float(centroids[best, 0]), float(centroids[best, 1])
     if not (math.isfinite(cu) and math.isfinite(cv_)):
         return None

@@ -56,34 +56,87 @@ class CueOptions:
     Each default is the keyword default of the cue class it configures.
     """
 
-    colour_lower: int = option(_default(ColourCue, "lower"), kind="int", lo=0, hi=254, unit="grey levels",
-                               help="colour cue: lower threshold of the grey difference (I_C4A)")
-    colour_upper: int = option(_default(ColourCue, "upper"), kind="int", lo=0, hi=255, unit="grey levels",
-                               help="colour cue: upper threshold of the grey difference (I_C4B)")
+    colour_lower: int = option(
+        _default(ColourCue, "lower"),
+        kind="int",
+        lo=0,
+        hi=254,
+        unit="grey levels",
+        help="colour cue: lower threshold of the grey difference (I_C4A)",
+    )
+    colour_upper: int = option(
+        _default(ColourCue, "upper"),
+        kind="int",
+        lo=0,
+        hi=255,
+        unit="grey levels",
+        help="colour cue: upper threshold of the grey difference (I_C4B)",
+    )
     depth_range_mm: tuple[int, int] = option(
-        _default(DepthCue, "range_mm"), parse=parse_tuple(2, int), check=_range_mm, metavar="LO,HI",
-        show=lambda v: f"{v[0]},{v[1]}", unit="mm",
-        help="depth cue: difference range quantised to grey levels 0-255 (I_d3)")
-    depth_lower: int = option(_default(DepthCue, "lower"), kind="int", lo=0, hi=254, unit="grey levels",
-                              help="depth cue: lower threshold on I_d3 (I_d4A)")
-    depth_upper: int = option(_default(DepthCue, "upper"), kind="int", lo=0, hi=255, unit="grey levels",
-                              help="depth cue: upper threshold on I_d3 (I_d4B)")
-    depth_nearest_mm: int = option(_default(DepthCue, "nearest_mm"), kind="int", lo=0, hi=65535, unit="mm",
-                                   help="depth cue: keep the slab this deep behind the nearest surface; 0 = the paper's band only")
-    depth_invalid_far: bool = option(_default(DepthCue, "invalid_far"), kind="bool",
-                                     help="depth cue: background pixels without depth count as far (a hand in "
-                                          "front of an out-of-range wall is foreground)")
-    min_area: int = option(_default(ColourCue, "min_area"), kind="int", lo=0, hi=100_000, unit="px",
-                           help="smallest region the colour, depth and skin cues keep")
-    skin_model: Path | None = option(None, optional=True, check=_path_or_none, metavar="MODEL.npz",
-                                     help="CIE-Lab GMM skin model saved by LabGmmSkin.save (needed by the skin_lab cue)")
+        _default(DepthCue, "range_mm"),
+        parse=parse_tuple(2, int),
+        check=_range_mm,
+        metavar="LO,HI",
+        show=lambda v: f"{v[0]},{v[1]}",
+        unit="mm",
+        help="depth cue: difference range quantised to grey levels 0-255 (I_d3)",
+    )
+    depth_lower: int = option(
+        _default(DepthCue, "lower"),
+        kind="int",
+        lo=0,
+        hi=254,
+        unit="grey levels",
+        help="depth cue: lower threshold on I_d3 (I_d4A)",
+    )
+    depth_upper: int = option(
+        _default(DepthCue, "upper"),
+        kind="int",
+        lo=0,
+        hi=255,
+        unit="grey levels",
+        help="depth cue: upper threshold on I_d3 (I_d4B)",
+    )
+    depth_nearest_mm: int = option(
+        _default(DepthCue, "nearest_mm"),
+        kind="int",
+        lo=0,
+        hi=65535,
+        unit="mm",
+        help="depth cue: keep the slab this deep behind the nearest surface; 0 = the paper's band only",
+    )
+    depth_invalid_far: bool = option(
+        _default(DepthCue, "invalid_far"),
+        kind="bool",
+        help="depth cue: background pixels without depth count as far (a hand in "
+        "front of an out-of-range wall is foreground)",
+    )
+    min_area: int = option(
+        _default(ColourCue, "min_area"),
+        kind="int",
+        lo=0,
+        hi=100_000,
+        unit="px",
+        help="smallest region the colour, depth and skin cues keep",
+    )
+    skin_model: Path | None = option(
+        None,
+        optional=True,
+        check=_path_or_none,
+        metavar="MODEL.npz",
+        help="CIE-Lab GMM skin model saved by LabGmmSkin.save (needed by the skin_lab cue)",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
         if self.colour_upper < self.colour_lower:
-            raise InputError(f"colour_upper (--colour-upper) must be >= colour_lower {self.colour_lower}, got {self.colour_upper}")
+            raise InputError(
+                f"colour_upper (--colour-upper) must be >= colour_lower {self.colour_lower}, got {self.colour_upper}"
+            )
         if self.depth_upper < self.depth_lower:
-            raise InputError(f"depth_upper (--depth-upper) must be >= depth_lower {self.depth_lower}, got {self.depth_upper}")
+            raise InputError(
+                f"depth_upper (--depth-upper) must be >= depth_lower {self.depth_lower}, got {self.depth_upper}"
+            )
 
 
 @dataclass(frozen=True)
@@ -100,7 +153,9 @@ class CueInfo:
 CUES: dict[str, CueInfo] = {}
 
 
-def register(name: str, needs: Iterable[str], help: str) -> Callable[[Callable[[CueOptions], Cue]], Callable[[CueOptions], Cue]]:
+def register(
+    name: str, needs: Iterable[str], help: str
+) -> Callable[[Callable[[CueOptions], Cue]], Callable[[CueOptions], Cue]]:
     """Decorator registering a cue builder ``build(options) -> Cue`` under ``name``."""
 
     def decorate(build: Callable[[CueOptions], Cue]) -> Callable[[CueOptions], Cue]:
@@ -117,8 +172,14 @@ def _colour(o: CueOptions) -> Cue:
 
 @register("depth", DepthCue.needs, "paper 003 §3.5.2: background subtraction on depth")
 def _depth(o: CueOptions) -> Cue:
-    return DepthCue(range_mm=o.depth_range_mm, lower=o.depth_lower, upper=o.depth_upper, min_area=o.min_area,
-                    nearest_mm=o.depth_nearest_mm or None, invalid_far=o.depth_invalid_far)
+    return DepthCue(
+        range_mm=o.depth_range_mm,
+        lower=o.depth_lower,
+        upper=o.depth_upper,
+        min_area=o.min_area,
+        nearest_mm=o.depth_nearest_mm or None,
+        invalid_far=o.depth_invalid_far,
+    )
 
 
 @register("skeleton", SkeletonCue.needs, "the camera's skeleton joint (paper 003's K)")

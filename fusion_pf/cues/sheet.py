@@ -75,7 +75,7 @@ def contact_sheet(
             if point is not None:
                 pu, pv = int(round((point[0] + 0.5) * s - 0.5)), int(round((point[1] + 0.5) * s - 0.5))
                 cv2.drawMarker(img, (pu, pv), (255, 0, 0), cv2.MARKER_CROSS, max(6, tile // 12), 2)
-            sheet[y + _LABEL_H:y + _LABEL_H + img.shape[0], x:x + img.shape[1]] = img
+            sheet[y + _LABEL_H : y + _LABEL_H + img.shape[0], x : x + img.shape[1]] = img
         label = f"{name} {stages[name].shape} {stages[name].dtype}"
         cv2.putText(sheet, label, (x + 3, y + _LABEL_H - 6), _FONT, 0.4, (0, 0, 120), 1, cv2.LINE_AA)
     return sheet

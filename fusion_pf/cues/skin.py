@@ -237,12 +237,25 @@ class LabGmmSkin:
     name = "skin_lab"
 
     def __init__(self, means: np.ndarray, variances: np.ndarray, weights: np.ndarray, log_prior: np.ndarray) -> None:
-        means, variances, weights, log_prior = (np.asarray(a, dtype=np.float64) for a in (means, variances, weights, log_prior))
-        if means.ndim != 3 or means.shape[:2] != (2, 2) or variances.shape != means.shape or weights.shape != means.shape:
-            raise InputError(f"LabGmmSkin parameters must be (2, 2, k) arrays, got {means.shape}, {variances.shape}, {weights.shape}")
+        means, variances, weights, log_prior = (
+            np.asarray(a, dtype=np.float64) for a in (means, variances, weights, log_prior)
+        )
+        if (
+            means.ndim != 3
+            or means.shape[:2] != (2, 2)
+            or variances.shape != means.shape
+            or weights.shape != means.shape
+        ):
+            raise InputError(
+                f"LabGmmSkin parameters must be (2, 2, k) arrays, got {means.shape}, {variances.shape}, {weights.shape}"
+            )
         if log_prior.shape != (2,):
             raise InputError(f"LabGmmSkin log_prior must have shape (2,), got {log_prior.shape}")
-        if not all(np.isfinite(a).all() for a in (means, variances, weights, log_prior)) or (variances <= 0).any() or (weights < 0).any():
+        if (
+            not all(np.isfinite(a).all() for a in (means, variances, weights, log_prior))
+            or (variances <= 0).any()
+            or (weights < 0).any()
+        ):
             raise InputError("LabGmmSkin parameters must be finite with positive variances and non-negative weights")
         self.means, self.variances, self.weights, self.log_prior = means, variances, weights, log_prior
         levels = np.arange(256, dtype=np.float64)[:, None]
@@ -329,8 +342,13 @@ class LabGmmSkin:
     def save(self, path: str | os.PathLike) -> None:
         """Write the model as an ``.npz`` of plain arrays (no pickle)."""
         np.savez(
-            path, kind=np.array("lab_gmm_naive_bayes"), version=np.array(1),
-            means=self.means, variances=self.variances, weights=self.weights, log_prior=self.log_prior,
+            path,
+            kind=np.array("lab_gmm_naive_bayes"),
+            version=np.array(1),
+            means=self.means,
+            variances=self.variances,
+            weights=self.weights,
+            log_prior=self.log_prior,
         )
 
     @classmethod
@@ -399,7 +417,12 @@ class SkinCue:
         return self(frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior)
 
     def __call__(
-        self, color: np.ndarray, *, roi: Roi | None = None, stages: bool = False, near: tuple[float, float] | None = None
+        self,
+        color: np.ndarray,
+        *,
+        roi: Roi | None = None,
+        stages: bool = False,
+        near: tuple[float, float] | None = None,
     ) -> CueResult:
         """Segment skin in ``color`` (inside ``roi``) and measure the skin region nearest ``near`` (else the largest)."""
         t0 = time.perf_counter_ns()
@@ -416,16 +439,29 @@ class SkinCue:
         s6 = dilate(s5, self.dilate)  # dilation
         s7 = clear_border(s6) if self.clear_border else s6  # border cleared
         m = measure(
-            s7, roi.offset, self.source,
+            s7,
+            roi.offset,
+            self.source,
             palm_area=roi.palm_area,
-            min_area=self.min_area, extras={"roi": roi.as_list()}, near=near,
+            min_area=self.min_area,
+            extras={"roi": roi.as_list()},
+            near=near,
         )
         if stages:
-            out = {"I_S1": s1.copy(), "I_S2": self.model.score(s1, color), "I_S3": s3,
-                   "I_S4": s4, "I_S5": s5, "I_S6": s6, "I_S7": s7}
+            out = {
+                "I_S1": s1.copy(),
+                "I_S2": self.model.score(s1, color),
+                "I_S3": s3,
+                "I_S4": s4,
+                "I_S5": s5,
+                "I_S6": s6,
+                "I_S7": s7,
+            }
         return CueResult(m, out, time.perf_counter_ns() - t0)
 
 
-def skin_cue(color: np.ndarray, model: SkinModel, *, roi: Roi | None = None, stages: bool = False, **options: object) -> CueResult:
+def skin_cue(
+    color: np.ndarray, model: SkinModel, *, roi: Roi | None = None, stages: bool = False, **options: object
+) -> CueResult:
     """Functional form of :class:`SkinCue`: ``SkinCue(model, **options)(color, ...)``."""
     return SkinCue(model, **options)(color, roi=roi, stages=stages)  # type: ignore[arg-type]

@@ -113,7 +113,9 @@ def result_points(results: Sequence[TrackResult], sources: Sequence[str]) -> np.
     return out
 
 
-def _run_job(frames: Sequence[Frame], config: TrackConfig, background: BackgroundModel | None) -> tuple[np.ndarray, float]:
+def _run_job(
+    frames: Sequence[Frame], config: TrackConfig, background: BackgroundModel | None
+) -> tuple[np.ndarray, float]:
     """Track ``frames`` with ``config``; the points of the tracked frames and the wall time."""
     t0 = time.perf_counter()
     results = [r for r in track(frames, config, background=background) if not r.background]
@@ -300,8 +302,13 @@ def _run_dask(frames, config, background, counts, order, seed, workers, schedule
     cluster = None
     if scheduler is None:
         n_workers = min(len(order), workers or os.cpu_count() or 1)
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        cluster = LocalCluster(
+            n_workers=n_workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
         client = Client(cluster)
     else:
         try:

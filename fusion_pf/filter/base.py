@@ -20,8 +20,6 @@ from fusion_pf.frame import Estimate, Measurement
 __all__ = ["Estimate", "Measurement", "Tracker", "check_prior", "check_timestamp", "fused_position"]
 
 
-
-
 class Tracker(abc.ABC):
     """A recursive palm filter (particle filter or Kalman baseline)."""
 

@@ -58,7 +58,12 @@ __all__ = [
 #: 256 x 256 hand crops (hand-graph-cnn dev frames 477-582); 1.5 px (at 320 x
 #: 200, so 1.44 px there) was the best of {1, 1.5, 2, 3} on those frames.
 DEFAULT_NOISE_PX: Mapping[str, float] = {
-    "colour": 12.0, "depth": 4.0, "skeleton": 20.0, "skin_rgb": 12.0, "skin_rg": 12.0, "skin_lab": 12.0,
+    "colour": 12.0,
+    "depth": 4.0,
+    "skeleton": 20.0,
+    "skin_rgb": 12.0,
+    "skin_rg": 12.0,
+    "skin_lab": 12.0,
     "hand": 1.5,
 }
 

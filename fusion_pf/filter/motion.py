@@ -160,7 +160,8 @@ class FrameClock:
         if frame_period_ns is not None and frame_period_ns != "auto":
             if isinstance(frame_period_ns, (str, bool)) or not (
                 isinstance(frame_period_ns, (int, float, np.integer, np.floating))
-                and math.isfinite(frame_period_ns) and frame_period_ns > 0
+                and math.isfinite(frame_period_ns)
+                and frame_period_ns > 0
             ):
                 raise InputError(f"frame_period_ns must be a number > 0, 'auto' or None, got {frame_period_ns!r}")
             frame_period_ns = float(frame_period_ns)

@@ -148,8 +148,12 @@ def kmeans_clusters(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         c, labels = kmeans2(
-            np.asarray(positions, dtype=np.float64), np.asarray(centroids, dtype=np.float64),
-            iter=iterations, minit="matrix", missing="warn", rng=as_rng(rng),
+            np.asarray(positions, dtype=np.float64),
+            np.asarray(centroids, dtype=np.float64),
+            iter=iterations,
+            minit="matrix",
+            missing="warn",
+            rng=as_rng(rng),
         )
     return labels.astype(np.int64), c
 
@@ -229,8 +233,9 @@ def membership(position: np.ndarray, measurements: Sequence[Measurement], noise_
     """
     if not measurements:
         return math.nan
-    d2 = np.array([((position[0] - m.u) ** 2 + (position[1] - m.v) ** 2) / noise_px[m.source] ** 2
-                   for m in measurements])
+    d2 = np.array(
+        [((position[0] - m.u) ** 2 + (position[1] - m.v) ** 2) / noise_px[m.source] ** 2 for m in measurements]
+    )
     return float(math.exp(-0.5 * d2.mean()))
 
 
@@ -406,8 +411,12 @@ class KMeansParticleFilter:
         k = len(self.targets)
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 2 * k:
             raise InputError(f"n_particles must be an int >= 2 x {k} targets, got {n_particles!r}")
-        for name, value in (("radius_px", radius_px), ("max_spread_px", max_spread_px),
-                            ("fast_gain", fast_gain), ("conservative_gain", conservative_gain)):
+        for name, value in (
+            ("radius_px", radius_px),
+            ("max_spread_px", max_spread_px),
+            ("fast_gain", fast_gain),
+            ("conservative_gain", conservative_gain),
+        ):
             if not (math.isfinite(float(value)) and float(value) > 0):
                 raise InputError(f"{name} must be a finite number > 0, got {value!r}")
         if isinstance(patience, bool) or not isinstance(patience, (int, np.integer)) or patience < 1:
@@ -517,8 +526,12 @@ class KMeansParticleFilter:
         states = self._track_states(ms, memb, spread)
         targets = {
             name: TargetEstimate(
-                *_state_floats(self._est[k]), state=states[name], membership=float(memb[k]),
-                spread_px=float(spread[k]), noise_gain=float(self._gain[k]), restarted=bool(restarted[k]),
+                *_state_floats(self._est[k]),
+                state=states[name],
+                membership=float(memb[k]),
+                spread_px=float(spread[k]),
+                noise_gain=float(self._gain[k]),
+                restarted=bool(restarted[k]),
             )
             for k, name in enumerate(self.targets)
         }
@@ -537,7 +550,8 @@ class KMeansParticleFilter:
         speed = np.hypot(self._est[:, 2], self._est[:, 3])
         # separated and fast -> faster; joined with a great overlap -> conservative; else nominal
         self._gain = np.where(
-            worst >= self.big_overlap, self.conservative_gain,
+            worst >= self.big_overlap,
+            self.conservative_gain,
             np.where((worst == 0.0) & (speed > self.fast_px), self.fast_gain, 1.0),
         )
         bad = (memb < self.min_membership) | (spread > self.max_spread_px)
@@ -572,8 +586,8 @@ class KMeansParticleFilter:
             # u_j = (j + U) / n, index = first c_i / c_n > u_j
             u = (np.arange(self.share) + self.rng.random()) / self.share
             pick = idx[np.minimum(np.searchsorted(c / c[-1], u, side="right"), len(idx) - 1)]
-            new[k * self.share:(k + 1) * self.share] = self.particles[pick]
-            labels[k * self.share:(k + 1) * self.share] = k
+            new[k * self.share : (k + 1) * self.share] = self.particles[pick]
+            labels[k * self.share : (k + 1) * self.share] = k
         self.particles, self.labels = new, labels
 
     def _cluster(self) -> None:
@@ -606,8 +620,12 @@ class KMeansParticleFilter:
                 self._closest[k] = min(self._closest[k], gap)
             if self.supervision and s_old.state == TrackState.COMBINED and s_new.state == TrackState.UNLABELLED:
                 j = s_old.partner
-                if (j is not None and j > k and self._fsm.statuses[names[j]].state == TrackState.UNLABELLED
-                        and self._closest[k] < self.coincide_px):
+                if (
+                    j is not None
+                    and j > k
+                    and self._fsm.statuses[names[j]].state == TrackState.UNLABELLED
+                    and self._closest[k] < self.coincide_px
+                ):
                     self._swap_if_needed(k, j)
         return states
 
@@ -639,7 +657,9 @@ class IndependentTrackers:
         Likelihood evaluations in the last step (particles weighed; 0 for KFs).
     """
 
-    def __init__(self, targets: Sequence[str], factory: Callable[[], Tracker], states: StateConfig | None = None) -> None:
+    def __init__(
+        self, targets: Sequence[str], factory: Callable[[], Tracker], states: StateConfig | None = None
+    ) -> None:
         self.targets = _check_targets(targets)
         self.filters: dict[str, Tracker] = {t: factory() for t in self.targets}
         self._est: dict[str, Estimate | None] = {t: None for t in self.targets}
@@ -690,7 +710,7 @@ class IndependentTrackers:
             e = self._est[t]
             u, v = (e.u, e.v) if e is not None else (math.nan, math.nan)
             evid = ev[t]
-            out[t] = TargetEstimate(u, v, float(self._vel[k, 0]), float(self._vel[k, 1]), states[t],
-                                    evid.likelihood, evid.spread_px)
+            out[t] = TargetEstimate(
+                u, v, float(self._vel[k, 0]), float(self._vel[k, 1]), states[t], evid.likelihood, evid.spread_px
+            )
         return MultiEstimate(int(timestamp_ns), out, self.evaluations)
-

@@ -120,8 +120,20 @@ class ScatterSearchCore:
     total_evaluations : int
     """
 
-    def __init__(self, n_targets: int, *, n_particles: int, refset_size: int, process_noise, step_px: float,
-                 min_step_px: float, max_rounds: int, init_spread_px: float, init_velocity_px: float, rng) -> None:
+    def __init__(
+        self,
+        n_targets: int,
+        *,
+        n_particles: int,
+        refset_size: int,
+        process_noise,
+        step_px: float,
+        min_step_px: float,
+        max_rounds: int,
+        init_spread_px: float,
+        init_velocity_px: float,
+        rng,
+    ) -> None:
         self.k = _check_int("n_targets", n_targets, 1)
         self.n = _check_int("n_particles", n_particles, 2)
         self.b = _check_int("refset_size", refset_size, 2)
@@ -173,7 +185,7 @@ class ScatterSearchCore:
         # correction (the position was predicted with it: p = p_prev + v)
         moves = np.zeros((4 * self.k, self.k, 4))
         for t in range(self.k):
-            moves[4 * t:4 * t + 4, t, :2] = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+            moves[4 * t : 4 * t + 4, t, :2] = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
         moves[..., 2:] = moves[..., :2]
         while step >= self.min_step_px:
             nb = sol[None] + step * moves
@@ -304,9 +316,16 @@ class ScatterSearchPF(Tracker):
         rng: np.random.Generator | int | None = None,
     ) -> None:
         self._core = ScatterSearchCore(
-            1, n_particles=n_particles, refset_size=refset_size, process_noise=process_noise, step_px=step_px,
-            min_step_px=min_step_px, max_rounds=max_rounds, init_spread_px=init_spread_px,
-            init_velocity_px=init_velocity_px, rng=rng,
+            1,
+            n_particles=n_particles,
+            refset_size=refset_size,
+            process_noise=process_noise,
+            step_px=step_px,
+            min_step_px=min_step_px,
+            max_rounds=max_rounds,
+            init_spread_px=init_spread_px,
+            init_velocity_px=init_velocity_px,
+            rng=rng,
         )
         self.n_particles = self._core.n
         self.process_noise = check_process_noise(process_noise)
@@ -378,8 +397,9 @@ class ScatterSearchPF(Tracker):
             w = np.full(n, 1.0 / n)
             pos = core.x[:, 0, :2]
             est = weighted_mean(pos, w)
-            return Estimate(t, float(est[0]), float(est[1]), float(n), False, n, weighted_covariance(pos, w),
-                            pos.copy())
+            return Estimate(
+                t, float(est[0]), float(est[1]), float(n), False, n, weighted_covariance(pos, w), pos.copy()
+            )
         est, cov, ess = core.update(z_bar[None], np.array([precision]))
         return Estimate(t, float(est[0, 0]), float(est[0, 1]), ess, True, n, cov[0], core.x[:, 0, :2].copy())
 
@@ -420,9 +440,16 @@ class JointScatterSearchPF:
     ) -> None:
         self.targets = _check_targets(targets)
         self._core = ScatterSearchCore(
-            len(self.targets), n_particles=n_particles, refset_size=refset_size, process_noise=process_noise,
-            step_px=step_px, min_step_px=min_step_px, max_rounds=max_rounds, init_spread_px=init_spread_px,
-            init_velocity_px=init_velocity_px, rng=rng,
+            len(self.targets),
+            n_particles=n_particles,
+            refset_size=refset_size,
+            process_noise=process_noise,
+            step_px=step_px,
+            min_step_px=min_step_px,
+            max_rounds=max_rounds,
+            init_spread_px=init_spread_px,
+            init_velocity_px=init_velocity_px,
+            rng=rng,
         )
         self.n_particles = self._core.n
         self.process_noise = check_process_noise(process_noise)
@@ -463,8 +490,9 @@ class JointScatterSearchPF:
                 ev = {name: Evidence(None, cues=len(m)) for name, m in zip(self.targets, ms)}
                 states = self._fsm.update(ev)
                 nan = math.nan
-                return MultiEstimate(t, {name: TargetEstimate(nan, nan, nan, nan, states[name], nan, nan)
-                                         for name in self.targets}, 0)
+                return MultiEstimate(
+                    t, {name: TargetEstimate(nan, nan, nan, nan, states[name], nan, nan) for name in self.targets}, 0
+                )
             core.initialise(np.concatenate([z_bar, np.zeros_like(z_bar)], axis=1))
         elif self._last_ns is not None:
             core.predict(1.0)
@@ -476,10 +504,15 @@ class JointScatterSearchPF:
             self._est = core.x.mean(axis=0)
         spread = [cluster_spread(core.x[:, k, :2], self._est[k, :2]) for k in range(core.k)]
         memb = [membership(self._est[k, :2], ms[k], self.noise_px) for k in range(core.k)]
-        ev = {name: Evidence((float(self._est[k, 0]), float(self._est[k, 1])), spread[k], memb[k], len(ms[k]))
-              for k, name in enumerate(self.targets)}
+        ev = {
+            name: Evidence((float(self._est[k, 0]), float(self._est[k, 1])), spread[k], memb[k], len(ms[k]))
+            for k, name in enumerate(self.targets)
+        }
         states = self._fsm.update(ev)
-        out = {name: TargetEstimate(*_state_floats(self._est[k]), state=states[name], membership=memb[k],
-                                    spread_px=spread[k])
-               for k, name in enumerate(self.targets)}
+        out = {
+            name: TargetEstimate(
+                *_state_floats(self._est[k]), state=states[name], membership=memb[k], spread_px=spread[k]
+            )
+            for k, name in enumerate(self.targets)
+        }
         return MultiEstimate(t, out, core.evaluations)

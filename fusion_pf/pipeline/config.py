@@ -113,72 +113,179 @@ class TrackConfig:
     """
 
     filter: str = option("pf", choices=FILTERS, help="the particle filter (paper 003) or the Kalman baseline")
-    particles: int = option(100, kind="int", lo=1, hi=100_000, metavar="N",
-                            help="particles of the particle filter (ignored by kf)")
-    likelihood: str | None = option(None, choices=LIKELIHOODS, optional=True, metavar="auto|gaussian|robust",
-                                    show=lambda v: "auto",
-                                    help="particle-filter likelihood: paper eq. 6 or Gaussian + outlier mixture; "
-                                         "auto = robust for pf, gaussian for kf")
-    joint: str = option("right_hand", kind="str", metavar="NAME", help="skeleton joint used as the skeleton cue and ROI prior")
+    particles: int = option(
+        100, kind="int", lo=1, hi=100_000, metavar="N", help="particles of the particle filter (ignored by kf)"
+    )
+    likelihood: str | None = option(
+        None,
+        choices=LIKELIHOODS,
+        optional=True,
+        metavar="auto|gaussian|robust",
+        show=lambda v: "auto",
+        help="particle-filter likelihood: paper eq. 6 or Gaussian + outlier mixture; "
+        "auto = robust for pf, gaussian for kf",
+    )
+    joint: str = option(
+        "right_hand", kind="str", metavar="NAME", help="skeleton joint used as the skeleton cue and ROI prior"
+    )
     cues: tuple[str, ...] | None = option(
-        None, optional=True, parse=_names, check=_check_names, metavar="CUE,...",
-        show=lambda v: "auto: colour,depth,skeleton (paper 003) on a recording with a skeleton and no camera "
-                       "hands; else hand plus depth and skeleton where the recording has them",
-        help=f"cues to compute, among {', '.join(CUES)}")
+        None,
+        optional=True,
+        parse=_names,
+        check=_check_names,
+        metavar="CUE,...",
+        show=lambda v: (
+            "auto: colour,depth,skeleton (paper 003) on a recording with a skeleton and no camera "
+            "hands; else hand plus depth and skeleton where the recording has them"
+        ),
+        help=f"cues to compute, among {', '.join(CUES)}",
+    )
     sources: tuple[str, ...] | None = option(
-        None, optional=True, parse=_names, check=_check_names, metavar="SRC,...", show=lambda v: "all cues",
-        help="cues the filter fuses (every cue is still computed and written)")
+        None,
+        optional=True,
+        parse=_names,
+        check=_check_names,
+        metavar="SRC,...",
+        show=lambda v: "all cues",
+        help="cues the filter fuses (every cue is still computed and written)",
+    )
     noise_px: Mapping[str, float] = option(
-        factory=lambda: dict(DEFAULT_NOISE_PX), parse=parse_pairs, check=_check_noise, flag="--noise",
-        metavar="SRC=PX,...", show=_show_pairs, unit="px, 1 sigma per axis",
-        help="measurement noise per source (unnamed sources keep their default)")
+        factory=lambda: dict(DEFAULT_NOISE_PX),
+        parse=parse_pairs,
+        check=_check_noise,
+        flag="--noise",
+        metavar="SRC=PX,...",
+        show=_show_pairs,
+        unit="px, 1 sigma per axis",
+        help="measurement noise per source (unnamed sources keep their default)",
+    )
     process_noise: tuple[float, float] = option(
-        DEFAULT_PROCESS_NOISE, parse=parse_tuple(2), check=_check_pair, metavar="POS,VEL",
-        show=lambda v: f"{v[0]:g},{v[1]:g}", unit="px, px/frame",
-        help="process noise std per frame step of eq. 4")
+        DEFAULT_PROCESS_NOISE,
+        parse=parse_tuple(2),
+        check=_check_pair,
+        metavar="POS,VEL",
+        show=lambda v: f"{v[0]:g},{v[1]:g}",
+        unit="px, px/frame",
+        help="process noise std per frame step of eq. 4",
+    )
     cue_noise_px: Mapping[str, float] = option(
-        factory=dict, parse=parse_pairs, check=_check_cue_noise, flag="--cue-noise", metavar="SRC=PX,...",
-        show=_show_pairs, unit="px per axis",
-        help="Gaussian noise added to cue positions before fusion, as paper 003 §4.2-4.3 does, e.g. colour=4,depth=4")
-    roi_prior: str = option("auto", choices=ROI_PRIORS,
-                            help="centre of the cue window: the skeleton joint (paper), the filter prediction, "
-                                 "or auto: the joint while confident, else the prediction")
-    prior_confidence: float = option(0.5, kind="float", lo=0.0, hi=1.0,
-                                     help="auto ROI prior: smallest joint confidence for which the joint is the prior")
-    roi_half_size: int | None = option(None, kind="int", lo=1, hi=2000, optional=True, unit="px",
-                                       show=lambda v: "from depth", help="fixed ROI half-size")
-    roi_extent_mm: float = option(250.0, kind="float", lo=10.0, hi=2000.0, unit="mm",
-                                  help="ROI half-size at the hand when sized from depth (keeps a palm 24-56 px "
-                                       "off a biased skeleton joint inside the window)")
-    background: Path | None = option(None, optional=True, check=_path, metavar="FILE.mcap",
-                                     help="empty-scene recording for the background model (read by the command)")
-    background_mode: str = option("adaptive", choices=("adaptive", "median"),
-                                  help="without empty-scene frames: learn the background from the stream "
-                                       "(MOG2 colour, farthest depth; warmed up on the first --background-k "
-                                       "frames) or the median of those frames")
-    background_k: int = option(DEFAULT_BACKGROUND_K, kind="int", lo=1, hi=10_000, metavar="K",
-                               help="frames of the running-median background when there is no empty scene")
-    depth_radius: int = option(DEFAULT_DEPTH_RADIUS, kind="int", lo=0, hi=50, unit="px", help="half-size of the 3-D palm's depth window")
-    seed: int = option(0, kind="int", lo=0, hi=2**63 - 1, metavar="S",
-                       help="seed of the particle filter and of --cue-noise")
-    init: tuple[float, float] | None = option(None, optional=True, parse=parse_tuple(2), check=_check_init,
-                                              metavar="U,V", help="known palm position in the first tracked frame")
-    scale_noise: bool = option(True, kind="bool",
-                               help="scale --noise, --process-noise and the window without depth with the image "
-                                    "diagonal: the values are px at 320x200")
-    adapt_noise: bool = option(False, kind="bool",
-                               help="learn each cue's noise online (its spread around the most trusted cue, between "
-                                    "a quarter and four times --noise) and widen the process noise for fast motion; "
-                                    "off by default: it did not lower the error on the sample, the realistic "
-                                    "synthetic scenes or the real development frames")
-    jump_sigmas: float = option(8.0, kind="float", lo=1.0, hi=1000.0, unit="sigmas",
-                                help="restart the filter at a confident cue (quality >= 0.8) that lies farther than "
-                                     "this many of its noise plus the posterior spread from the prediction "
-                                     "(a hand faster than the motion model)")
-    silent_frames: int = option(15, kind="int", lo=1, hi=100_000, metavar="K",
-                                help="the track is lost after K frames in which no fused cue measured anything")
-    max_spread: float = option(0.2, kind="float", lo=0.001, hi=10.0, unit="of the image diagonal",
-                               help="the track is lost when the posterior position std exceeds this")
+        factory=dict,
+        parse=parse_pairs,
+        check=_check_cue_noise,
+        flag="--cue-noise",
+        metavar="SRC=PX,...",
+        show=_show_pairs,
+        unit="px per axis",
+        help="Gaussian noise added to cue positions before fusion, as paper 003 §4.2-4.3 does, e.g. colour=4,depth=4",
+    )
+    roi_prior: str = option(
+        "auto",
+        choices=ROI_PRIORS,
+        help="centre of the cue window: the skeleton joint (paper), the filter prediction, "
+        "or auto: the joint while confident, else the prediction",
+    )
+    prior_confidence: float = option(
+        0.5,
+        kind="float",
+        lo=0.0,
+        hi=1.0,
+        help="auto ROI prior: smallest joint confidence for which the joint is the prior",
+    )
+    roi_half_size: int | None = option(
+        None,
+        kind="int",
+        lo=1,
+        hi=2000,
+        optional=True,
+        unit="px",
+        show=lambda v: "from depth",
+        help="fixed ROI half-size",
+    )
+    roi_extent_mm: float = option(
+        250.0,
+        kind="float",
+        lo=10.0,
+        hi=2000.0,
+        unit="mm",
+        help="ROI half-size at the hand when sized from depth (keeps a palm 24-56 px "
+        "off a biased skeleton joint inside the window)",
+    )
+    background: Path | None = option(
+        None,
+        optional=True,
+        check=_path,
+        metavar="FILE.mcap",
+        help="empty-scene recording for the background model (read by the command)",
+    )
+    background_mode: str = option(
+        "adaptive",
+        choices=("adaptive", "median"),
+        help="without empty-scene frames: learn the background from the stream "
+        "(MOG2 colour, farthest depth; warmed up on the first --background-k "
+        "frames) or the median of those frames",
+    )
+    background_k: int = option(
+        DEFAULT_BACKGROUND_K,
+        kind="int",
+        lo=1,
+        hi=10_000,
+        metavar="K",
+        help="frames of the running-median background when there is no empty scene",
+    )
+    depth_radius: int = option(
+        DEFAULT_DEPTH_RADIUS, kind="int", lo=0, hi=50, unit="px", help="half-size of the 3-D palm's depth window"
+    )
+    seed: int = option(
+        0, kind="int", lo=0, hi=2**63 - 1, metavar="S", help="seed of the particle filter and of --cue-noise"
+    )
+    init: tuple[float, float] | None = option(
+        None,
+        optional=True,
+        parse=parse_tuple(2),
+        check=_check_init,
+        metavar="U,V",
+        help="known palm position in the first tracked frame",
+    )
+    scale_noise: bool = option(
+        True,
+        kind="bool",
+        help="scale --noise, --process-noise and the window without depth with the image "
+        "diagonal: the values are px at 320x200",
+    )
+    adapt_noise: bool = option(
+        False,
+        kind="bool",
+        help="learn each cue's noise online (its spread around the most trusted cue, between "
+        "a quarter and four times --noise) and widen the process noise for fast motion; "
+        "off by default: it did not lower the error on the sample, the realistic "
+        "synthetic scenes or the real development frames",
+    )
+    jump_sigmas: float = option(
+        8.0,
+        kind="float",
+        lo=1.0,
+        hi=1000.0,
+        unit="sigmas",
+        help="restart the filter at a confident cue (quality >= 0.8) that lies farther than "
+        "this many of its noise plus the posterior spread from the prediction "
+        "(a hand faster than the motion model)",
+    )
+    silent_frames: int = option(
+        15,
+        kind="int",
+        lo=1,
+        hi=100_000,
+        metavar="K",
+        help="the track is lost after K frames in which no fused cue measured anything",
+    )
+    max_spread: float = option(
+        0.2,
+        kind="float",
+        lo=0.001,
+        hi=10.0,
+        unit="of the image diagonal",
+        help="the track is lost when the posterior position std exceeds this",
+    )
     cue_options: CueOptions = field(default_factory=CueOptions)
 
     def __post_init__(self) -> None:

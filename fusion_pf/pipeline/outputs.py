@@ -26,9 +26,17 @@ __all__ = ["CSV_COLUMNS", "TrackCsv", "csv_columns", "csv_row", "cues_json", "es
 def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
     """CSV columns, in order, for the computed cues ``sources`` (docs/architecture.md "CSV")."""
     return (
-        "frame", "timestamp_ns", "u", "v",
+        "frame",
+        "timestamp_ns",
+        "u",
+        "v",
         *(f"{s}_{c}" for s in sources for c in ("u", "v")),
-        "x_mm", "y_mm", "z_mm", "ess", "resampled", "n_particles",
+        "x_mm",
+        "y_mm",
+        "z_mm",
+        "ess",
+        "resampled",
+        "n_particles",
         *(f"latency_{stage}_ms" for stage in (*stages(sources), "sinks")),
         *(f"{s}_quality" for s in sources),
         "state",
@@ -100,13 +108,22 @@ class TrackCsv:
 def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str] = SOURCES) -> list[str]:
     """The CSV cells of one result, in :func:`csv_columns` order."""
     e = result.estimate
-    cells = [str(result.frame), str(result.timestamp_ns), _f(None if e is None else e.u, 3), _f(None if e is None else e.v, 3)]
+    cells = [
+        str(result.frame),
+        str(result.timestamp_ns),
+        _f(None if e is None else e.u, 3),
+        _f(None if e is None else e.v, 3),
+    ]
     for s in sources:
         m = result.cues.get(s)
         cells += [_f(None if m is None else m.u, 3), _f(None if m is None else m.v, 3)]
     xyz = result.xyz_mm
     cells += [_f(float(c), 1) for c in xyz] if xyz is not None else [_f(None, 1)] * 3
-    cells += [_f(None if e is None else e.ess, 3), "" if e is None else str(int(e.resampled)), "" if e is None else str(e.n_particles)]
+    cells += [
+        _f(None if e is None else e.ess, 3),
+        "" if e is None else str(int(e.resampled)),
+        "" if e is None else str(e.n_particles),
+    ]
     for stage in (*stages(sources), "sinks"):
         ns = result.latency_ns.get(stage)
         cells.append(_f(ns / 1e6, 3) if latency and ns is not None else "")

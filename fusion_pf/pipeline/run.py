@@ -138,12 +138,17 @@ def cue_names(config: TrackConfig, frame: Frame | None = None) -> tuple[str, ...
         return config.cues
     if frame is None or (frame.joints is not None and frame.hands is None):
         return SOURCES
-    return ("hand", *(("depth",) if frame.depth is not None else ()), *(("skeleton",) if frame.joints is not None else ()))
+    return (
+        "hand",
+        *(("depth",) if frame.depth is not None else ()),
+        *(("skeleton",) if frame.joints is not None else ()),
+    )
 
 
 def stages(cues: Sequence[str]) -> tuple[str, ...]:
     """Latency stages of a frame in pipeline order: decode, one per cue, filter, total."""
     return ("decode", *cues, "filter", "total")
+
 
 @dataclass(frozen=True, eq=False)
 class CueRow:
@@ -310,8 +315,14 @@ def cue_window(frame: Frame, prior: tuple[float, float] | None, config: TrackCon
         return None
     z = depth_at(frame.depth, *prior, radius=config.depth_radius) if frame.depth is not None else None
     return make_roi(
-        prior[0], prior[1], frame.size, depth_mm=z, fx=frame.intrinsics.fx,
-        half_size=config.roi_half_size, extent_mm=config.roi_extent_mm, pixel_scale=pixel_scale(frame.size, config),
+        prior[0],
+        prior[1],
+        frame.size,
+        depth_mm=z,
+        fx=frame.intrinsics.fx,
+        half_size=config.roi_half_size,
+        extent_mm=config.roi_extent_mm,
+        pixel_scale=pixel_scale(frame.size, config),
     )
 
 
@@ -382,18 +393,30 @@ class _CueStage:
             x1, y1 = min(roi.x1 + PATCH_MARGIN, w), min(roi.y1 + PATCH_MARGIN, h)
             patch, origin = frame.depth[y0:y1, x0:x1].copy(), (x0, y0)
         return CueRow(
-            frame=index, timestamp_ns=frame.timestamp_ns, background=False,
-            cues=cues, latency_ns=lat,
-            roi=roi, depth_patch=patch, patch_origin=origin, intrinsics=frame.intrinsics,
+            frame=index,
+            timestamp_ns=frame.timestamp_ns,
+            background=False,
+            cues=cues,
+            latency_ns=lat,
+            roi=roi,
+            depth_patch=patch,
+            patch_origin=origin,
+            intrinsics=frame.intrinsics,
             ground_truth=frame.ground_truth,
         )
 
 
 def _background_row(index: int, frame: Frame, decode_ns: int, names: Sequence[str]) -> CueRow:
     return CueRow(
-        frame=index, timestamp_ns=frame.timestamp_ns, background=True,
-        cues={s: None for s in names}, latency_ns={"decode": decode_ns, **{s: 0 for s in names}},
-        roi=None, depth_patch=None, patch_origin=(0, 0), intrinsics=frame.intrinsics,
+        frame=index,
+        timestamp_ns=frame.timestamp_ns,
+        background=True,
+        cues={s: None for s in names},
+        latency_ns={"decode": decode_ns, **{s: 0 for s in names}},
+        roi=None,
+        depth_patch=None,
+        patch_origin=(0, 0),
+        intrinsics=frame.intrinsics,
         ground_truth=frame.ground_truth,
     )
 
@@ -418,9 +441,14 @@ def make_tracker(
     if config.filter == "kf":
         return KalmanFilter(process_noise=process, noise_px=noise, frame_period_ns="auto", init_spread_px=20.0 * s)
     return ParticleFilter(
-        n_particles=config.particles, process_noise=process, noise_px=noise,
-        likelihood=config.likelihood or "robust", resampler="residual", estimator="robust_mean",
-        frame_period_ns="auto", init_spread_px=20.0 * s,
+        n_particles=config.particles,
+        process_noise=process,
+        noise_px=noise,
+        likelihood=config.likelihood or "robust",
+        resampler="residual",
+        estimator="robust_mean",
+        frame_period_ns="auto",
+        init_spread_px=20.0 * s,
         outlier_area_px2=DEFAULT_OUTLIER_AREA_PX2 if size is None else float(size[0] * size[1]),
         rng=config.seed if rng is None else rng,
     )
@@ -463,9 +491,15 @@ class _FilterStage:
         self._process = self.tracker.process_noise
         self._q_scale, self._eps = 1.0, 1.0
         diag = math.hypot(*size)
-        self.states = StateConfig(max_spread_px=self.config.max_spread * diag, min_likelihood=0.0,
-                                  silent_frames=self.config.silent_frames, degraded_frames=DEGRADED_FRAMES,
-                                  image_size=size, merge_px=1.0, split_px=1.0)
+        self.states = StateConfig(
+            max_spread_px=self.config.max_spread * diag,
+            min_likelihood=0.0,
+            silent_frames=self.config.silent_frames,
+            degraded_frames=DEGRADED_FRAMES,
+            image_size=size,
+            merge_px=1.0,
+            split_px=1.0,
+        )
 
     @property
     def tracking(self) -> bool:
@@ -580,9 +614,18 @@ class _FilterStage:
         lat = dict(row.latency_ns)
         lat["filter"] = time.perf_counter_ns() - t0
         return TrackResult(
-            frame=row.frame, timestamp_ns=row.timestamp_ns, background=False, estimate=estimate,
-            cues=dict(row.cues), xyz_mm=xyz, latency_ns=lat, roi=row.roi,
-            particles=particles, weights=weights, ground_truth=row.ground_truth, state=self.status.state.value,
+            frame=row.frame,
+            timestamp_ns=row.timestamp_ns,
+            background=False,
+            estimate=estimate,
+            cues=dict(row.cues),
+            xyz_mm=xyz,
+            latency_ns=lat,
+            roi=row.roi,
+            particles=particles,
+            weights=weights,
+            ground_truth=row.ground_truth,
+            state=self.status.state.value,
         )
 
 
@@ -605,8 +648,14 @@ def _background_result(row: CueRow) -> TrackResult:
     lat["filter"] = 0
     lat["total"] = lat["decode"]
     return TrackResult(
-        frame=row.frame, timestamp_ns=row.timestamp_ns, background=True, estimate=None,
-        cues=dict(row.cues), xyz_mm=None, latency_ns=lat, ground_truth=row.ground_truth,
+        frame=row.frame,
+        timestamp_ns=row.timestamp_ns,
+        background=True,
+        estimate=None,
+        cues=dict(row.cues),
+        xyz_mm=None,
+        latency_ns=lat,
+        ground_truth=row.ground_truth,
     )
 
 
@@ -742,5 +791,3 @@ def run_filter(
         result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(tuple(row.cues))[:-1])
         out.append(result)
     return out
-
-

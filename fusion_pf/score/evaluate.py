@@ -130,8 +130,12 @@ def as_json(evaluation: Evaluation, sweep: SweepResult | None = None, figures: l
     """The full JSON report: score (with per-frame series), latency summary, sweep, figures."""
     ev = evaluation
     out = report.score_json(
-        ev.score, ev.table.frame, ev.table.timestamp_ns,
-        tracker=ev.table.path, reference=ev.reference.path, reference_kind=ev.reference.kind,
+        ev.score,
+        ev.table.frame,
+        ev.table.timestamp_ns,
+        tracker=ev.table.path,
+        reference=ev.reference.path,
+        reference_kind=ev.reference.kind,
         occluded=ev.occluded,
     )
     out["latency_ms"] = {
@@ -170,12 +174,17 @@ def write_report(evaluation: Evaluation, out_dir: str | Path, sweep: SweepResult
     ev = evaluation
     files: dict[str, Path] = {}
     files["errors_per_frame.png"] = plots.plot_errors(
-        ev.table.frame, ev.score.errors, out / "errors_per_frame.png", ev.score.occlusion_episodes,
+        ev.table.frame,
+        ev.score.errors,
+        out / "errors_per_frame.png",
+        ev.score.occlusion_episodes,
         title=f"Error per frame against {ev.reference.kind} ({Path(ev.table.path).name})",
     )
     if ev.table.latency_ms:
         files["latency_per_frame.png"] = plots.plot_latency(
-            ev.table.frame, ev.table.latency_ms, out / "latency_per_frame.png",
+            ev.table.frame,
+            ev.table.latency_ms,
+            out / "latency_per_frame.png",
             budget_ms=frame_period_ms(ev.table.timestamp_ns),
         )
     if sweep is not None:

@@ -59,6 +59,7 @@ def csv_sources(header: list[str]) -> tuple[str, ...]:
     """The cue sources of a tracker CSV header: every ``X`` with both ``X_u`` and ``X_v`` columns, in order."""
     return tuple(c[:-2] for c in header if c.endswith("_u") and c != "u" and c[:-2] + "_v" in header)
 
+
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -173,9 +174,7 @@ def _column(path: str, name: str, cells: list[str], dtype: type) -> np.ndarray:
                 values.append(float(cell or "nan") if dtype is float else int(cell))
             except ValueError:
                 kind = "a number or empty" if dtype is float else "an integer"
-                raise InputError(
-                    f"{path}: line {row}, column {name!r} must be {kind}, got {cell!r}"
-                ) from None
+                raise InputError(f"{path}: line {row}, column {name!r} must be {kind}, got {cell!r}") from None
         try:
             out = np.array(values, dtype=np.float64 if dtype is float else np.int64)
         except OverflowError:
@@ -190,9 +189,7 @@ def _pair(u: np.ndarray, v: np.ndarray, path: str, what: str) -> np.ndarray:
     uv = np.stack([u, v], axis=1)
     half = np.isnan(uv).sum(axis=1) == 1
     if half.any():
-        raise InputError(
-            f"{path}: {what} has u without v (or v without u) in row {int(np.flatnonzero(half)[0])}"
-        )
+        raise InputError(f"{path}: {what} has u without v (or v without u) in row {int(np.flatnonzero(half)[0])}")
     return uv
 
 
@@ -226,16 +223,14 @@ def read_tracker_csv(path: str | Path) -> TrackTable:
         )
     short = [i for i, r in enumerate(body, start=2) if len(r) != len(header)]
     if short:
-        raise InputError(
-            f"{path}: line {short[0]} has {len(body[short[0] - 2])} cells, expected {len(header)}"
-        )
+        raise InputError(f"{path}: line {short[0]} has {len(body[short[0] - 2])} cells, expected {len(header)}")
     cols = {name: [r[i] for r in body] for i, name in enumerate(header)}
     sources = csv_sources(header)
     num = {c: _column(path, c, cols[c], float) for c in ("u", "v", *(f"{s}_{x}" for s in sources for x in "uv"))}
     points = {s: _pair(num[f"{s}_u"], num[f"{s}_v"], path, s) for s in sources}
     points["fused"] = _pair(num["u"], num["v"], path, "the estimate")
     latency = {
-        c[len("latency_"):-len("_ms")]: _column(path, c, cols[c], float)
+        c[len("latency_") : -len("_ms")]: _column(path, c, cols[c], float)
         for c in header
         if c.startswith("latency_") and c.endswith("_ms")
     }
@@ -284,8 +279,7 @@ def _frame_of(path: str, topic: str, msg: dict, log_time: int) -> int:
     frame = msg.get("frame") if isinstance(msg, dict) else None
     if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:
         raise InputError(
-            f"{path}: {topic} message at log_time {log_time} must have a non-negative int "
-            f"'frame', got {frame!r}"
+            f"{path}: {topic} message at log_time {log_time} must have a non-negative int 'frame', got {frame!r}"
         )
     return frame
 
@@ -331,10 +325,7 @@ def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -
     sources = list(dict.fromkeys(s for r in ordered for s in r.get("sources", ())))
     points = {s: np.array([r.get(s, nan2) for r in ordered], dtype=np.float64) for s in (*sources, "fused")}
     stages = list(dict.fromkeys(s for r in ordered for s in r.get("latency", {})))
-    latency = {
-        s: np.array([r.get("latency", {}).get(s, math.nan) for r in ordered], dtype=np.float64)
-        for s in stages
-    }
+    latency = {s: np.array([r.get("latency", {}).get(s, math.nan) for r in ordered], dtype=np.float64) for s in stages}
     try:
         ts = np.array([int(r["timestamp_ns"]) for r in ordered], dtype=np.int64)
     except (TypeError, ValueError):

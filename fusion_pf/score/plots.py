@@ -94,8 +94,14 @@ def plot_bestmax_vs_n(sweep, path: str | Path, run: int = 0) -> Path:
     x = np.arange(len(sweep.particle_counts))
     for i, s in enumerate(sweep.sources):
         st = _style(SOURCE_STYLE, s)
-        ax.plot(x, sweep.bestmax[:, run, i], marker=st["marker"], color=st["color"], label=st["label"],
-                linewidth=2.2 if s == "fused" else 1.4)
+        ax.plot(
+            x,
+            sweep.bestmax[:, run, i],
+            marker=st["marker"],
+            color=st["color"],
+            label=st["label"],
+            linewidth=2.2 if s == "fused" else 1.4,
+        )
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])
     ax.set_xlabel("number of particles N")
     ax.set_ylabel(f"BestMax (frames won of {_contested(sweep)}; ties to each)")
@@ -125,8 +131,16 @@ def plot_multiexec(sweep, path: str | Path) -> Path:
     x = np.arange(len(sweep.particle_counts))
     for i, s in enumerate(sweep.sources):
         st = _style(SOURCE_STYLE, s)
-        ax.bar(x + (i - (k - 1) / 2) * width, mean[:, i], width, yerr=std[:, i], capsize=2,
-               color=st["color"], label=st["label"], error_kw={"elinewidth": 0.8})
+        ax.bar(
+            x + (i - (k - 1) / 2) * width,
+            mean[:, i],
+            width,
+            yerr=std[:, i],
+            capsize=2,
+            color=st["color"],
+            label=st["label"],
+            error_kw={"elinewidth": 0.8},
+        )
     ax.set_xticks(x, [str(n) for n in sweep.particle_counts])
     ax.set_xlabel("number of particles N")
     ax.set_ylabel(f"mean BestMax over {sweep.runs} runs (frames of {_contested(sweep)})")
@@ -164,14 +178,25 @@ def plot_errors(
     fig, ax = _figure(10.0, 4.8)
     frame = np.asarray(frame)
     shaded = False
-    for start, stop in (episodes if episodes is not None else np.zeros((0, 2), int)):
-        ax.axvspan(frame[start] - 0.5, frame[stop - 1] + 0.5, color="0.85", zorder=0,
-                   label=None if shaded else "occlusion episode (ground truth)")
+    for start, stop in episodes if episodes is not None else np.zeros((0, 2), int):
+        ax.axvspan(
+            frame[start] - 0.5,
+            frame[stop - 1] + 0.5,
+            color="0.85",
+            zorder=0,
+            label=None if shaded else "occlusion episode (ground truth)",
+        )
         shaded = True
     for s, e in errors.items():
         st = SOURCE_STYLE.get(s, {"color": None, "label": s})
-        ax.plot(frame, e, color=st["color"], label=st["label"],
-                linewidth=1.8 if s == "fused" else 1.0, alpha=1.0 if s == "fused" else 0.85)
+        ax.plot(
+            frame,
+            e,
+            color=st["color"],
+            label=st["label"],
+            linewidth=1.8 if s == "fused" else 1.0,
+            alpha=1.0 if s == "fused" else 0.85,
+        )
     finite = np.concatenate([np.asarray(e)[np.isfinite(e)] for e in errors.values()])
     if finite.size and finite.min() > 0 and finite.max() / finite.min() > 100:
         ax.set_yscale("log")
@@ -212,11 +237,21 @@ def plot_latency(
     for stage, ms in latency_ms.items():
         st = STAGE_STYLE.get(stage, {"color": None, "label": stage})
         ms = np.asarray(ms, dtype=np.float64)
-        ax.plot(frame, np.where(ms > 0, ms, np.nan), color=st["color"], label=st["label"],
-                linewidth=1.8 if stage == "total" else 1.0)
+        ax.plot(
+            frame,
+            np.where(ms > 0, ms, np.nan),
+            color=st["color"],
+            label=st["label"],
+            linewidth=1.8 if stage == "total" else 1.0,
+        )
     if budget_ms is not None:
-        ax.axhline(budget_ms, color="tab:red", linestyle="--", linewidth=1.0,
-                   label=f"frame period {budget_ms:.1f} ms (real-time budget)")
+        ax.axhline(
+            budget_ms,
+            color="tab:red",
+            linestyle="--",
+            linewidth=1.0,
+            label=f"frame period {budget_ms:.1f} ms (real-time budget)",
+        )
     ax.set_yscale("log")
     ax.set_xlabel("frame")
     ax.set_ylabel("latency (ms, log scale)")

@@ -17,9 +17,25 @@ REPO = Path(__file__).resolve().parents[2]
 def synth(out: Path, frames: int, size: str) -> Path:
     """Render a seeded synthetic recording with the real ``fusion-pf synth`` command."""
     subprocess.run(
-        [sys.executable, "-m", "fusion_pf", "synth", str(out), "--frames", str(frames), "--seed", "1",
-         "--size", size, "--no-progress", "--force"],
-        check=True, cwd=REPO, capture_output=True, timeout=120,
+        [
+            sys.executable,
+            "-m",
+            "fusion_pf",
+            "synth",
+            str(out),
+            "--frames",
+            str(frames),
+            "--seed",
+            "1",
+            "--size",
+            size,
+            "--no-progress",
+            "--force",
+        ],
+        check=True,
+        cwd=REPO,
+        capture_output=True,
+        timeout=120,
     )
     return out
 
@@ -41,9 +57,11 @@ class Server:
 
     def __init__(self, recording: Path, db: Path, *extra: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db),
-             "--port", "0", *extra],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            [sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db), "--port", "0", *extra],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         self.url = ""
@@ -105,8 +123,14 @@ def server_factory():
         server.stop()
 
 
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 
 
 @pytest.fixture(scope="module")

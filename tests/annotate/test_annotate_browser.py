@@ -18,8 +18,9 @@ FRAMES = (0, 1, 2, 3, 5)
 def _rows(db):
     conn = sqlite3.connect(db)
     try:
-        return conn.execute("SELECT operator, frame, timestamp_ns, u, v, visible FROM clicks "
-                            "ORDER BY operator, frame").fetchall()
+        return conn.execute(
+            "SELECT operator, frame, timestamp_ns, u, v, visible FROM clicks ORDER BY operator, frame"
+        ).fetchall()
     finally:
         conn.close()
 
@@ -101,8 +102,7 @@ def test_operator_clicks_navigates_reloads(browser, server_factory, rec20, tmp_p
     assert page.inner_text("#progress-label") == "5 of 20 done"
     rows = _rows(db)
     stored = {r[1]: (r[3], r[4]) for r in rows}
-    assert [(r[0], r[1], r[2], r[5]) for r in rows] == [
-        ("Operator One", i, truth[i].timestamp_ns, 1) for i in FRAMES]
+    assert [(r[0], r[1], r[2], r[5]) for r in rows] == [("Operator One", i, truth[i].timestamp_ns, 1) for i in FRAMES]
     for i in FRAMES:  # the stored click is the palm the mouse hit, to a screen pixel
         gt = truth[i].ground_truth
         assert abs(stored[i][0] - gt.u) <= 1.0 / scale[i] + 0.05

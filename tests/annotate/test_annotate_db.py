@@ -23,8 +23,11 @@ def test_reclick_replaces_and_rows_are_committed(tmp_path):
     db.set_click("ann", 3, 1000, 11.5, 21.5)
     db.set_click("ann", 4, 2000, None, None)
     # another connection (another process would see the same) sees committed rows only
-    rows = sqlite3.connect(tmp_path / "a.sqlite").execute(
-        "SELECT operator, frame, timestamp_ns, u, v, visible FROM clicks ORDER BY frame").fetchall()
+    rows = (
+        sqlite3.connect(tmp_path / "a.sqlite")
+        .execute("SELECT operator, frame, timestamp_ns, u, v, visible FROM clicks ORDER BY frame")
+        .fetchall()
+    )
     assert rows == [("ann", 3, 1000, 11.5, 21.5, 1), ("ann", 4, 2000, None, None, 0)]
     conn = sqlite3.connect(tmp_path / "a.sqlite")
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
@@ -103,10 +106,24 @@ def test_reference_table_is_the_operator_mean_and_spread(three_operators):
     assert r0["mean_u"] == pytest.approx(2.0) and r0["mean_v"] == pytest.approx(8 / 3)
     expected = (math.hypot(2, 8 / 3) + math.hypot(4, 8 / 3) + math.hypot(2, 16 / 3)) / 3
     assert r0["spread_px"] == pytest.approx(expected)
-    assert ref[1] == {"frame": 1, "timestamp_ns": 200, "n_operators": 2, "n_not_visible": 1,
-                      "mean_u": 10.0, "mean_v": 10.0, "spread_px": 0.0}
-    assert ref[2] == {"frame": 2, "timestamp_ns": 300, "n_operators": 2, "n_not_visible": 2,
-                      "mean_u": None, "mean_v": None, "spread_px": None}
+    assert ref[1] == {
+        "frame": 1,
+        "timestamp_ns": 200,
+        "n_operators": 2,
+        "n_not_visible": 1,
+        "mean_u": 10.0,
+        "mean_v": 10.0,
+        "spread_px": 0.0,
+    }
+    assert ref[2] == {
+        "frame": 2,
+        "timestamp_ns": 300,
+        "n_operators": 2,
+        "n_not_visible": 2,
+        "mean_u": None,
+        "mean_v": None,
+        "spread_px": None,
+    }
 
 
 def test_operator_table_uses_the_mean_of_the_others(three_operators):
@@ -136,19 +153,26 @@ def test_export_command_writes_both_csvs(three_operators, tmp_path, capsys):
     assert [(r["operator"], r["mean_dist_to_others_px"]) for r in ops][0] == ("A", "5.000")
     assert "3 frames" in capsys.readouterr().out
     other = tmp_path / "ops.csv"
-    assert main(["annotations", "export", str(three_operators), "--csv", str(out),
-                 "--operators-csv", str(other)]) == 2  # issue 14: ref.csv exists
+    assert (
+        main(["annotations", "export", str(three_operators), "--csv", str(out), "--operators-csv", str(other)]) == 2
+    )  # issue 14: ref.csv exists
     assert "already exists; pass --force" in capsys.readouterr().err and not other.exists()
-    assert main(["annotations", "export", str(three_operators), "--csv", str(out),
-                 "--operators-csv", str(other), "--force"]) == 0
+    assert (
+        main(
+            ["annotations", "export", str(three_operators), "--csv", str(out), "--operators-csv", str(other), "--force"]
+        )
+        == 0
+    )
     assert other.read_text() == (tmp_path / "ref_operators.csv").read_text()
 
 
 def test_export_never_overwrites_an_input(three_operators, tmp_path, capsys):
     """Issue 14 item 7: the database, its WAL and any recording are never export outputs, even with --force."""
     before = three_operators.read_bytes()
-    for target, message in ((three_operators, "is the annotation database"),
-                            (three_operators.with_name(three_operators.name + "-wal"), "is the annotation database")):
+    for target, message in (
+        (three_operators, "is the annotation database"),
+        (three_operators.with_name(three_operators.name + "-wal"), "is the annotation database"),
+    ):
         assert main(["annotations", "export", str(three_operators), "--csv", str(target), "--force"]) == 2
         assert message in capsys.readouterr().err
     recording = tmp_path / "rec.mcap"
@@ -173,7 +197,7 @@ def test_csv_formula_injection_is_neutralised(tmp_path):
     out = tmp_path / "ops.csv"
     write_operators_csv(tmp_path / "f.sqlite", out)
     names = [row["operator"] for row in csv.DictReader(out.open())]
-    assert sorted(names) == sorted(["'+1+1", "'-2", "'=HYPERLINK(\"http://evil.example\",\"x\")", "'@SUM(A1)", "ok"])
+    assert sorted(names) == sorted(["'+1+1", "'-2", '\'=HYPERLINK("http://evil.example","x")', "'@SUM(A1)", "ok"])
 
 
 def test_export_command_errors_are_one_line(tmp_path, capsys):

@@ -53,8 +53,12 @@ def server(rec20, tmp_path_factory):
 
 
 def _click(operator="ann", frame=0, u=10, v=10):
-    return (b'{"operator": "%s", "frame": %d, "u": %s, "v": %s}' % (operator.encode(), frame, str(u).encode(),
-                                                                   str(v).encode()))
+    return b'{"operator": "%s", "frame": %d, "u": %s, "v": %s}' % (
+        operator.encode(),
+        frame,
+        str(u).encode(),
+        str(v).encode(),
+    )
 
 
 JSON = {"Content-Type": "application/json"}
@@ -91,11 +95,14 @@ def test_huge_numbers_and_deep_nesting_are_400(server):
     srv, db = server
     port = srv.port
     before = _clicks(db)
-    cases = [_click(u="9" * 400), _click(v="-" + "9" * 400),
-             b'{"operator": "a", "frame": ' + b"9" * 400 + b', "u": 1, "v": 1}',
-             b"[" * 1000 + b"]" * 1000,
-             b'{"operator": "a", "frame": 0, "u": ' + b"[" * 1000 + b"]" * 1000 + b', "v": 1}',
-             b'{"operator": "a", "frame": 0, "u": 1, "v": 1, "x": ' + b"9" * 5000 + b"}"]
+    cases = [
+        _click(u="9" * 400),
+        _click(v="-" + "9" * 400),
+        b'{"operator": "a", "frame": ' + b"9" * 400 + b', "u": 1, "v": 1}',
+        b"[" * 1000 + b"]" * 1000,
+        b'{"operator": "a", "frame": 0, "u": ' + b"[" * 1000 + b"]" * 1000 + b', "v": 1}',
+        b'{"operator": "a", "frame": 0, "u": 1, "v": 1, "x": ' + b"9" * 5000 + b"}",
+    ]
     for body in cases:
         if len(body) > 4096:
             body = body[:4000] + b"}"  # stays under the body limit, still deeply nested / huge
@@ -142,8 +149,13 @@ def test_stop_checkpoints_the_wal_and_ctrl_c_is_quiet(rec20, tmp_path):
 
 
 def _annotate(recording, db):
-    return subprocess.run([sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db),
-                           "--port", "0"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db), "--port", "0"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
 
 
 def test_database_of_another_recording_with_the_same_shape_is_refused(rec20, tmp_path):
@@ -151,15 +163,40 @@ def test_database_of_another_recording_with_the_same_shape_is_refused(rec20, tmp
     from fusion_pf.annotate.db import recording_sha256
 
     other = tmp_path / "other.mcap"  # same frame count, size and timestamps; another seed
-    subprocess.run([sys.executable, "-m", "fusion_pf", "synth", str(other), "--frames", "20", "--seed", "2",
-                    "--size", "320x200", "--no-progress"], check=True, cwd=REPO, capture_output=True, timeout=120)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "fusion_pf",
+            "synth",
+            str(other),
+            "--frames",
+            "20",
+            "--seed",
+            "2",
+            "--size",
+            "320x200",
+            "--no-progress",
+        ],
+        check=True,
+        cwd=REPO,
+        capture_output=True,
+        timeout=120,
+    )
     copy = tmp_path / "copy.mcap"
     shutil.copy(rec20, copy)
     db = tmp_path / "a.sqlite"
     with McapReplay(rec20) as replay, McapReplay(other) as replay2:
         assert replay.timestamps.tolist() == replay2.timestamps.tolist()
-        first = AnnotationDB(db, recording=rec20.name, n_frames=len(replay), width=320, height=200,
-                             sha256=recording_sha256(rec20), timestamps=replay.timestamps.tolist())
+        first = AnnotationDB(
+            db,
+            recording=rec20.name,
+            n_frames=len(replay),
+            width=320,
+            height=200,
+            sha256=recording_sha256(rec20),
+            timestamps=replay.timestamps.tolist(),
+        )
         first.set_click("ann", 3, int(replay.timestamps[3]), 5.0, 5.0)
         first.close()
     proc = _annotate(other, db)
@@ -180,8 +217,15 @@ def test_check_reference_matches(tmp_path):
     from fusion_pf.annotate.db import check_reference_matches
 
     db_path = tmp_path / "r.sqlite"
-    db = AnnotationDB(db_path, recording="r.mcap", n_frames=5, width=10, height=10, sha256="a" * 64,
-                      timestamps=[100, 200, 300, 400, 500])
+    db = AnnotationDB(
+        db_path,
+        recording="r.mcap",
+        n_frames=5,
+        width=10,
+        height=10,
+        sha256="a" * 64,
+        timestamps=[100, 200, 300, 400, 500],
+    )
     db.set_click("ann", 1, 200, 1.0, 1.0)
     db.set_click("ann", 3, 400, 2.0, 2.0)
     db.close()

@@ -23,8 +23,9 @@ from .conftest import REPO
 def _rows(db):
     conn = sqlite3.connect(db)
     try:
-        return conn.execute("SELECT operator, frame, timestamp_ns, u, v, visible, clicked_ns FROM clicks "
-                            "ORDER BY operator, frame").fetchall()
+        return conn.execute(
+            "SELECT operator, frame, timestamp_ns, u, v, visible, clicked_ns FROM clicks ORDER BY operator, frame"
+        ).fetchall()
     finally:
         conn.close()
 
@@ -70,8 +71,13 @@ def test_frames_are_the_recordings_images(served, rec20):
     with McapReplay(rec20) as replay:
         frame = replay.frame(7)
     meta = requests.get(server.url + "/api/frames/7/meta", timeout=10).json()
-    assert meta == {"frame": 7, "timestamp_ns": frame.timestamp_ns, "width": 320, "height": 200,
-                    "has_depth": frame.depth is not None}
+    assert meta == {
+        "frame": 7,
+        "timestamp_ns": frame.timestamp_ns,
+        "width": 320,
+        "height": 200,
+        "has_depth": frame.depth is not None,
+    }
     resp = requests.get(server.url + "/api/frames/7/color", timeout=10)
     assert resp.status_code == 200 and resp.headers["Content-Type"] == "image/jpeg"
     bgr = cv2.imdecode(np.frombuffer(resp.content, np.uint8), cv2.IMREAD_COLOR)
@@ -102,8 +108,7 @@ def test_others_hidden_until_own_click(served):
     again = post({"operator": "hid-b", "frame": 2, "u": None, "v": None}).json()
     assert again["own"]["visible"] is False and again["reference"]["n_not_visible"] == 1
     rows = [r for r in _rows(db) if r[0].startswith("hid-")]
-    assert [(r[0], r[1], r[3], r[4], r[5]) for r in rows] == [("hid-a", 2, 100.0, 50.0, 1),
-                                                              ("hid-b", 2, None, None, 0)]
+    assert [(r[0], r[1], r[3], r[4], r[5]) for r in rows] == [("hid-a", 2, 100.0, 50.0, 1), ("hid-b", 2, None, None, 0)]
 
 
 GOOD = {"operator": "bad-input", "frame": 1, "u": 10.0, "v": 10.0}
@@ -159,9 +164,14 @@ def test_oversized_and_chunked_bodies_are_refused(served):
     assert status == 413 and b"at most" in data
     with socket.create_connection(("127.0.0.1", server.port), timeout=10) as s:
         chunk = b" " * 8000
-        s.sendall(b"POST /api/clicks HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nContent-Type: application/json\r\n"
-                  b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n" % server.port
-                  + b"%x\r\n" % len(chunk) + chunk + b"\r\n0\r\n\r\n")
+        s.sendall(
+            b"POST /api/clicks HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nContent-Type: application/json\r\n"
+            b"Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
+            % server.port
+            + b"%x\r\n" % len(chunk)
+            + chunk
+            + b"\r\n0\r\n\r\n"
+        )
         reply = b""
         while chunk_in := s.recv(65536):
             reply += chunk_in
@@ -173,11 +183,18 @@ def test_oversized_and_chunked_bodies_are_refused(served):
 def test_database_of_another_recording_fails_cleanly(rec20, tmp_path):
     db = tmp_path / "other.sqlite"
     conn = sqlite3.connect(db)
-    conn.executescript("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
-                       "INSERT INTO meta VALUES ('n_frames', '111'), ('recording', 'paper.mcap');")
+    conn.executescript(
+        "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+        "INSERT INTO meta VALUES ('n_frames', '111'), ('recording', 'paper.mcap');"
+    )
     conn.close()
-    proc = subprocess.run([sys.executable, "-m", "fusion_pf", "annotate", str(rec20), "--db", str(db),
-                           "--port", "0"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "fusion_pf", "annotate", str(rec20), "--db", str(db), "--port", "0"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2
     assert "'paper.mcap' with n_frames = 111" in proc.stderr and "Traceback" not in proc.stderr
 

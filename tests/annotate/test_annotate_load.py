@@ -18,8 +18,9 @@ def _uv(op: int, frame: int) -> tuple[float, float]:
     return float((op * 37 + frame * 13) % 1590) / 10.0, float((op * 11 + frame * 7) % 990) / 10.0
 
 
-def _operator(url: str, op: int, frames: range, acked: list, latencies: list, stop: threading.Event,
-              errors: list) -> None:
+def _operator(
+    url: str, op: int, frames: range, acked: list, latencies: list, stop: threading.Event, errors: list
+) -> None:
     session = requests.Session()
     name = f"load-{op}"
     for frame in frames:
@@ -28,8 +29,9 @@ def _operator(url: str, op: int, frames: range, acked: list, latencies: list, st
         u, v = _uv(op, frame)
         t0 = time.perf_counter_ns()
         try:
-            resp = session.post(f"{url}/api/clicks", json={"operator": name, "frame": frame, "u": u, "v": v},
-                                timeout=30)
+            resp = session.post(
+                f"{url}/api/clicks", json={"operator": name, "frame": frame, "u": u, "v": v}, timeout=30
+            )
         except requests.RequestException:
             return  # the server was killed: this click was never acknowledged
         latencies.append(time.perf_counter_ns() - t0)
@@ -43,8 +45,10 @@ def _operator(url: str, op: int, frames: range, acked: list, latencies: list, st
 def _run_operators(url, frames, stop=None):
     stop = stop or threading.Event()
     acked, latencies, errors = [], [], []
-    threads = [threading.Thread(target=_operator, args=(url, op, frames, acked, latencies, stop, errors))
-               for op in range(N_OPERATORS)]
+    threads = [
+        threading.Thread(target=_operator, args=(url, op, frames, acked, latencies, stop, errors))
+        for op in range(N_OPERATORS)
+    ]
     for t in threads:
         t.start()
     return threads, acked, latencies, errors
@@ -78,8 +82,10 @@ def test_eight_operators_500_clicks_each(server_factory, rec500, tmp_path, recor
     p95_ms = float(np.percentile(latencies, 95)) / 1e6
     record_property("clicks_per_s", round(rate, 1))
     record_property("p95_ms", round(p95_ms, 2))
-    print(f"\nload: {len(acked)} clicks in {elapsed:.2f} s = {rate:.0f} clicks/s, "
-          f"p50 {np.percentile(latencies, 50) / 1e6:.2f} ms, p95 {p95_ms:.2f} ms")
+    print(
+        f"\nload: {len(acked)} clicks in {elapsed:.2f} s = {rate:.0f} clicks/s, "
+        f"p50 {np.percentile(latencies, 50) / 1e6:.2f} ms, p95 {p95_ms:.2f} ms"
+    )
     assert p95_ms < 2000  # generous: 2 shared cores; a human clicks ~1/s
     done = requests.get(f"{server.url}/api/operators/load-3/clicks", timeout=10).json()
     assert done["done"] == CLICKS_EACH and done["n_frames"] == CLICKS_EACH
@@ -109,6 +115,7 @@ def test_acknowledged_clicks_survive_sigkill(server_factory, rec500, tmp_path):
     over_http = requests.get(f"{restarted.url}/api/operators/load-0/clicks", timeout=10).json()
     acked_0 = {(a[1], a[2], a[3]) for a in snapshot if a[0] == "load-0"}
     assert acked_0 <= {(c["frame"], c["u"], c["v"]) for c in over_http["clicks"]}
-    resp = requests.post(f"{restarted.url}/api/clicks", json={"operator": "after", "frame": 0, "u": 1.0, "v": 2.0},
-                         timeout=10)
+    resp = requests.post(
+        f"{restarted.url}/api/clicks", json={"operator": "after", "frame": 0, "u": 1.0, "v": 2.0}, timeout=10
+    )
     assert resp.status_code == 200 and _db_rows(db)[("after", 0)] == (1.0, 2.0)

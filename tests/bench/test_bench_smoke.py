@@ -39,11 +39,18 @@ def test_filter_sections_json_and_markdown(tmp_path):
     for r in result["stonesoup_step"]:
         _check_timing(r)
     for r in result["resampling"]:
-        for key in ("ours_residual", "ours_systematic", "ours_stratified", "ours_multinomial",
-                    "particles_residual", "filterpy_residual"):
+        for key in (
+            "ours_residual",
+            "ours_systematic",
+            "ours_stratified",
+            "ours_multinomial",
+            "particles_residual",
+            "filterpy_residual",
+        ):
             _check_timing(r[key])
         assert r["ratio_vs_particles"] == pytest.approx(
-            r["ours_residual"]["median_ms"] / r["particles_residual"]["median_ms"])
+            r["ours_residual"]["median_ms"] / r["particles_residual"]["median_ms"]
+        )
     # only targets whose sizes were measured are reported: here the Stone Soup speed-up
     assert [t["target"] for t in result["targets"]] == [">= 10x faster than Stone Soup (worst N)"]
     md = (tmp_path / "bench.md").read_text()
@@ -64,13 +71,22 @@ def test_robustness_section_reports_both_likelihoods():
 
 @pytest.mark.slow
 def test_pipeline_and_replay_sections(tmp_path):
-    result = run_bench(tmp_path, quick=True, sections=("pipeline", "replay"), sample=None,
-                       pipeline_frames=(3, 2), replay_frames=4)
+    result = run_bench(
+        tmp_path, quick=True, sections=("pipeline", "replay"), sample=None, pipeline_frames=(3, 2), replay_frames=4
+    )
     for size in ("640x400", "1280x800"):
         for mode in ("roi", "full_frame"):
             stages = result["pipeline"][size][mode]
-            assert set(stages) == {"decode", "colour", "depth", "skeleton", "filter", "total", "sinks",
-                                   "cues_plus_filter"}
+            assert set(stages) == {
+                "decode",
+                "colour",
+                "depth",
+                "skeleton",
+                "filter",
+                "total",
+                "sinks",
+                "cues_plus_filter",
+            }
             for t in stages.values():
                 _check_timing(t)
             assert stages["total"]["median_ms"] >= stages["filter"]["median_ms"]

@@ -24,8 +24,9 @@ ENDLESS = "synth:frames=100000,size=160x100"
 
 
 def start_record(out: Path, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([*CLI, "record", ENDLESS, str(out), *extra], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [*CLI, "record", ENDLESS, str(out), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
 
 
 def wait_for_frames(out: Path, min_bytes: int = 400_000, timeout: float = 60.0) -> None:
@@ -57,8 +58,11 @@ def test_stop_signals_finalise_the_file_and_print_the_summary(tmp_path, sig, cod
 def test_header_reaches_the_disk_before_the_first_chunk(tmp_path):
     """Killed (SIGKILL) before any chunk: the file starts like an MCAP file instead of being empty."""
     out = tmp_path / "early.mcap"
-    proc = subprocess.Popen([*CLI, "record", "synth:frames=100000,size=1280x720", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*CLI, "record", "synth:frames=100000,size=1280x720", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 60
     while not (out.exists() and out.stat().st_size > 0) and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -102,8 +106,9 @@ def small_disk(tmp_path):
 
 def test_full_disk_summary_tells_the_truth(small_disk):
     out = small_disk / "full.mcap"
-    proc = subprocess.run([*CLI, "record", "synth:frames=60,size=320x200", str(out)], capture_output=True,
-                          text=True, timeout=120)
+    proc = subprocess.run(
+        [*CLI, "record", "synth:frames=60,size=320x200", str(out)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("fusion-pf: error:")]
     assert len(errors) == 1 and "No space left on device" in errors[0]
@@ -123,10 +128,13 @@ def test_info_escapes_terminal_control_characters(tmp_path):
         w = Writer(fh)
         w.start(profile="", library="writer" + evil)
         w.add_metadata(fmt.RECORDING_METADATA, {"note" + evil: "value" + evil})
-        cal = w.register_channel(fmt.CALIBRATION_TOPIC, "protobuf", w.register_schema(
-            fmt.CAMERA_CALIBRATION, "protobuf", b""))
+        cal = w.register_channel(
+            fmt.CALIBRATION_TOPIC, "protobuf", w.register_schema(fmt.CAMERA_CALIBRATION, "protobuf", b"")
+        )
         col = w.register_channel(fmt.COLOR_TOPIC, "protobuf", w.register_schema(fmt.RAW_IMAGE + evil, "protobuf", b""))
-        extra = w.register_channel("/x" + evil, "json" + evil, w.register_schema("s" + evil, "jsonschema" + evil, b"{}"))
+        extra = w.register_channel(
+            "/x" + evil, "json" + evil, w.register_schema("s" + evil, "jsonschema" + evil, b"{}")
+        )
         w.add_message(cal, 0, fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), 0).SerializeToString(), 0)
         w.add_message(col, 0, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), 0).SerializeToString(), 0)
         w.add_message(extra, 0, b"{}", 0)
@@ -140,10 +148,20 @@ def test_info_escapes_terminal_control_characters(tmp_path):
 
 def test_info_into_a_closed_pipe_exits_quietly(tmp_path):
     path = tmp_path / "r.mcap"
-    assert subprocess.run([*CLI, "record", "synth:frames=3,size=160x100", str(path)], capture_output=True,
-                          timeout=120).returncode == 0
-    proc = subprocess.run(f"{' '.join(map(str, CLI))} info {path} | head -1; echo ${{PIPESTATUS[0]}}",
-                          shell=True, executable="/bin/bash", capture_output=True, text=True, timeout=120)
+    assert (
+        subprocess.run(
+            [*CLI, "record", "synth:frames=3,size=160x100", str(path)], capture_output=True, timeout=120
+        ).returncode
+        == 0
+    )
+    proc = subprocess.run(
+        f"{' '.join(map(str, CLI))} info {path} | head -1; echo ${{PIPESTATUS[0]}}",
+        shell=True,
+        executable="/bin/bash",
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("file ") and lines[-1] in ("0", "141")  # 141: the pipe closed before the end
     assert proc.stderr == ""
@@ -156,7 +174,8 @@ def test_setup_installs_python3_venv_when_python_cannot_make_a_venv(tmp_path):
     log = tmp_path / "apt.log"
     real = shutil.which("python3")
     (bin_dir / "python3").write_text(  # the stock Debian python3: venv without ensurepip
-        f'#!/bin/sh\ncase "$*" in *ensurepip*|*"-m venv"*) exit 1;; esac\nexec {real} "$@"\n')
+        f'#!/bin/sh\ncase "$*" in *ensurepip*|*"-m venv"*) exit 1;; esac\nexec {real} "$@"\n'
+    )
     (bin_dir / "apt-get").write_text(f'#!/bin/sh\necho "$@" >> {log}\n')
     (bin_dir / "dpkg").write_text("#!/bin/sh\nexit 0\n")
     for tool in bin_dir.iterdir():
@@ -164,8 +183,13 @@ def test_setup_installs_python3_venv_when_python_cannot_make_a_venv(tmp_path):
     repo = tmp_path / "repo"
     (repo / "tools").mkdir(parents=True)
     shutil.copy(REPO / "tools" / "setup.sh", repo / "tools" / "setup.sh")
-    proc = subprocess.run(["bash", str(repo / "tools" / "setup.sh")], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "PYTHON": "python3"})
+    proc = subprocess.run(
+        ["bash", str(repo / "tools" / "setup.sh")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "PYTHON": "python3"},
+    )
     assert proc.returncode != 0  # the fake python3 cannot make the venv; apt was asked first
     installs = [line.split() for line in log.read_text().splitlines() if line.startswith("install")]
     version = "{}.{}".format(*sys.version_info[:2])
@@ -175,8 +199,12 @@ def test_setup_installs_python3_venv_when_python_cannot_make_a_venv(tmp_path):
 @pytest.mark.slow
 def test_build_has_no_licence_warnings(tmp_path):
     """pyproject's SPDX ``license = "MIT"`` builds without setuptools' licence deprecation warnings."""
-    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", str(REPO), "--no-deps", "-v", "-w", str(tmp_path)],
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", str(REPO), "--no-deps", "-v", "-w", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = (proc.stdout + proc.stderr).lower()
     assert "deprecat" not in out and "project.license" not in out  # the warnings, not the shipped LICENSE files

@@ -27,10 +27,16 @@ def frames(n, size=(64, 48), seed=0):
     w, h = size
     k = Intrinsics(w, h, 50.0, 50.0, w / 2, h / 2)
     return [
-        Frame(10_000 + i * 40_000_000, i, rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
-              None if i == 3 else rng.integers(0, 4000, (h, w), dtype=np.uint16), k,
-              None if i in (3, 4) else {"right_hand": Joint(3.0, 4.0, None, 0.5)},
-              PalmPoint(5.0, 6.0), background=i == 0)
+        Frame(
+            10_000 + i * 40_000_000,
+            i,
+            rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+            None if i == 3 else rng.integers(0, 4000, (h, w), dtype=np.uint16),
+            k,
+            None if i in (3, 4) else {"right_hand": Joint(3.0, 4.0, None, 0.5)},
+            PalmPoint(5.0, 6.0),
+            background=i == 0,
+        )
         for i in range(n)
     ]
 
@@ -44,8 +50,10 @@ def recording(path, n=10, **kwargs):
 
 def raw_messages(path, color_size, depth_size, calibration=True):
     (cw, ch), (dw, dh) = color_size, depth_size
-    msgs = [(fmt.COLOR_TOPIC, fmt.encode_color(np.zeros((ch, cw, 3), np.uint8), 5)),
-            (fmt.DEPTH_TOPIC, fmt.encode_depth(np.zeros((dh, dw), np.uint16), 5))]
+    msgs = [
+        (fmt.COLOR_TOPIC, fmt.encode_color(np.zeros((ch, cw, 3), np.uint8), 5)),
+        (fmt.DEPTH_TOPIC, fmt.encode_depth(np.zeros((dh, dw), np.uint16), 5)),
+    ]
     if calibration:
         msgs.insert(0, (fmt.CALIBRATION_TOPIC, fmt.encode_calibration(Intrinsics(cw, ch, 500, 500, cw / 2, ch / 2), 5)))
     with open(path, "wb") as fh:
@@ -115,12 +123,18 @@ def test_verify_reports_a_corrupt_chunk(tmp_path):
     [
         (lambda p: p.write_bytes(b"GIF89a not a recording"), "is not an MCAP file: it starts with b'GIF89a n'"),
         (lambda p: p.write_bytes(b""), "is empty \\(0 bytes\\)"),
-        (lambda p: raw_messages(p, (640, 400), (320, 200)),
-         "/camera/depth is 320x200 but /camera/color is 640x400 in frame 0 \\(t=5 ns\\); depth must be aligned"),
-        (lambda p: raw_messages(p, (64, 48), (64, 48), calibration=False),
-         "has no /camera/calibration topic, which is required; topics present: /camera/color, /camera/depth"),
-        (lambda p: p.write_bytes(recording(p.with_suffix(".full.mcap")).read_bytes()[:3000]),
-         "has no /camera/color messages|has no /camera/color topic"),
+        (
+            lambda p: raw_messages(p, (640, 400), (320, 200)),
+            "/camera/depth is 320x200 but /camera/color is 640x400 in frame 0 \\(t=5 ns\\); depth must be aligned",
+        ),
+        (
+            lambda p: raw_messages(p, (64, 48), (64, 48), calibration=False),
+            "has no /camera/calibration topic, which is required; topics present: /camera/color, /camera/depth",
+        ),
+        (
+            lambda p: p.write_bytes(recording(p.with_suffix(".full.mcap")).read_bytes()[:3000]),
+            "has no /camera/color messages|has no /camera/color topic",
+        ),
         (lambda p: None, "recording not found"),
     ],
     ids=["not-mcap", "empty", "depth-320x200", "no-calibration", "truncated-early", "missing"],

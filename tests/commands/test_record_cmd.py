@@ -46,8 +46,22 @@ def test_record_synth_matches_the_source(tmp_path):
 
 def test_limits_formats_and_overwrite(tmp_path):
     out = tmp_path / "x.mcap"
-    assert fusion_pf("record", SYNTH, out, "--frames", 3, "--color-format", "jpeg", "--depth-format", "png",
-                     "--meta", "operator=ann").returncode == 0
+    assert (
+        fusion_pf(
+            "record",
+            SYNTH,
+            out,
+            "--frames",
+            3,
+            "--color-format",
+            "jpeg",
+            "--depth-format",
+            "png",
+            "--meta",
+            "operator=ann",
+        ).returncode
+        == 0
+    )
     before = out.read_bytes()
     proc = fusion_pf("record", SYNTH, out)
     assert proc.returncode == 2 and "already exists; pass --force to overwrite it" in error_line(proc)
@@ -81,12 +95,17 @@ def _source_that_fails_at_frame(path, n_good):
     with open(path, "wb") as fh:
         writer = Writer(fh, chunk_size=4_000)
         writer.start()
-        cal = writer.register_channel(fmt.CALIBRATION_TOPIC, "protobuf", writer.register_schema(
-            fmt.CAMERA_CALIBRATION, "protobuf", b""))
-        color = writer.register_channel(fmt.COLOR_TOPIC, "protobuf", writer.register_schema(
-            fmt.RAW_IMAGE, "protobuf", b""))
-        skel = writer.register_channel(fmt.SKELETON_TOPIC, "json", writer.register_schema(
-            fmt.SKELETON_SCHEMA, "jsonschema", fmt.json_schema_data(fmt.SKELETON_SCHEMA)))
+        cal = writer.register_channel(
+            fmt.CALIBRATION_TOPIC, "protobuf", writer.register_schema(fmt.CAMERA_CALIBRATION, "protobuf", b"")
+        )
+        color = writer.register_channel(
+            fmt.COLOR_TOPIC, "protobuf", writer.register_schema(fmt.RAW_IMAGE, "protobuf", b"")
+        )
+        skel = writer.register_channel(
+            fmt.SKELETON_TOPIC,
+            "json",
+            writer.register_schema(fmt.SKELETON_SCHEMA, "jsonschema", fmt.json_schema_data(fmt.SKELETON_SCHEMA)),
+        )
         writer.add_message(cal, 0, fmt.encode_calibration(k, 0).SerializeToString(), 0)
         for i in range(n_good + 3):
             t = i * 1000
@@ -105,8 +124,9 @@ def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path):
     proc = fusion_pf("record", src, out)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
-    assert any("not valid JSON" in line and "kept without an unreadable skeleton" in line
-               for line in proc.stderr.splitlines())
+    assert any(
+        "not valid JSON" in line and "kept without an unreadable skeleton" in line for line in proc.stderr.splitlines()
+    )
     assert proc.stdout.startswith("recorded 7 frames")
     with McapReplay(out) as replay:
         frames = list(replay)
@@ -144,8 +164,12 @@ def test_bad_arguments(tmp_path):
 
 def test_ctrl_c_finalises_the_file(tmp_path):
     out = tmp_path / "live.mcap"
-    proc = subprocess.Popen([*CLI, "record", "synth:frames=100000,size=640x400", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*CLI, "record", "synth:frames=100000,size=640x400", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 3_000_000):

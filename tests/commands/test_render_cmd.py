@@ -66,7 +66,7 @@ def test_video_and_sheet_of_a_tracked_sample(tracked, tmp_path, capsys):
     grid = cv2.imread(str(sheet))
     # frames 0, 30, ..., 270: 10 tiles, 6 a row, 320x200 each with 2 px gaps
     assert grid.shape == (2 * 200 + 2, 6 * 320 + 5 * 2, 3)
-    assert not grid[202:, 4 * 322:].any()  # the two empty slots of the second row
+    assert not grid[202:, 4 * 322 :].any()  # the two empty slots of the second row
 
 
 def test_draw_any_sources_particles_state():
@@ -89,8 +89,12 @@ def test_draw_any_sources_particles_state():
     assert at(100, 60, 3, 3) == EXTRA_COLOURS[0]  # an unknown source gets the first extra colour
     assert at(20, 100) == PARTICLE_COLOUR and at(180, 20) == PARTICLE_COLOUR
     assert at(150, 90, 9, 0) == ESTIMATE_COLOUR
-    no_state = draw(frame, TrackerFrame(estimate={"u": 150.0, "v": 90.0}, cues=out.cues, roi=out.roi,
-                                        particles=out.particles), sources, scale=4)
+    no_state = draw(
+        frame,
+        TrackerFrame(estimate={"u": 150.0, "v": 90.0}, cues=out.cues, roi=out.roi, particles=out.particles),
+        sources,
+        scale=4,
+    )
     changed = np.any(img != no_state, axis=2)
     rows = np.nonzero(changed.any(axis=1))[0]
     assert changed.any() and rows.min() > 16 and rows.max() < 40  # only the state line differs
@@ -117,17 +121,30 @@ def test_images_from_the_source_named_in_the_metadata(tracked, tmp_path, capsys)
     assert "has no /camera/color images" in err and "--input" in err and err.count("\n") == 1
     assert main(["render", str(bad), "--sheet", str(tmp_path / "b.png"), "--input", str(SAMPLE)]) == 0
     a, b = cv2.imread(str(tmp_path / "a.png")), cv2.imread(str(tmp_path / "b.png"))
-    assert a.shape == (200, 3 * 320 + 4, 3) and b.shape == (5 * 200 + 4 * 2, 6 * 320 + 10, 3)  # default --every 10: 30 tiles
+    assert a.shape == (200, 3 * 320 + 4, 3) and b.shape == (
+        5 * 200 + 4 * 2,
+        6 * 320 + 10,
+        3,
+    )  # default --every 10: 30 tiles
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["{sample}", "--sheet", "{tmp}/x.png"], "has no /tracker/estimate, /tracker/cues or /tracker/particles"),
-    (["{tracked}"], "nothing to write"),
-    (["{tracked}", "--sheet", "{tmp}/x.png", "--every", "0"], "every (--every) must be an integer in [1, 1000000], got 0"),
-    (["{tracked}", "-o", "{tmp}/x.avi"], "must end in .mp4"),
-    (["{tracked}", "-o", "{tmp}/x.mp4", "--fps", "fast"], "fps (--fps) must be a number in [0.001, 1000], got 'fast'"),
-    (["{tmp}/none.mcap", "-o", "{tmp}/x.mp4"], "does not exist; expected the output of fusion-pf track"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["{sample}", "--sheet", "{tmp}/x.png"], "has no /tracker/estimate, /tracker/cues or /tracker/particles"),
+        (["{tracked}"], "nothing to write"),
+        (
+            ["{tracked}", "--sheet", "{tmp}/x.png", "--every", "0"],
+            "every (--every) must be an integer in [1, 1000000], got 0",
+        ),
+        (["{tracked}", "-o", "{tmp}/x.avi"], "must end in .mp4"),
+        (
+            ["{tracked}", "-o", "{tmp}/x.mp4", "--fps", "fast"],
+            "fps (--fps) must be a number in [0.001, 1000], got 'fast'",
+        ),
+        (["{tmp}/none.mcap", "-o", "{tmp}/x.mp4"], "does not exist; expected the output of fusion-pf track"),
+    ],
+)
 def test_errors_are_one_line(tracked, tmp_path, capsys, argv, message):
     argv = [a.format(sample=SAMPLE, tmp=tmp_path, tracked=tracked) for a in argv]
     assert main(["render", *argv]) == 2
@@ -153,8 +170,9 @@ def test_contact_sheet_layout():
 def test_cue_messages_with_unknown_sources_and_no_roi(tmp_path):
     good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
     with McapRecorder(good) as rec:
-        rec.write_json(fmt.CUES_TOPIC, fmt.CUES_SCHEMA,
-                       {"frame": 0, "timestamp_ns": 5, "hands": {"u": 1, "v": 2}, "x": None}, 5)
+        rec.write_json(
+            fmt.CUES_TOPIC, fmt.CUES_SCHEMA, {"frame": 0, "timestamp_ns": 5, "hands": {"u": 1, "v": 2}, "x": None}, 5
+        )
     item = read_tracker_topics(good)[5]
     assert item.roi is None and item.estimate is None and item.particles is None
     assert item.cues["x"] is None and item.cues["hands"][:2] == (1.0, 2.0) and math.isnan(item.cues["hands"][2])

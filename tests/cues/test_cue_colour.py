@@ -89,8 +89,12 @@ def test_eight_by_eight_frames_give_none():
 
 @pytest.mark.parametrize(
     "kwargs,needle",
-    [({"lower": -1}, "lower"), ({"lower": 50, "upper": 40}, "upper"), ({"min_area": 1.5}, "min_area"),
-     ({"dilate": 99}, "dilate")],
+    [
+        ({"lower": -1}, "lower"),
+        ({"lower": 50, "upper": 40}, "upper"),
+        ({"min_area": 1.5}, "min_area"),
+        ({"dilate": 99}, "dilate"),
+    ],
 )
 def test_bad_options(kwargs, needle):
     with pytest.raises(InputError, match=needle) as e:

@@ -35,7 +35,9 @@ def test_cues_stages_folder_is_created(recording, tmp_path, capsys):
     """Issue 14 item 9: like the other commands, --stages creates its folder."""
     out = tmp_path / "new" / "stages"
     assert main(["cues", str(recording), "--frame", "6", "--stages", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == [f"frame000006_{n}.png" for n in ("colour", "depth", "skin_rg", "skin_rgb")]
+    assert sorted(p.name for p in out.iterdir()) == [
+        f"frame000006_{n}.png" for n in ("colour", "depth", "skin_rg", "skin_rgb")
+    ]
 
 
 def test_cues_command_text_output_and_full_frame(recording, capsys):
@@ -48,11 +50,16 @@ def test_cues_command_text_output_and_full_frame(recording, capsys):
 
 @pytest.mark.parametrize(
     "argv,needle",
-    [(["--frame", "99"], "--frame must be in [0, 8], got 99"),
-     (["--colour-lower", "50", "--colour-upper", "10"], "colour_upper (--colour-upper) must be >= colour_lower 50, got 10"),
-     (["--depth-range-mm", "9"], "--depth-range-mm: expected 2 comma-separated numbers, got '9'"),
-     (["--cues", "colour,sonar"], "cues must be distinct names among"),
-     (["--stages", __file__], "is a file; expected a directory")],
+    [
+        (["--frame", "99"], "--frame must be in [0, 8], got 99"),
+        (
+            ["--colour-lower", "50", "--colour-upper", "10"],
+            "colour_upper (--colour-upper) must be >= colour_lower 50, got 10",
+        ),
+        (["--depth-range-mm", "9"], "--depth-range-mm: expected 2 comma-separated numbers, got '9'"),
+        (["--cues", "colour,sonar"], "cues must be distinct names among"),
+        (["--stages", __file__], "is a file; expected a directory"),
+    ],
 )
 def test_cues_command_bad_options_exit_2_with_one_line(recording, capsys, argv, needle):
     capsys.readouterr()
@@ -70,8 +77,24 @@ def test_cues_command_with_empty_scene_file_and_skin_model(recording, tmp_path, 
     model = tmp_path / "skin.npz"
     LabGmmSkin.fit(s["color"].reshape(-1, 3), s["hand"].ravel(), rng=0).save(model)
     capsys.readouterr()
-    assert main(["cues", str(recording), "--frame", "5", "--background", str(empty),
-                 "--skin-model", str(model), "--prior", "truth", "--json"]) == 0
+    assert (
+        main(
+            [
+                "cues",
+                str(recording),
+                "--frame",
+                "5",
+                "--background",
+                str(empty),
+                "--skin-model",
+                str(model),
+                "--prior",
+                "truth",
+                "--json",
+            ]
+        )
+        == 0
+    )
     doc = json.loads(capsys.readouterr().out)
     assert doc["background"] == f"{empty}"
     assert "skin_lab" in doc["cues"]

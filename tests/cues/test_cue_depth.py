@@ -69,11 +69,13 @@ def test_invalid_background_counts_as_far_by_default(scene):
     s = scene()
     u, v = int(round(s["truth"][0])), int(round(s["truth"][1]))
     bg = s["bg_depth"].copy()
-    bg[max(v - 40, 0):v + 40, max(u - 40, 0):u + 40] = 0  # the wall behind the hand is out of range
+    bg[max(v - 40, 0) : v + 40, max(u - 40, 0) : u + 40] = 0  # the wall behind the hand is out of range
     m = DepthCue(**HAND_BAND)(s["depth"], bg).measurement
     assert m is not None and _err(m, s["truth"]) < 3.0
-    assert DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement is None or \
-        _err(DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement, s["truth"]) > 3.0
+    assert (
+        DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement is None
+        or _err(DepthCue(**HAND_BAND, invalid_far=False)(s["depth"], bg).measurement, s["truth"]) > 3.0
+    )
 
 
 def test_temporal_difference_follows_the_moving_hand_not_static_clutter(scene):
@@ -129,8 +131,13 @@ def test_roi_partly_or_fully_outside(scene, u, v):
 
 @pytest.mark.parametrize(
     "kwargs,needle",
-    [({"range_mm": (100, 100)}, "range_mm"), ({"range_mm": 5}, "range_mm"), ({"lower": 300}, "lower"),
-     ({"upper": 10, "lower": 20}, "upper"), ({"dilate": -1}, "dilate")],
+    [
+        ({"range_mm": (100, 100)}, "range_mm"),
+        ({"range_mm": 5}, "range_mm"),
+        ({"lower": 300}, "lower"),
+        ({"upper": 10, "lower": 20}, "upper"),
+        ({"dilate": -1}, "dilate"),
+    ],
 )
 def test_bad_options(kwargs, needle):
     with pytest.raises(InputError, match=needle) as e:

@@ -319,9 +319,16 @@ def test_bad_roi_hint(hl, hint):
 
 @pytest.mark.parametrize(
     "kwargs, word",
-    [({"num_threads": 0}, "num_threads"), ({"min_detection": 1.5}, "min_detection"),
-     ({"min_presence": -0.1}, "min_presence"), ({"max_hands": 0}, "max_hands"), ({"nms_iou": 0.0}, "nms_iou"),
-     ({"recentre": 0.0}, "recentre"), ({"recentre": "yes"}, "recentre"), ({"min_detection": "high"}, "min_detection")],
+    [
+        ({"num_threads": 0}, "num_threads"),
+        ({"min_detection": 1.5}, "min_detection"),
+        ({"min_presence": -0.1}, "min_presence"),
+        ({"max_hands": 0}, "max_hands"),
+        ({"nms_iou": 0.0}, "nms_iou"),
+        ({"recentre": 0.0}, "recentre"),
+        ({"recentre": "yes"}, "recentre"),
+        ({"min_detection": "high"}, "min_detection"),
+    ],
 )
 def test_bad_options(kwargs, word):
     with pytest.raises(InputError, match=word):

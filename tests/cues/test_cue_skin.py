@@ -17,7 +17,9 @@ def _labelled(scene):
 
 
 def test_explicit_rgb_rule_matches_eq4_on_hand_picked_pixels():
-    px = np.array([[[200, 150, 120], [46, 41, 21], [45, 100, 30], [120, 110, 100], [100, 80, 100], [90, 60, 70]]], np.uint8)
+    px = np.array(
+        [[[200, 150, 120], [46, 41, 21], [45, 100, 30], [120, 110, 100], [100, 80, 100], [90, 60, 70]]], np.uint8
+    )
     # skin; just above every bound; R<=45; |R-G|<=15; R not > B; skin-like
     assert (RgbRuleSkin().mask(px)[0] > 0).tolist() == [True, False, False, False, False, True]
     assert (RgbRuleSkin().mask(np.array([[[61, 45, 21]]], np.uint8)) > 0).all()
@@ -130,8 +132,15 @@ def test_skin_cue_shift_invariance(scene, du, dv):
     assert (m1.u - m0.u, m1.v - m0.v) == pytest.approx((du, dv), abs=1e-6)
 
 
-@pytest.mark.parametrize("img", [np.zeros((8, 8, 3), np.uint8), np.full((50, 60, 3), 255, np.uint8),
-                                 np.full((30, 30, 3), (200, 150, 120), np.uint8)], ids=["black8", "white", "allskin"])
+@pytest.mark.parametrize(
+    "img",
+    [
+        np.zeros((8, 8, 3), np.uint8),
+        np.full((50, 60, 3), 255, np.uint8),
+        np.full((30, 30, 3), (200, 150, 120), np.uint8),
+    ],
+    ids=["black8", "white", "allskin"],
+)
 def test_degenerate_images_give_none_without_nan(img):
     for model in (RgChromaSkin(), RgbRuleSkin()):
         res = SkinCue(model, clear_border=True)(img, stages=True)
@@ -142,9 +151,13 @@ def test_degenerate_images_give_none_without_nan(img):
 
 @pytest.mark.parametrize(
     "factory,needle",
-    [(lambda: RgChromaSkin(r_range=(0.6, 0.4)), "r_range"), (lambda: RgChromaSkin(sigma=0), "sigma"),
-     (lambda: RgChromaSkin(threshold=2), "threshold"), (lambda: SkinCue(RgbRuleSkin(), min_area=-3), "min_area"),
-     (lambda: SkinCue(object()), "skin model")],
+    [
+        (lambda: RgChromaSkin(r_range=(0.6, 0.4)), "r_range"),
+        (lambda: RgChromaSkin(sigma=0), "sigma"),
+        (lambda: RgChromaSkin(threshold=2), "threshold"),
+        (lambda: SkinCue(RgbRuleSkin(), min_area=-3), "min_area"),
+        (lambda: SkinCue(object()), "skin model"),
+    ],
 )
 def test_bad_options(factory, needle):
     with pytest.raises(InputError, match=needle) as e:

@@ -52,7 +52,9 @@ def _make_frames(
         if i not in no_skeleton:
             u, v = rng.uniform(0, w, 3), rng.uniform(0, h, 3)
             joints = {
-                "right_hand": Joint(u[0], v[0], None if i % 3 == 0 else float(rng.uniform(500, 3000)), 0.25 + i / (2 * n)),
+                "right_hand": Joint(
+                    u[0], v[0], None if i % 3 == 0 else float(rng.uniform(500, 3000)), 0.25 + i / (2 * n)
+                ),
                 "head": Joint(u[1], v[1], 1500.0, 1.0),
             }
             if i % 2 == 0:
@@ -117,14 +119,24 @@ def write_foxglove():
     def stamp(t: int) -> Timestamp:
         return Timestamp(t // 1_000_000_000, t % 1_000_000_000)
 
-    def write(path: Path, frames: list[Frame], color: str = "rgb8", depth: str = "16UC1",
-              chunk_size: int = 50_000, background: int = 2) -> Path:
+    def write(
+        path: Path,
+        frames: list[Frame],
+        color: str = "rgb8",
+        depth: str = "16UC1",
+        chunk_size: int = 50_000,
+        background: int = 2,
+    ) -> Path:
         ctx = Context()
         options = MCAPWriteOptions(chunk_size=chunk_size, compression_threads=0)
         writer = foxglove.open_mcap(path, context=ctx, writer_options=options)
         cal_ch = CameraCalibrationChannel(fmt.CALIBRATION_TOPIC, context=ctx)
-        color_ch = (RawImageChannel if color in ("rgb8", "bgr8") else CompressedImageChannel)(fmt.COLOR_TOPIC, context=ctx)
-        depth_ch = (RawImageChannel if depth in ("16UC1", "mono16") else CompressedImageChannel)(fmt.DEPTH_TOPIC, context=ctx)
+        color_ch = (RawImageChannel if color in ("rgb8", "bgr8") else CompressedImageChannel)(
+            fmt.COLOR_TOPIC, context=ctx
+        )
+        depth_ch = (RawImageChannel if depth in ("16UC1", "mono16") else CompressedImageChannel)(
+            fmt.DEPTH_TOPIC, context=ctx
+        )
 
         def json_channel(topic: str, name: str) -> Channel:
             schema = Schema(name=name, encoding="jsonschema", data=fmt.json_schema_data(name))
@@ -139,26 +151,51 @@ def write_foxglove():
             h, w = f.color.shape[:2]
             if f.intrinsics != last:
                 k = f.intrinsics
-                cal_ch.log(CameraCalibration(
-                    timestamp=stamp(t), frame_id="cam", width=w, height=h, distortion_model=k.distortion_model,
-                    D=list(k.distortion), K=[k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1]), log_time=t)
+                cal_ch.log(
+                    CameraCalibration(
+                        timestamp=stamp(t),
+                        frame_id="cam",
+                        width=w,
+                        height=h,
+                        distortion_model=k.distortion_model,
+                        D=list(k.distortion),
+                        K=[k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1],
+                    ),
+                    log_time=t,
+                )
                 last = f.intrinsics
             if color in ("rgb8", "bgr8"):
                 img = f.color if color == "rgb8" else f.color[..., ::-1]
                 # pad each row by 4 bytes to exercise `step`
                 padded = np.zeros((h, w * 3 + 4), np.uint8)
                 padded[:, : w * 3] = np.ascontiguousarray(img).reshape(h, w * 3)
-                color_ch.log(RawImage(timestamp=stamp(t), width=w, height=h, encoding=color, step=w * 3 + 4,
-                                      data=padded.tobytes()), log_time=t)
+                color_ch.log(
+                    RawImage(
+                        timestamp=stamp(t), width=w, height=h, encoding=color, step=w * 3 + 4, data=padded.tobytes()
+                    ),
+                    log_time=t,
+                )
             else:
                 ext = ".jpg" if color == "jpeg" else ".png"
-                ok, buf = cv2.imencode(ext, cv2.cvtColor(np.ascontiguousarray(f.color), cv2.COLOR_RGB2BGR),
-                                       [cv2.IMWRITE_JPEG_QUALITY, 95] if ext == ".jpg" else [])
+                ok, buf = cv2.imencode(
+                    ext,
+                    cv2.cvtColor(np.ascontiguousarray(f.color), cv2.COLOR_RGB2BGR),
+                    [cv2.IMWRITE_JPEG_QUALITY, 95] if ext == ".jpg" else [],
+                )
                 color_ch.log(CompressedImage(timestamp=stamp(t), format=color, data=buf.tobytes()), log_time=t)
             if f.depth is not None:
                 if depth in ("16UC1", "mono16"):
-                    depth_ch.log(RawImage(timestamp=stamp(t), width=w, height=h, encoding=depth, step=w * 2,
-                                          data=f.depth.astype("<u2").tobytes()), log_time=t)
+                    depth_ch.log(
+                        RawImage(
+                            timestamp=stamp(t),
+                            width=w,
+                            height=h,
+                            encoding=depth,
+                            step=w * 2,
+                            data=f.depth.astype("<u2").tobytes(),
+                        ),
+                        log_time=t,
+                    )
                 else:
                     ok, buf = cv2.imencode(".png", np.ascontiguousarray(f.depth))
                     depth_ch.log(CompressedImage(timestamp=stamp(t), format="png", data=buf.tobytes()), log_time=t)

@@ -110,8 +110,10 @@ def matches(value: Any, typ: str) -> bool:
     if outer == "Annotated":
         return matches(value, args[0])
     if outer in ("tuple", "typing.Tuple"):
-        return isinstance(value, (tuple, list)) and len(value) == len(args) and all(
-            matches(v, t) for v, t in zip(value, args)
+        return (
+            isinstance(value, (tuple, list))
+            and len(value) == len(args)
+            and all(matches(v, t) for v, t in zip(value, args))
         )
     if outer in ("list", "collections.abc.Sequence"):
         return isinstance(value, (tuple, list)) and all(matches(v, args[0]) for v in value)
@@ -225,7 +227,9 @@ class _Checked(_Spec):
         self._pipeline().calls.append(Call(self.label, name, args, kwargs))
         if self.shadow is not None and not _has_spec(args) and not _has_spec(kwargs.values()):
             result = getattr(self.shadow, name)(*args, **kwargs)
-            if sig.returns in ("None", "bool") or sig.returns.startswith(("depthai.MessageQueue", "depthai.InputQueue")):
+            if sig.returns in ("None", "bool") or sig.returns.startswith(
+                ("depthai.MessageQueue", "depthai.InputQueue")
+            ):
                 return result
         if sig.returns == "None":
             return None

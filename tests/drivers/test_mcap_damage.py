@@ -110,9 +110,11 @@ def test_truncation_counts_the_frames_of_the_cut_chunk(recorded, tmp_path):
     out, stats, _ = replay(bad)
     check_frames(out, frames)
     assert len(out) == len([i for i in range(N) if frames[i].timestamp_ns < chunks[5].message_start_time])
-    assert stats.losses[0] == FrameLoss(len(frames_in(chunks[5], frames)),
-                                        f"the chunk at byte {chunks[5].chunk_start_offset} is cut off by the end of the file",
-                                        chunks[5].chunk_start_offset)
+    assert stats.losses[0] == FrameLoss(
+        len(frames_in(chunks[5], frames)),
+        f"the chunk at byte {chunks[5].chunk_start_offset} is cut off by the end of the file",
+        chunks[5].chunk_start_offset,
+    )
     assert stats.losses[1].frames is None
 
 
@@ -193,9 +195,15 @@ def test_damaged_summary_lengths_are_bounded(recorded, tmp_path):
 def test_log_time_beyond_int64_in_a_scan_is_a_loss_not_an_overflow(tmp_path, write_messages):
     messages = []
     for t in (10, 20, 30, 40, 50):
-        messages += [(fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION,
-                      fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), t), t),
-                     (fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), t), t)]
+        messages += [
+            (
+                fmt.CALIBRATION_TOPIC,
+                fmt.CAMERA_CALIBRATION,
+                fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), t),
+                t,
+            ),
+            (fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), t), t),
+        ]
     messages.append((fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), 60), 2**63 + 5))
     path = write_messages(tmp_path / "big.mcap", messages)
     data = path.read_bytes()
@@ -215,8 +223,10 @@ def test_absurd_focal_length_is_a_one_line_error(tmp_path, write_messages):
     cal = fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), 0)
     cal.K[0] = cal.K[4] = 1e308
     cal.P[0] = cal.P[5] = 1e308
-    messages = [(fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION, cal, 0),
-                (fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), 0), 0)]
+    messages = [
+        (fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION, cal, 0),
+        (fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), 0), 0),
+    ]
     path = write_messages(tmp_path / "fx.mcap", messages)
     with pytest.raises(RecordingError, match=r"fx = 1e\+308 px is implausible for a 64x48 image"):
         replay(path)
@@ -230,10 +240,13 @@ def test_deeply_nested_skeleton_json_is_skipped_and_counted(tmp_path):
     with open(path, "wb") as fh:
         w = Writer(fh)
         w.start()
-        cal = w.register_channel(fmt.CALIBRATION_TOPIC, "protobuf", w.register_schema(
-            fmt.CAMERA_CALIBRATION, "protobuf", b""))
+        cal = w.register_channel(
+            fmt.CALIBRATION_TOPIC, "protobuf", w.register_schema(fmt.CAMERA_CALIBRATION, "protobuf", b"")
+        )
         col = w.register_channel(fmt.COLOR_TOPIC, "protobuf", w.register_schema(fmt.RAW_IMAGE, "protobuf", b""))
-        skel = w.register_channel(fmt.SKELETON_TOPIC, "json", w.register_schema(fmt.SKELETON_SCHEMA, "jsonschema", b"{}"))
+        skel = w.register_channel(
+            fmt.SKELETON_TOPIC, "json", w.register_schema(fmt.SKELETON_SCHEMA, "jsonschema", b"{}")
+        )
         w.add_message(cal, 0, fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), 0).SerializeToString(), 0)
         for t in (0, 10, 20):
             w.add_message(col, t, fmt.encode_color(np.zeros((48, 64, 3), np.uint8), t).SerializeToString(), t)
@@ -257,7 +270,9 @@ def test_parts_in_a_corrupt_chunk_of_another_writer_are_counted(tmp_path, make_f
     bad.write_bytes(corrupt(path.read_bytes(), chunks[len(chunks) // 2]))
     out, stats, _ = replay(bad)
     by_time = {f.timestamp_ns: f for f in frames}
-    without = {part: sum(1 for f in out if getattr(by_time[f.timestamp_ns], attr) is not None and getattr(f, attr) is None)
-               for part, attr in (("depth", "depth"), ("skeleton", "joints"), ("ground truth", "ground_truth"))}
+    without = {
+        part: sum(1 for f in out if getattr(by_time[f.timestamp_ns], attr) is not None and getattr(f, attr) is None)
+        for part, attr in (("depth", "depth"), ("skeleton", "joints"), ("ground truth", "ground_truth"))
+    }
     assert len(out) + stats.dropped == 16 and stats.dropped >= 1
     assert {k: v for k, v in without.items() if v} == stats.skipped_parts

@@ -93,10 +93,12 @@ def test_empty_distortion_model_means_none():
 def test_skeleton_and_palm_roundtrip():
     joints = {"right_hand": Joint(1.5, 2.25, None, 0.3), "head": Joint(10, 20, 1500.0, 1.0)}
     obj = json.loads(fmt.encode_json(fmt.encode_skeleton(joints)))
-    assert obj == {"joints": [
-        {"name": "right_hand", "u": 1.5, "v": 2.25, "depth_mm": None, "confidence": 0.3},
-        {"name": "head", "u": 10.0, "v": 20.0, "depth_mm": 1500.0, "confidence": 1.0},
-    ]}
+    assert obj == {
+        "joints": [
+            {"name": "right_hand", "u": 1.5, "v": 2.25, "depth_mm": None, "confidence": 0.3},
+            {"name": "head", "u": 10.0, "v": 20.0, "depth_mm": 1500.0, "confidence": 1.0},
+        ]
+    }
     assert fmt.decode_skeleton(obj) == joints
     palm = PalmPoint(3.0, 4.5, occluded=True)
     assert fmt.decode_palm(json.loads(fmt.encode_json(fmt.encode_palm(palm)))) == palm
@@ -118,29 +120,55 @@ def test_schemas_are_self_describing():
     "call, message",
     [
         (lambda: fmt.decode_color(fmt.RAW_IMAGE, b"\xff\xff\xff"), "not a valid foxglove.RawImage"),
-        (lambda: fmt.decode_color(fmt.RAW_IMAGE, RawImage(width=4, height=2, encoding="rgba8", step=16,
-                                                           data=bytes(32)).SerializeToString()),
-         "encoding 'rgba8' is not supported"),
-        (lambda: fmt.decode_color(fmt.RAW_IMAGE, RawImage(width=4, height=2, encoding="rgb8", step=12,
-                                                           data=bytes(20)).SerializeToString()),
-         "needs 24 bytes, got 20"),
-        (lambda: fmt.decode_color(fmt.RAW_IMAGE, RawImage(width=4, height=2, encoding="rgb8", step=6,
-                                                           data=bytes(24)).SerializeToString()),
-         "step 6 is smaller than width 4"),
-        (lambda: fmt.decode_color(fmt.COMPRESSED_IMAGE, CompressedImage(format="webp", data=b"x").SerializeToString()),
-         "format 'webp' is not supported"),
-        (lambda: fmt.decode_color(fmt.COMPRESSED_IMAGE, CompressedImage(format="jpeg", data=b"nope").SerializeToString()),
-         "jpeg data \\(4 bytes\\) cannot be decoded"),
+        (
+            lambda: fmt.decode_color(
+                fmt.RAW_IMAGE,
+                RawImage(width=4, height=2, encoding="rgba8", step=16, data=bytes(32)).SerializeToString(),
+            ),
+            "encoding 'rgba8' is not supported",
+        ),
+        (
+            lambda: fmt.decode_color(
+                fmt.RAW_IMAGE, RawImage(width=4, height=2, encoding="rgb8", step=12, data=bytes(20)).SerializeToString()
+            ),
+            "needs 24 bytes, got 20",
+        ),
+        (
+            lambda: fmt.decode_color(
+                fmt.RAW_IMAGE, RawImage(width=4, height=2, encoding="rgb8", step=6, data=bytes(24)).SerializeToString()
+            ),
+            "step 6 is smaller than width 4",
+        ),
+        (
+            lambda: fmt.decode_color(
+                fmt.COMPRESSED_IMAGE, CompressedImage(format="webp", data=b"x").SerializeToString()
+            ),
+            "format 'webp' is not supported",
+        ),
+        (
+            lambda: fmt.decode_color(
+                fmt.COMPRESSED_IMAGE, CompressedImage(format="jpeg", data=b"nope").SerializeToString()
+            ),
+            "jpeg data \\(4 bytes\\) cannot be decoded",
+        ),
         (lambda: fmt.decode_color("sensor_msgs/Image", b""), "schema 'sensor_msgs/Image' is not supported"),
-        (lambda: fmt.decode_depth(fmt.RAW_IMAGE, RawImage(width=2, height=2, encoding="32FC1", step=8,
-                                                           data=bytes(16)).SerializeToString()),
-         "encoding '32FC1' is not supported for depth"),
-        (lambda: fmt.decode_depth(fmt.COMPRESSED_IMAGE, fmt.encode_color(np.zeros((4, 4, 3), np.uint8), 0, "png")
-                                  .SerializeToString()),
-         "depth PNG must be 16-bit single-channel, got uint8 with 3 channel"),
+        (
+            lambda: fmt.decode_depth(
+                fmt.RAW_IMAGE, RawImage(width=2, height=2, encoding="32FC1", step=8, data=bytes(16)).SerializeToString()
+            ),
+            "encoding '32FC1' is not supported for depth",
+        ),
+        (
+            lambda: fmt.decode_depth(
+                fmt.COMPRESSED_IMAGE, fmt.encode_color(np.zeros((4, 4, 3), np.uint8), 0, "png").SerializeToString()
+            ),
+            "depth PNG must be 16-bit single-channel, got uint8 with 3 channel",
+        ),
         (lambda: fmt.decode_skeleton({"joints": [{"name": "a", "u": 1, "v": 2}]}), "joint 0 has no 'confidence'"),
-        (lambda: fmt.decode_skeleton({"joints": [{"name": "a", "u": 1, "v": 2, "confidence": 2}]}),
-         "joint 'a': joint confidence must be in \\[0, 1\\], got 2.0"),
+        (
+            lambda: fmt.decode_skeleton({"joints": [{"name": "a", "u": 1, "v": 2, "confidence": 2}]}),
+            "joint 'a': joint confidence must be in \\[0, 1\\], got 2.0",
+        ),
         (lambda: fmt.decode_skeleton({"bones": []}), "expected an object with a 'joints' list"),
         (lambda: fmt.decode_palm({"u": 1, "v": 2, "occluded": "yes"}), "'occluded' must be true or false"),
         (lambda: fmt.decode_json(b"{nope", "/x at t=1 ns"), "/x at t=1 ns: not valid JSON"),

@@ -22,26 +22,34 @@ def replay(path):
 
 
 @pytest.mark.parametrize("color, depth", [("rgb8", "16UC1"), ("bgr8", "mono16"), ("png", "png"), ("jpeg", "16UC1")])
-def test_foxglove_sdk_file_replays_to_identical_frames(tmp_path, make_frames, record, write_foxglove, same_frames,
-                                                       color, depth):
+def test_foxglove_sdk_file_replays_to_identical_frames(
+    tmp_path, make_frames, record, write_foxglove, same_frames, color, depth
+):
     frames = make_frames(12, no_depth=(4,), no_skeleton=(7,), calibration_change=9)
     # both writers encode JPEG with OpenCV at quality 95, so even JPEG frames decode identically
-    ours, our_info = replay(record(tmp_path / "ours.mcap", frames, jpeg_quality=95,
-                                   color_format="jpeg" if color == "jpeg" else "raw"))
+    ours, our_info = replay(
+        record(tmp_path / "ours.mcap", frames, jpeg_quality=95, color_format="jpeg" if color == "jpeg" else "raw")
+    )
     theirs, info = replay(write_foxglove(tmp_path / "sdk.mcap", frames, color=color, depth=depth))
     assert info.library.startswith("foxglove-sdk") and info.indexed and not info.truncated
     same_frames(ours, theirs)
     if color != "jpeg":
         same_frames(frames, theirs)
     assert (info.frames, info.missing_depth, info.missing_skeleton, info.background_frames) == (
-        our_info.frames, our_info.missing_depth, our_info.missing_skeleton, our_info.background_frames)
+        our_info.frames,
+        our_info.missing_depth,
+        our_info.missing_skeleton,
+        our_info.background_frames,
+    )
     assert info.color_format == color and info.depth_format == depth
 
 
 @pytest.mark.parametrize(
     "options, reason",
-    [({"use_chunks": False, "emit_chunk_indexes": False, "emit_message_indexes": False}, "no chunk index"),
-     ({"emit_message_indexes": False}, "no message index")],
+    [
+        ({"use_chunks": False, "emit_chunk_indexes": False, "emit_message_indexes": False}, "no chunk index"),
+        ({"emit_message_indexes": False}, "no message index"),
+    ],
     ids=["unchunked", "no-message-index"],
 )
 def test_unindexed_foxglove_file_is_scanned(tmp_path, make_frames, write_foxglove, same_frames, options, reason):
@@ -76,8 +84,11 @@ def rerun_env(tmp_path_factory):
     assert rerun.exists(), f"{rerun} missing: install rerun-sdk (tools/setup.sh --test)"
     home = tmp_path_factory.mktemp("rerun-home")
     env = {
-        **os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / "config"),
-        "XDG_DATA_HOME": str(home / "data"), "XDG_CACHE_HOME": str(home / "cache"),
+        **os.environ,
+        "HOME": str(home),
+        "XDG_CONFIG_HOME": str(home / "config"),
+        "XDG_DATA_HOME": str(home / "data"),
+        "XDG_CACHE_HOME": str(home / "cache"),
         "RERUN_TELEMETRY_ENABLED": "false",
     }
     help_text = subprocess.run([str(rerun), "mcap", "--help"], env=env, capture_output=True, text=True, timeout=60)
@@ -92,8 +103,11 @@ def test_rerun_mcap_check_passes(tmp_path, make_frames, record, rerun_env, color
     path = record(tmp_path / "ours.mcap", make_frames(10), color_format=color_format, depth_format=depth_format)
     proc = subprocess.run([rerun, "mcap", "check", str(path)], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    rows = {line.split()[3]: line.split()[0] for line in proc.stdout.splitlines()
-            if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")}
+    rows = {
+        line.split()[3]: line.split()[0]
+        for line in proc.stdout.splitlines()
+        if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
+    }
     assert rows == {topic: "ok" for topic in fmt.FRAME_TOPICS if topic != fmt.HAND_TOPIC}, proc.stdout  # no hands here
 
 
@@ -113,9 +127,12 @@ def test_rerun_mcap_check_catches_corruption(tmp_path, make_frames, record, reru
 def node_read(path):
     node = shutil.which("node")
     assert node, "node is not installed (tools/setup.sh --test installs it)"
-    assert (INTEROP / "node_modules" / "@mcap" / "core").is_dir(), "run `npm ci` in tests/interop (tools/setup.sh --test)"
-    return subprocess.run([node, str(INTEROP / "read_mcap.mjs"), str(path)], capture_output=True, text=True,
-                          timeout=120, cwd=INTEROP)
+    assert (INTEROP / "node_modules" / "@mcap" / "core").is_dir(), (
+        "run `npm ci` in tests/interop (tools/setup.sh --test)"
+    )
+    return subprocess.run(
+        [node, str(INTEROP / "read_mcap.mjs"), str(path)], capture_output=True, text=True, timeout=120, cwd=INTEROP
+    )
 
 
 def indexed_chunks(path):
@@ -133,24 +150,46 @@ def test_typescript_readers_agree(tmp_path, make_frames, record):
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     indexed, stream = out["indexed"], out["stream"]
-    counts = {fmt.CALIBRATION_TOPIC: len(indexed_chunks(path)), fmt.COLOR_TOPIC: 9, fmt.DEPTH_TOPIC: 8,
-              fmt.SKELETON_TOPIC: 7, fmt.GROUND_TRUTH_TOPIC: 7}  # a calibration copy starts every chunk
+    counts = {
+        fmt.CALIBRATION_TOPIC: len(indexed_chunks(path)),
+        fmt.COLOR_TOPIC: 9,
+        fmt.DEPTH_TOPIC: 8,
+        fmt.SKELETON_TOPIC: 7,
+        fmt.GROUND_TRUTH_TOPIC: 7,
+    }  # a calibration copy starts every chunk
     assert {topic: t["count"] for topic, t in indexed["topics"].items()} == counts
     assert stream["done"] and stream["counts"] == counts and stream["dataSectionCrc"] != 0
     assert indexed["ordered"] and indexed["compression"] == ["zstd"] and indexed["messages"] == sum(counts.values())
     assert indexed["statistics"]["messageCount"] == sum(counts.values())
     topics = indexed["topics"]
-    assert topics[fmt.COLOR_TOPIC]["schema"] == fmt.COMPRESSED_IMAGE and topics[fmt.COLOR_TOPIC]["first"]["format"] == "jpeg"
-    assert topics[fmt.DEPTH_TOPIC]["first"] == {"width": 64, "height": 48, "encoding": "16UC1", "frame_id": "camera",
-                                                 "dataBytes": 64 * 48 * 2}
+    assert (
+        topics[fmt.COLOR_TOPIC]["schema"] == fmt.COMPRESSED_IMAGE
+        and topics[fmt.COLOR_TOPIC]["first"]["format"] == "jpeg"
+    )
+    assert topics[fmt.DEPTH_TOPIC]["first"] == {
+        "width": 64,
+        "height": 48,
+        "encoding": "16UC1",
+        "frame_id": "camera",
+        "dataBytes": 64 * 48 * 2,
+    }
     k = frames[0].intrinsics
     assert topics[fmt.CALIBRATION_TOPIC]["first"]["K"] == pytest.approx([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
-    assert topics[fmt.SKELETON_TOPIC]["schemaEncoding"] == "jsonschema" and topics[fmt.SKELETON_TOPIC]["first"] == {"keys": ["joints"]}
+    assert topics[fmt.SKELETON_TOPIC]["schemaEncoding"] == "jsonschema" and topics[fmt.SKELETON_TOPIC]["first"] == {
+        "keys": ["joints"]
+    }
     recording_meta = [m for m in indexed["metadata"] if m["name"] == fmt.RECORDING_METADATA]
     channel_meta = {m["metadata"]["topic"] for m in indexed["metadata"] if m["name"] == fmt.CHANNEL_METADATA}
     assert channel_meta == set(counts)
-    assert recording_meta[-1] == {"name": fmt.RECORDING_METADATA, "metadata": {
-        "format_version": "1", "writer": indexed["metadata"][0]["metadata"]["writer"], "seed": "4", "background_frames": "2"}}
+    assert recording_meta[-1] == {
+        "name": fmt.RECORDING_METADATA,
+        "metadata": {
+            "format_version": "1",
+            "writer": indexed["metadata"][0]["metadata"]["writer"],
+            "seed": "4",
+            "background_frames": "2",
+        },
+    }
 
 
 def test_typescript_reader_validates_crcs(tmp_path, make_frames, record):

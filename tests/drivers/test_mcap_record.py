@@ -45,7 +45,9 @@ def test_messages_follow_the_convention(tmp_path, make_frames, record):
             assert fmt.decode_calibration(m.data) == by_time[m.log_time]
     cal_meta = [m for name, m in metadata if name == fmt.CALIBRATION_METADATA]
     assert [fmt.decode_calibration_metadata(m) for m in cal_meta] == [
-        (frames[0].timestamp_ns, frames[0].intrinsics), (frames[6].timestamp_ns, frames[6].intrinsics)]
+        (frames[0].timestamp_ns, frames[0].intrinsics),
+        (frames[6].timestamp_ns, frames[6].intrinsics),
+    ]
     schemas = {c.topic: (s.name, s.encoding, c.message_encoding) for s, c, _ in messages}
     assert schemas[fmt.COLOR_TOPIC] == (fmt.RAW_IMAGE, "protobuf", "protobuf")
     assert schemas[fmt.SKELETON_TOPIC] == (fmt.SKELETON_SCHEMA, "jsonschema", "json")
@@ -81,12 +83,14 @@ def test_every_chunk_starts_with_the_calibration(tmp_path, make_frames, record):
         assert fmt.decode_calibration(m.data) == by_time[m.log_time]
 
 
-@pytest.mark.parametrize("color_format, depth_format, compression", [("jpeg", "png", "zstd"), ("png", "raw", "lz4"),
-                                                                     ("raw", "raw", "none")])
+@pytest.mark.parametrize(
+    "color_format, depth_format, compression", [("jpeg", "png", "zstd"), ("png", "raw", "lz4"), ("raw", "raw", "none")]
+)
 def test_formats_and_compressions(tmp_path, make_frames, record, color_format, depth_format, compression):
     frames = make_frames(4)
-    path = record(tmp_path / "f.mcap", frames, color_format=color_format, depth_format=depth_format,
-                  compression=compression)
+    path = record(
+        tmp_path / "f.mcap", frames, color_format=color_format, depth_format=depth_format, compression=compression
+    )
     _, summary, messages, _ = read_all(path)
     expected = {"zstd": "zstd", "lz4": "lz4", "none": ""}[compression]
     assert {ci.compression for ci in summary.chunk_indexes} == {expected}
@@ -101,12 +105,17 @@ def test_tracker_topics(tmp_path, make_frames):
     with McapRecorder(path) as rec:
         for f in frames:
             rec.write(f)
-            rec.write_json(fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA,
-                           {"frame": f.seq, "timestamp_ns": f.timestamp_ns, "u": 1.0, "v": 2.0, "xyz_mm": None},
-                           f.timestamp_ns)
+            rec.write_json(
+                fmt.ESTIMATE_TOPIC,
+                fmt.ESTIMATE_SCHEMA,
+                {"frame": f.seq, "timestamp_ns": f.timestamp_ns, "u": 1.0, "v": 2.0, "xyz_mm": None},
+                f.timestamp_ns,
+            )
             rec.write_protobuf(fmt.PARTICLES_TOPIC, PointCloud(frame_id="camera", point_stride=12), f.timestamp_ns)
         rec.write_json("/custom", "my.Thing", {"k": [1, 2]}, 7, schema={"type": "object"})
-        with pytest.raises(InputError, match="already carries fusion_pf.Estimate messages, cannot write fusion_pf.Cues"):
+        with pytest.raises(
+            InputError, match="already carries fusion_pf.Estimate messages, cannot write fusion_pf.Cues"
+        ):
             rec.write_json(fmt.ESTIMATE_TOPIC, fmt.CUES_SCHEMA, {}, 1)
         with pytest.raises(InputError, match="already carries foxglove.PointCloud"):
             rec.write_protobuf(fmt.PARTICLES_TOPIC, fmt.encode_calibration(frames[0].intrinsics, 0), 1)

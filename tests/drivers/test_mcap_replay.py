@@ -41,8 +41,19 @@ def test_compressed_roundtrip(tmp_path, make_frames, record, same_frames, color_
     frames = make_frames(5)
     # smooth images so that JPEG stays close
     ramp = np.linspace(0, 255, 64, dtype=np.uint8)[None, :, None]
-    frames = [f.__class__(f.timestamp_ns, f.seq, np.broadcast_to(ramp, (48, 64, 3)).copy(), f.depth, f.intrinsics,
-                          f.joints, f.ground_truth, f.background) for f in frames]
+    frames = [
+        f.__class__(
+            f.timestamp_ns,
+            f.seq,
+            np.broadcast_to(ramp, (48, 64, 3)).copy(),
+            f.depth,
+            f.intrinsics,
+            f.joints,
+            f.ground_truth,
+            f.background,
+        )
+        for f in frames
+    ]
     path = record(tmp_path / "c.mcap", frames, color_format=color_format, depth_format=depth_format)
     out, _, info = replay_all(path)
     same_frames(frames, out, exact_color=exact)
@@ -93,8 +104,13 @@ def test_info(tmp_path, make_frames, record):
     assert info.ground_truth_frames == 8 and info.calibration_messages == n_chunks  # a copy per chunk
     assert info.metadata["generator"] == "hand"
     counts = {t.topic: t.message_count for t in info.topics}
-    assert counts == {fmt.COLOR_TOPIC: 11, fmt.DEPTH_TOPIC: 10, fmt.SKELETON_TOPIC: 9,
-                      fmt.GROUND_TRUTH_TOPIC: 8, fmt.CALIBRATION_TOPIC: n_chunks}
+    assert counts == {
+        fmt.COLOR_TOPIC: 11,
+        fmt.DEPTH_TOPIC: 10,
+        fmt.SKELETON_TOPIC: 9,
+        fmt.GROUND_TRUTH_TOPIC: 8,
+        fmt.CALIBRATION_TOPIC: n_chunks,
+    }
     as_json = __import__("json").loads(info.to_json())
     assert as_json["topics"][0]["topic"] == fmt.CALIBRATION_TOPIC and as_json["frames"] == 11
 
@@ -149,7 +165,10 @@ def test_flipped_byte_inside_a_chunk(tmp_path, make_frames, record, same_frames)
         kept = [frames[f.seq] for f in out]
         for a, b in zip(kept, out):
             assert np.array_equal(a.color, b.color)
-        with pytest.raises(RecordingError, match=f"frame {colour_lost[0]} .* cannot be read: .*chunk at byte {victim.offset} is corrupt"):
+        with pytest.raises(
+            RecordingError,
+            match=f"frame {colour_lost[0]} .* cannot be read: .*chunk at byte {victim.offset} is corrupt",
+        ):
             replay.frame(colour_lost[0])
         assert note in replay.info().notes
 
@@ -159,7 +178,10 @@ def test_not_mcap_empty_missing_directory(tmp_path):
         "text.mcap": (b"hello, this is not a recording\n", "is not an MCAP file: it starts with b'hello, t'"),
         "empty.mcap": (b"", "is empty \\(0 bytes\\); expected an MCAP recording"),
         "short.mcap": (MAGIC[:5], "is truncated to 5 bytes, before the end of the MCAP magic"),
-        "magic.mcap": (MAGIC, "has no /camera/color topic, which is required; topics present: none \\(the file is truncated\\)"),
+        "magic.mcap": (
+            MAGIC,
+            "has no /camera/color topic, which is required; topics present: none \\(the file is truncated\\)",
+        ),
     }
     for name, (content, message) in cases.items():
         path = tmp_path / name
@@ -177,8 +199,14 @@ def _frame_messages(t, color_size=(64, 48), depth_size=(64, 48), calibration=Tru
     dw, dh = depth_size
     out = []
     if calibration:
-        out.append((fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION,
-                    fmt.encode_calibration(Intrinsics(cw, ch, 50, 50, cw / 2, ch / 2), t), t))
+        out.append(
+            (
+                fmt.CALIBRATION_TOPIC,
+                fmt.CAMERA_CALIBRATION,
+                fmt.encode_calibration(Intrinsics(cw, ch, 50, 50, cw / 2, ch / 2), t),
+                t,
+            )
+        )
     out.append((fmt.COLOR_TOPIC, fmt.RAW_IMAGE, fmt.encode_color(np.zeros((ch, cw, 3), np.uint8), t), t))
     out.append((fmt.DEPTH_TOPIC, fmt.RAW_IMAGE, fmt.encode_depth(np.ones((dh, dw), np.uint16), t), t))
     return out
@@ -189,8 +217,12 @@ def test_depth_not_aligned_to_colour(tmp_path, write_messages):
     with pytest.raises(RecordingError, match="/camera/depth is 320x200 but /camera/color is 640x400 in frame 0"):
         McapReplay(path).open()
     # a mismatch later in the file (issue 14 item 6): that frame is yielded without depth, counted and reported
-    messages = (_frame_messages(10) + _frame_messages(20, calibration=False)
-                + _frame_messages(30, depth_size=(32, 24), calibration=False) + _frame_messages(40, calibration=False))
+    messages = (
+        _frame_messages(10)
+        + _frame_messages(20, calibration=False)
+        + _frame_messages(30, depth_size=(32, 24), calibration=False)
+        + _frame_messages(40, calibration=False)
+    )
     path = write_messages(tmp_path / "late.mcap", messages)
     with McapReplay(path) as replay:
         got = [(frame.timestamp_ns, frame.depth is not None) for frame in replay]
@@ -198,13 +230,18 @@ def test_depth_not_aligned_to_colour(tmp_path, write_messages):
         assert replay.stats.skipped_parts == {"depth": 1} and replay.stats.dropped == 0
         assert any("/camera/depth is 32x24 but /camera/color is 64x48 in frame 2" in n for n in replay.stats.notes)
         assert replay.stats.loss_summary() == (
-            "skipped 0 frames: 1 depth message unreadable (frames kept without depth)")
+            "skipped 0 frames: 1 depth message unreadable (frames kept without depth)"
+        )
 
 
 def test_calibration_size_must_match(tmp_path, write_messages):
     messages = _frame_messages(10)
-    messages[0] = (fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION,
-                   fmt.encode_calibration(Intrinsics(640, 480, 500, 500, 320, 240), 10), 10)
+    messages[0] = (
+        fmt.CALIBRATION_TOPIC,
+        fmt.CAMERA_CALIBRATION,
+        fmt.encode_calibration(Intrinsics(640, 480, 500, 500, 320, 240), 10),
+        10,
+    )
     path = write_messages(tmp_path / "cal.mcap", messages)
     with pytest.raises(RecordingError, match="calibration is for 640x480 images but /camera/color is 64x48"):
         McapReplay(path).open()
@@ -212,13 +249,17 @@ def test_calibration_size_must_match(tmp_path, write_messages):
 
 def test_missing_required_topics_list_what_is_there(tmp_path, write_messages):
     path = write_messages(tmp_path / "nocal.mcap", _frame_messages(10, calibration=False))
-    with pytest.raises(RecordingError, match="has no /camera/calibration topic, which is required; "
-                                             "topics present: /camera/color, /camera/depth$"):
+    with pytest.raises(
+        RecordingError,
+        match="has no /camera/calibration topic, which is required; topics present: /camera/color, /camera/depth$",
+    ):
         McapReplay(path).open()
     no_color = [m for m in _frame_messages(10) if m[0] != fmt.COLOR_TOPIC]
     path = write_messages(tmp_path / "nocolor.mcap", no_color)
-    with pytest.raises(RecordingError, match="has no /camera/color topic, which is required; "
-                                             "topics present: /camera/calibration, /camera/depth$"):
+    with pytest.raises(
+        RecordingError,
+        match="has no /camera/color topic, which is required; topics present: /camera/calibration, /camera/depth$",
+    ):
         McapReplay(path).open()
 
 
@@ -226,8 +267,11 @@ def test_wrong_encoding_and_bad_metadata(tmp_path, write_messages):
     messages = _frame_messages(10)
     messages[1] = (fmt.COLOR_TOPIC, "my.Image", {"pixels": []}, 10)
     path = write_messages(tmp_path / "json.mcap", messages)
-    with pytest.raises(RecordingError, match="/camera/color carries json my.Image messages; expected protobuf "
-                                             "foxglove.RawImage or foxglove.CompressedImage"):
+    with pytest.raises(
+        RecordingError,
+        match="/camera/color carries json my.Image messages; expected protobuf "
+        "foxglove.RawImage or foxglove.CompressedImage",
+    ):
         McapReplay(path).open()
     path = write_messages(tmp_path / "meta.mcap", _frame_messages(10), metadata={"background_frames": "two"})
     with pytest.raises(RecordingError, match="background_frames must be a non-negative integer, got 'two'"):
@@ -236,8 +280,14 @@ def test_wrong_encoding_and_bad_metadata(tmp_path, write_messages):
 
 def test_frames_assembled_by_timestamp(tmp_path, write_messages):
     """Orphan depth (no colour) is not a frame; a calibration before the first frame applies."""
-    messages = [(fmt.CALIBRATION_TOPIC, fmt.CAMERA_CALIBRATION,
-                 fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), 5), 5)]
+    messages = [
+        (
+            fmt.CALIBRATION_TOPIC,
+            fmt.CAMERA_CALIBRATION,
+            fmt.encode_calibration(Intrinsics(64, 48, 50, 50, 32, 24), 5),
+            5,
+        )
+    ]
     messages += [m for m in _frame_messages(10, calibration=False)]
     messages += [m for m in _frame_messages(15, calibration=False) if m[0] == fmt.DEPTH_TOPIC]
     messages += [m for m in _frame_messages(20, calibration=False) if m[0] == fmt.COLOR_TOPIC]
@@ -253,6 +303,7 @@ def test_concurrent_random_access(tmp_path, make_frames, record, same_frames):
     path = record(tmp_path / "threads.mcap", frames, chunk_size=6_000)
     errors = []
     with McapReplay(path) as replay:
+
         def worker(offset):
             try:
                 for k in range(48):
@@ -309,10 +360,17 @@ def test_other_chunk_compressions(tmp_path, make_frames, record, same_frames, co
     background=st.integers(0, 3),
     data=st.data(),
 )
-def test_any_chunking_replays_exactly(tmp_path, make_frames, record, same_frames, n, chunk_size, gaps,
-                                      skeleton_gaps, background, data):
-    frames = make_frames(n, size=(16, 12), no_depth=tuple(gaps), no_skeleton=tuple(skeleton_gaps),
-                         background=background, calibration_change=n // 2 if n > 2 else None)
+def test_any_chunking_replays_exactly(
+    tmp_path, make_frames, record, same_frames, n, chunk_size, gaps, skeleton_gaps, background, data
+):
+    frames = make_frames(
+        n,
+        size=(16, 12),
+        no_depth=tuple(gaps),
+        no_skeleton=tuple(skeleton_gaps),
+        background=background,
+        calibration_change=n // 2 if n > 2 else None,
+    )
     path = record(tmp_path / f"h{n}_{chunk_size}.mcap", frames, chunk_size=chunk_size)
     with McapReplay(path) as replay:
         same_frames(frames, list(replay))

@@ -70,7 +70,9 @@ def _expected_corners(centre_px, size_px, angle) -> np.ndarray:
     up = np.array([np.sin(angle), -np.cos(angle)])
     right = np.array([np.cos(angle), np.sin(angle)])
     centre = np.array(centre_px) + 0.5 + 0.5 * size_px * up  # continuous coordinates
-    return np.array([centre + side / 2 * (-right + up), centre + side / 2 * (right + up), centre + side / 2 * (right - up)])
+    return np.array(
+        [centre + side / 2 * (-right + up), centre + side / 2 * (right + up), centre + side / 2 * (right - up)]
+    )
 
 
 @pytest.mark.parametrize("angle", [0.0, np.pi / 6, -np.pi / 2])
@@ -157,9 +159,13 @@ def test_group_converter_adds_hands_and_skips_a_bad_palm_message() -> None:
         echo = pipeline.create(_LandmarkEcho)
         tracker = HandTracker(models, echo.input.createInputQueue(), echo.out.createOutputQueue())
         pipeline.start()
-        converter = GroupConverter(Intrinsics(W, H, 500.0, 500.0, 319.5, 199.5), ClockMap(0), None, stats, hands=tracker)
+        converter = GroupConverter(
+            Intrinsics(W, H, 500.0, 500.0, 319.5, 199.5), ClockMap(0), None, stats, hands=tracker
+        )
         frames = []
-        for k, palm in enumerate([_palm_nn((300.0, 180.0), 60.0, 0.0), dai.NNData(), _palm_nn((300, 180), 60, 0.0, -3.0)]):
+        for k, palm in enumerate(
+            [_palm_nn((300.0, 180.0), 60.0, 0.0), dai.NNData(), _palm_nn((300, 180), 60, 0.0, -3.0)]
+        ):
             group = dai.MessageGroup()
             img.setSequenceNum(k)
             group["colour"] = img
@@ -236,7 +242,9 @@ def test_a_missing_landmark_answer_skips_the_frame_and_a_late_one_is_not_reused(
         echo = pipeline.create(_LandmarkEcho)
         out = echo.out.createOutputQueue()
         tracker = HandTracker(models, pipeline.create(_LandmarkEcho).input.createInputQueue(), out, timeout_s=0.2)
-        converter = GroupConverter(Intrinsics(W, H, 500.0, 500.0, 319.5, 199.5), ClockMap(0), None, stats, hands=tracker)
+        converter = GroupConverter(
+            Intrinsics(W, H, 500.0, 500.0, 319.5, 199.5), ClockMap(0), None, stats, hands=tracker
+        )
         pipeline.start()
         group = dai.MessageGroup()
         group["colour"] = img

@@ -206,7 +206,9 @@ def test_device_that_never_sends_times_out_before_the_first_frame() -> None:
         queue = sync.out.createOutputQueue()
         pipeline.start()
         converter = GroupConverter(INTRINSICS, CLOCK, None, SourceStats())
-        with pytest.raises(DeviceError, match=r"^no frame from the OAK device for 0.4 s \(device timeout\) before the first frame$"):
+        with pytest.raises(
+            DeviceError, match=r"^no frame from the OAK device for 0.4 s \(device timeout\) before the first frame$"
+        ):
             next(frames_from_queue(queue, converter, 0.2, start_timeout_s=0.4))
         pipeline.stop()
 
@@ -397,7 +399,10 @@ def test_intrinsics_from_calibration_at_output_size() -> None:
 
 def test_intrinsics_distortion_models_and_errors() -> None:
     tilted = [0.1] * 14
-    assert intrinsics_from_calibration(_calibration(dai.CameraModel.Perspective, tilted), 640, 400).distortion_model == "opencv"
+    assert (
+        intrinsics_from_calibration(_calibration(dai.CameraModel.Perspective, tilted), 640, 400).distortion_model
+        == "opencv"
+    )
     fisheye = intrinsics_from_calibration(_calibration(dai.CameraModel.Fisheye, [0.1, 0.01, 0.0, 0.001]), 640, 400)
     assert fisheye.distortion_model == "kannala_brandt" and len(fisheye.distortion) == 4
     with pytest.raises(DeviceError, match="distortion model must be Perspective or Fisheye, got Equirectangular"):
@@ -424,7 +429,9 @@ def test_pulled_cable_mid_recording_leaves_a_complete_mcap(tmp_path: Path) -> No
     from drivers.mcap_record import McapRecorder
     from drivers.mcap_replay import McapReplay
 
-    intrinsics = Intrinsics(W, H, 50.0, 51.0, 31.5, 19.5, "rational_polynomial", (0.1, -0.2, 1e-3, 2e-3, 0.05, 0.0, 0.0, 0.0))
+    intrinsics = Intrinsics(
+        W, H, 50.0, 51.0, 31.5, 19.5, "rational_polynomial", (0.1, -0.2, 1e-3, 2e-3, 0.05, 0.0, 0.0, 0.0)
+    )
     seqs = [0, 1, 3, 4]
     stats = SourceStats()
     converter = GroupConverter(intrinsics, CLOCK, (NN, NN), stats)
@@ -464,7 +471,9 @@ def test_bad_pose_messages_are_skipped_counted_and_noted_once() -> None:
     stats = SourceStats()
     converter = GroupConverter(INTRINSICS, CLOCK, (NN, NN), stats)
     joints = []
-    for seq, values in enumerate([_pose(0), np.zeros((1, 1, 17, 2), np.float16), _pose(2), np.full((1, 1, 17, 3), 2.0, np.float16)]):
+    for seq, values in enumerate(
+        [_pose(0), np.zeros((1, 1, 17, 2), np.float16), _pose(2), np.full((1, 1, 17, 3), 2.0, np.float16)]
+    ):
         group = dai.MessageGroup()
         group["colour"] = _img(dai.ImgFrame.Type.BGR888i, _colour(seq), seq, _ts(seq))
         nn = dai.NNData()

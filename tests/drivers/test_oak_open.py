@@ -204,7 +204,9 @@ def test_rvc4_open_builds_image_align_and_closes(connect, monkeypatch: pytest.Mo
         assert len(pipe.of(dai.node.ImageAlign)) == 1
         assert source.metadata()["oak_platform"] == "RVC4"
         assert not any("USB" in n for n in source.stats.notes)
-        with pytest.raises(DeviceError, match=r"^no frame from the OAK device for 0.3 s \(device timeout\) before the first frame$"):
+        with pytest.raises(
+            DeviceError, match=r"^no frame from the OAK device for 0.3 s \(device timeout\) before the first frame$"
+        ):
             next(iter(source))
     assert [c.name for c in device.calls].count("close") == 1
 
@@ -212,7 +214,9 @@ def test_rvc4_open_builds_image_align_and_closes(connect, monkeypatch: pytest.Mo
 def test_ir_laser_without_projector_closes_the_device(connect) -> None:
     make, pipelines = connect
     device = make(_answers(ir=[]))
-    with pytest.raises(DeviceError, match=r"^ir_laser=100 mA needs an OAK with an IR dot projector \(Pro models\); OAK-D has none$"):
+    with pytest.raises(
+        DeviceError, match=r"^ir_laser=100 mA needs an OAK with an IR dot projector \(Pro models\); OAK-D has none$"
+    ):
         OakSource(OakConfig(ir_laser=100.0)).open()
     assert device.calls[-1].name == "close"
 
@@ -254,8 +258,13 @@ def test_close_is_bounded_in_time(connect, monkeypatch: pytest.MonkeyPatch) -> N
 def test_depthai_documents_the_strict_disconnect_semantics() -> None:
     """The disconnect policy relies on these documented semantics of the installed depthai."""
     doc = " ".join(REAL_PIPELINE.setStopOnDeviceLoss.__doc__.split())
-    assert "A device is lost for good when its state becomes FAILED - after the reconnection attempts are exhausted" in doc
-    assert "To stop as soon as a device disconnects, disable reconnection on the devices (Device::setMaxReconnectionAttempts(0))" in doc
+    assert (
+        "A device is lost for good when its state becomes FAILED - after the reconnection attempts are exhausted" in doc
+    )
+    assert (
+        "To stop as soon as a device disconnects, disable reconnection on the devices (Device::setMaxReconnectionAttempts(0))"
+        in doc
+    )
     check_call(REAL_DEVICE, "setMaxReconnectionAttempts", (0,), {})
 
 
@@ -267,10 +276,13 @@ def test_connection_refused_is_one_line(connect, monkeypatch: pytest.MonkeyPatch
         getAllAvailableDevices = dai.Device.getAllAvailableDevices
 
         def __new__(cls, arg):
-            raise RuntimeError("Cannot connect to device with name \"1.3\",\n X_LINK_DEVICE_ALREADY_IN_USE")
+            raise RuntimeError('Cannot connect to device with name "1.3",\n X_LINK_DEVICE_ALREADY_IN_USE')
 
     monkeypatch.setattr(dai, "Device", Busy)
-    with pytest.raises(DeviceError, match=r'^cannot connect to OAK device 14442C10D13EABCE00: Cannot connect .* "1.3", X_LINK_DEVICE_ALREADY_IN_USE$'):
+    with pytest.raises(
+        DeviceError,
+        match=r'^cannot connect to OAK device 14442C10D13EABCE00: Cannot connect .* "1.3", X_LINK_DEVICE_ALREADY_IN_USE$',
+    ):
         OakSource().open()
 
 
@@ -279,7 +291,9 @@ def test_depthai_error_while_starting_closes_the_device(connect) -> None:
     answers = _answers()
     answers["readCalibration"] = RuntimeError("EEPROM\nempty")
     device = make(answers)
-    with pytest.raises(DeviceError, match=r"^OAK device 14442C10D13EABCE00 failed to start the pipeline: EEPROM empty$"):
+    with pytest.raises(
+        DeviceError, match=r"^OAK device 14442C10D13EABCE00 failed to start the pipeline: EEPROM empty$"
+    ):
         OakSource(OakConfig(pose="none")).open()
     assert device.calls[-1].name == "close"
 

@@ -46,8 +46,16 @@ def make_archive(path: Path, model_file: str, data: bytes, dai_type: str | None,
         "config_version": "1.0",
         "model": {
             "metadata": {"name": "movenet", "path": model_file, "precision": "uint8"},
-            "inputs": [{"name": "input", "dtype": "uint8", "input_type": "image", "shape": shape,
-                        "layout": layout, "preprocessing": preprocessing}],
+            "inputs": [
+                {
+                    "name": "input",
+                    "dtype": "uint8",
+                    "input_type": "image",
+                    "shape": shape,
+                    "layout": layout,
+                    "preprocessing": preprocessing,
+                }
+            ],
             "outputs": [{"name": "Identity", "dtype": "float16"}],
             "heads": [],
         },
@@ -95,7 +103,9 @@ def _check_common(p: SpecPipeline) -> tuple:
     (colour_req,) = p.calls_of(cams["CAM_A"], "requestOutput")
     assert colour_req.args == (SIZE,)
     assert colour_req.kwargs == {
-        "type": dai.ImgFrame.Type.BGR888i, "resizeMode": dai.ImgResizeMode.CROP, "fps": FPS,
+        "type": dai.ImgFrame.Type.BGR888i,
+        "resizeMode": dai.ImgResizeMode.CROP,
+        "fps": FPS,
         "enableUndistortion": True,
     }
     (stereo,) = p.of(dai.node.StereoDepth)
@@ -139,7 +149,9 @@ def test_rvc2_aligns_depth_with_input_align_to() -> None:
     assert manip_calls["setFrameType"] == (dai.ImgFrame.Type.RGB888p,)
     assert manip.shadow.inputImage.getBlocking() is False and manip.shadow.inputImage.getMaxSize() == 1
     assert [c.args for c in p.calls_of(nn) if c.name in ("setBlocking", "setMaxSize")] == [(False,), (1,)]
-    assert abs(sync.shadow.getSyncThreshold() - datetime.timedelta(seconds=0.5 / FPS)) <= datetime.timedelta(microseconds=1)
+    assert abs(sync.shadow.getSyncThreshold() - datetime.timedelta(seconds=0.5 / FPS)) <= datetime.timedelta(
+        microseconds=1
+    )
 
 
 def test_rvc4_aligns_depth_with_image_align(rvc4_archive: Path) -> None:
@@ -223,16 +235,22 @@ def test_archive_without_input_width_is_a_one_line_input_error(tmp_path: Path) -
 def test_fps_and_size_are_checked_against_the_sensors() -> None:
     lite = camera_features(35.0, 99.0)  # OAK-D Lite: IMX214 colour tops out near 35 fps at full size
     check_stream_limits(lite, SIZE, 30.0)
-    with pytest.raises(DeviceError, match="oak fps 60 is above the 35 fps maximum of the IMX214 sensor on CAM_A for a 640x400 output"):
+    with pytest.raises(
+        DeviceError, match="oak fps 60 is above the 35 fps maximum of the IMX214 sensor on CAM_A for a 640x400 output"
+    ):
         check_stream_limits(lite, SIZE, 60.0)
     # a faster binned mode counts only for outputs it is large enough for
     binned = camera_features(35.0, 99.0, binned_fps=60.0)  # 2104x1560 at 60 fps
     check_stream_limits(binned, SIZE, 60.0)
     with pytest.raises(DeviceError, match="above the 35 fps maximum .* for a 2560x1600 output"):
         check_stream_limits(binned, (2560, 1600), 60.0)
-    with pytest.raises(DeviceError, match="oak fps 100 is above the 99 fps maximum of the OV7251 sensor on CAM_B for a 640x400 output"):
+    with pytest.raises(
+        DeviceError, match="oak fps 100 is above the 99 fps maximum of the OV7251 sensor on CAM_B for a 640x400 output"
+    ):
         check_stream_limits(camera_features(120.0, 99.0), SIZE, 100.0)
-    with pytest.raises(DeviceError, match="oak size 1920x1200 is larger than the IMX214 sensor on CAM_A \\(1280x800\\)"):
+    with pytest.raises(
+        DeviceError, match="oak size 1920x1200 is larger than the IMX214 sensor on CAM_A \\(1280x800\\)"
+    ):
         check_stream_limits(camera_features(60.0, 120.0, (1280, 800)), (1920, 1200), 30.0)
     with pytest.raises(DeviceError, match="no camera on CAM_C .* found CAM_A \\(IMX214\\), CAM_B \\(OV7251\\)"):
         check_stream_limits(lite[:2], SIZE, 30.0)
@@ -304,8 +322,18 @@ def test_every_module_level_depthai_call_in_the_driver_exists_with_its_arguments
                 bound = names[:n_pos] + list(keywords)
                 if n_pos <= len(params) and all(k in names[n_pos:] for k in keywords) and set(required) <= set(bound):
                     fits.append(sig)
-            assert fits, f"{name}:{line}: dai.{dotted} with {n_pos} positional and {keywords} keyword arguments fits no overload"
+            assert fits, (
+                f"{name}:{line}: dai.{dotted} with {n_pos} positional and {keywords} keyword arguments fits no overload"
+            )
             checked.append(dotted)
     # the calls this test must have seen (a refactor that hides them from the scan fails here)
-    for expected in ("Pipeline", "Device", "NNArchive", "OpenVINO.Blob", "NNModelDescription", "getModelFromZoo", "ImgFrame"):
+    for expected in (
+        "Pipeline",
+        "Device",
+        "NNArchive",
+        "OpenVINO.Blob",
+        "NNModelDescription",
+        "getModelFromZoo",
+        "ImgFrame",
+    ):
         assert expected in checked, expected

@@ -23,7 +23,11 @@ from fusion_pf.errors import DeviceError, InputError
 def test_defaults() -> None:
     config = OakConfig()
     assert (config.size, config.fps, config.pose, config.device, config.timeout_s) == (
-        (640, 400), 30.0, "lightning", None, 3.0,
+        (640, 400),
+        30.0,
+        "lightning",
+        None,
+        3.0,
     )
 
 
@@ -50,7 +54,10 @@ def test_spec_options_and_typed_overrides() -> None:
         ({"fps": "0.5"}, r"oak fps must be in \[1, 60\], got 0.5"),
         ({"timeout": "0"}, r"oak timeout must be in \(0, 60\] seconds, got 0"),
         ({"pose": "posenet"}, "oak pose must be lightning, thunder, none, .* got 'posenet'"),
-        ({"duration": "10"}, "unknown oak option.* duration; expected: size, fps, pose, device, timeout, ir_laser, hands"),
+        (
+            {"duration": "10"},
+            "unknown oak option.* duration; expected: size, fps, pose, device, timeout, ir_laser, hands",
+        ),
         ({"ir_laser": "5000"}, r"oak ir_laser must be in \[0, 1200\] mA, got 5000"),
         ({"hands": "huge"}, "oak hands must be none or one of lite, full, sparse, got 'huge'"),
         ({"device": ""}, "oak device must be a non-empty"),
@@ -90,7 +97,9 @@ def test_select_device() -> None:
     assert select_device([usb, poe], None) is usb
     assert select_device([usb, poe], "192.168.1.44") is poe
     assert select_device([usb, poe], "14442C10D13EABCE00") is usb
-    with pytest.raises(DeviceError, match=r"'XYZ' not found; available: 14442C10D13EABCE00 \(1.3\), 18443010B1F4C81200"):
+    with pytest.raises(
+        DeviceError, match=r"'XYZ' not found; available: 14442C10D13EABCE00 \(1.3\), 18443010B1F4C81200"
+    ):
         select_device([usb, poe], "XYZ")
     with pytest.raises(DeviceError, match="no OAK device found"):
         select_device([], "XYZ")
@@ -143,7 +152,9 @@ def test_cli_record_without_device_exits_2_with_one_line(tmp_path: Path) -> None
     start = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-m", "fusion_pf", "record", "oak", str(out), "--duration", "10"],
-        capture_output=True, text=True, timeout=30,
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     elapsed = time.monotonic() - start
     assert proc.returncode == 2, proc.stderr
@@ -151,7 +162,9 @@ def test_cli_record_without_device_exits_2_with_one_line(tmp_path: Path) -> None
     lines = proc.stderr.splitlines()
     assert [line for line in lines if line.startswith("fusion-pf:")] == [f"fusion-pf: error: {NO_DEVICE_MESSAGE}"]
     # anything else is depthai's own log (e.g. its container USB warning), never a traceback
-    assert all(re.match(r"^\[[^\]]+\] \[depthai\] \[warning\]", line) for line in lines if not line.startswith("fusion-pf:"))
+    assert all(
+        re.match(r"^\[[^\]]+\] \[depthai\] \[warning\]", line) for line in lines if not line.startswith("fusion-pf:")
+    )
     assert "Traceback" not in proc.stderr
     assert not out.exists()  # nothing written when there is no camera
 
@@ -159,7 +172,9 @@ def test_cli_record_without_device_exits_2_with_one_line(tmp_path: Path) -> None
 def test_cli_ir_laser_is_validated_before_looking_for_a_device(tmp_path: Path) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "fusion_pf", "record", "oak", str(tmp_path / "x.mcap"), "--ir-laser", "5000"],
-        capture_output=True, text=True, timeout=30,
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert proc.returncode == 2
     assert "fusion-pf: error: oak ir_laser must be in [0, 1200] mA, got 5000" in proc.stderr

@@ -66,9 +66,7 @@ def test_contract(source):
 
 
 def test_synth_and_replay_agree(recorded):
-    with open_source(f"synth:frames={N},seed=5,size=160x100,background_frames=2") as a, open_source(
-        str(recorded)
-    ) as b:
+    with open_source(f"synth:frames={N},seed=5,size=160x100,background_frames=2") as a, open_source(str(recorded)) as b:
         for fa, fb in zip(a, b):
             assert frames_equal(fa, fb)
 

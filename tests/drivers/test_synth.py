@@ -91,13 +91,25 @@ def test_frame_types_sizes_timestamps_and_masks():
             assert m.shape == (120, 200) and m.dtype == bool
         assert not (masks["palm"] & ~masks["skin"]).any() and not (masks["skin"] & ~masks["person"]).any()
     assert set(frame.joints) == {
-        "right_hand", "left_hand", "right_wrist", "left_wrist", "right_elbow", "left_elbow",
-        "right_shoulder", "left_shoulder", "head", "torso",
+        "right_hand",
+        "left_hand",
+        "right_wrist",
+        "left_wrist",
+        "right_elbow",
+        "left_elbow",
+        "right_shoulder",
+        "left_shoulder",
+        "head",
+        "torso",
     }
     meta = src.metadata()
     assert all(isinstance(v, str) for v in meta.values())
     assert (meta["generator"], meta["seed"], meta["background_frames"], meta["size"]) == (
-        "fusion_pf.synth", "2", "1", "200x120")
+        "fusion_pf.synth",
+        "2",
+        "1",
+        "200x120",
+    )
 
 
 # -- ground truth, occlusion, skeleton ---------------------------------------------------------
@@ -148,8 +160,12 @@ def test_skeleton_is_accurate_when_clear_and_fails_under_occlusion():
             hand, torso = joints["right_hand"], joints["torso"]
             err = np.array([hand.u - g.u, hand.v - g.v])
             to_torso = np.array([torso.u - g.u, torso.v - g.v])
-            row = (np.hypot(*err), hand.confidence, err @ to_torso / (np.hypot(*err) * np.hypot(*to_torso)),
-                   math.hypot(joints["left_hand"].u - g.u, joints["left_hand"].v - g.v))
+            row = (
+                np.hypot(*err),
+                hand.confidence,
+                err @ to_torso / (np.hypot(*err) * np.hypot(*to_torso)),
+                math.hypot(joints["left_hand"].u - g.u, joints["left_hand"].v - g.v),
+            )
             if overlap == 0.0:
                 clear.append(row)
             elif g.occluded:
@@ -185,8 +201,11 @@ def test_colour_difference_bands(scene):
     values = {"skin": [], "cloth": [], "background": []}
     for frame, masks in person:
         grey = cv2.cvtColor(cv2.absdiff(np.ascontiguousarray(frame.color), ref), cv2.COLOR_RGB2GRAY)
-        for name, m in (("skin", masks["skin"]), ("cloth", masks["person"] & ~masks["skin"]),
-                        ("background", ~masks["person"])):
+        for name, m in (
+            ("skin", masks["skin"]),
+            ("cloth", masks["person"] & ~masks["skin"]),
+            ("background", ~masks["person"]),
+        ):
             values[name].append(grey[cv2.erode(m.astype(np.uint8), kernel).astype(bool)])
     skin, cloth, bg = (np.concatenate(values[k]) for k in ("skin", "cloth", "background"))
     assert 15 <= np.percentile(skin, 1) and np.percentile(skin, 99) <= 60
@@ -222,16 +241,24 @@ def test_bare_forearm_pulls_the_skin_region_toward_the_elbow(scene):
 
 def test_motion_blur_smears_only_the_moving_arm_along_the_palm_velocity():
     src = SynthSource(frames=60, seed=0)
-    speeds = [math.hypot(*np.subtract(sc.project(src.intrinsics, src.pose(i + 1).right_hand),
-                                      sc.project(src.intrinsics, src.pose(i).right_hand))) for i in range(59)]
+    speeds = [
+        math.hypot(
+            *np.subtract(
+                sc.project(src.intrinsics, src.pose(i + 1).right_hand),
+                sc.project(src.intrinsics, src.pose(i).right_hand),
+            )
+        )
+        for i in range(59)
+    ]
     fast = int(np.argmax(speeds))
     kernel = src.blur_kernel(fast)
     assert kernel is not None and kernel.shape[0] % 2 == 1 and abs(kernel.sum() - 1.0) < 1e-5
     half = kernel.shape[0] // 2
-    ys, xs = np.mgrid[-half:half + 1, -half:half + 1]
+    ys, xs = np.mgrid[-half : half + 1, -half : half + 1]
     assert abs((kernel * xs).sum()) < 1e-4 and abs((kernel * ys).sum()) < 1e-4  # no net shift
-    (u0, v0), (u1, v1) = (sc.project(src.intrinsics, sc.pose_at(src._motion, fast + d).right_hand)
-                          for d in (-0.25, 0.25))
+    (u0, v0), (u1, v1) = (
+        sc.project(src.intrinsics, sc.pose_at(src._motion, fast + d).right_hand) for d in (-0.25, 0.25)
+    )
     direction = np.array([u1 - u0, v1 - v0]) / math.hypot(u1 - u0, v1 - v0)
     along = (kernel * (xs * direction[0] + ys * direction[1]) ** 2).sum()
     across = (kernel * (xs * direction[1] - ys * direction[0]) ** 2).sum()
@@ -294,9 +321,9 @@ def test_invalid_depth_bands_speckles_and_range(scene):
     for r in rows[(rows > 140) & (rows < 300)]:
         cols = np.nonzero(masks["person"][r])[0]
         u0, u1 = cols.min(), cols.max()
-        left_band.append(frame.depth[r, u0 - 6:u0] == 0)
-        right_edge.append(frame.depth[r, u1 + 1:u1 + 3] == 0)
-        right_band.append(frame.depth[r, u1 + 3:u1 + 9] == 0)
+        left_band.append(frame.depth[r, u0 - 6 : u0] == 0)
+        right_edge.append(frame.depth[r, u1 + 1 : u1 + 3] == 0)
+        right_band.append(frame.depth[r, u1 + 3 : u1 + 9] == 0)
     assert np.mean(np.concatenate(left_band)) > 0.97  # stereo shadow on the occluded (left) side
     # the right outline has no shadow: the left-right check removes about EDGE_INVALID_FRACTION
     # of the EDGE_BAND_PX pixels next to it (measured 0.43), further out only speckles remain (0.04)
@@ -304,10 +331,10 @@ def test_invalid_depth_bands_speckles_and_range(scene):
     assert np.mean(np.concatenate(right_band)) < 0.06
     bg = background[0][0]
     k = src.intrinsics
-    wall = bg.depth[20:120, int(k.cx):int(k.cx + 0.35 * k.fx)]
+    wall = bg.depth[20:120, int(k.cx) : int(k.cx + 0.35 * k.fx)]
     assert abs(np.mean(wall == 0) - SPECKLE_FRACTION) < 0.008
     assert 2800 < np.median(wall[wall > 0]) < 3200
-    doorway = bg.depth[int(k.cy):, int(k.cx + 0.47 * k.fx):int(k.cx + 0.56 * k.fx)]
+    doorway = bg.depth[int(k.cy) :, int(k.cx + 0.47 * k.fx) : int(k.cx + 0.56 * k.fx)]
     assert doorway.size > 1000 and not doorway.any()  # beyond the range: invalid
     palm = frame.depth[masks["palm"]]
     assert 1100 < np.median(palm[palm > 0]) < 1400
@@ -317,8 +344,9 @@ def test_invalid_depth_bands_speckles_and_range(scene):
 
 
 def test_from_options_parses_strings():
-    src = SynthSource.from_options({"seed": "3", "frames": "7", "size": "320x200", "fps": "15",
-                                    "background_frames": "2"})
+    src = SynthSource.from_options(
+        {"seed": "3", "frames": "7", "size": "320x200", "fps": "15", "background_frames": "2"}
+    )
     assert (src.seed, len(src), src.size, src.fps, src.background_frames) == (3, 7, (320, 200), 15.0, 2)
     spec = open_source("synth:seed=3,frames=7,size=320x200,fps=15,background_frames=2")
     assert same_frame(spec.render(4)[0], src.render(4)[0])
@@ -356,16 +384,36 @@ def test_render_index_out_of_range():
 
 def test_synth_command_writes_a_recording(tmp_path, capsys):
     out = tmp_path / "s.mcap"
-    argv = ["synth", str(out), "--frames", "6", "--seed", "2", "--background-frames", "2", "--size", "160x100",
-            "--color-format", "png", "--depth-format", "png", "--no-progress"]
+    argv = [
+        "synth",
+        str(out),
+        "--frames",
+        "6",
+        "--seed",
+        "2",
+        "--background-frames",
+        "2",
+        "--size",
+        "160x100",
+        "--color-format",
+        "png",
+        "--depth-format",
+        "png",
+        "--no-progress",
+    ]
     assert main(argv) == 0
     expected = SynthSource(frames=6, seed=2, size=(160, 100), background_frames=2)
     with McapReplay(out) as rec:
         info = rec.info()
         assert (info.frames, info.background_frames, info.ground_truth_frames) == (6, 2, 4)
         assert info.metadata["generator"] == "fusion_pf.synth" and info.metadata["seed"] == "2"
-        assert {t.topic for t in info.topics} >= {"/camera/color", "/camera/depth", "/camera/calibration",
-                                                  "/skeleton/joints", "/ground_truth/palm"}
+        assert {t.topic for t in info.topics} >= {
+            "/camera/color",
+            "/camera/depth",
+            "/camera/calibration",
+            "/skeleton/joints",
+            "/ground_truth/palm",
+        }
         assert all(same_frame(a, expected.render(i)[0]) for i, a in enumerate(rec))
     capsys.readouterr()
     assert main(argv) == 2
@@ -382,9 +430,13 @@ def test_shipped_sample_matches_its_readme_command():
     args = dict(re.findall(r"--([a-z-]+) (\S+)", command))
     assert sample.stat().st_size <= 10_000_000
     w, h = map(int, args["size"].split("x"))
-    src = SynthSource(frames=int(args["frames"]), seed=int(args["seed"]), size=(w, h),
-                      background_frames=int(args["background-frames"]),
-                      depth_model=args.get("depth-model", "realistic"))
+    src = SynthSource(
+        frames=int(args["frames"]),
+        seed=int(args["seed"]),
+        size=(w, h),
+        background_frames=int(args["background-frames"]),
+        depth_model=args.get("depth-model", "realistic"),
+    )
     with McapReplay(sample) as rec:
         info = rec.info()
         assert (info.frames, info.background_frames, info.width, info.height) == (len(src), src.background_frames, w, h)

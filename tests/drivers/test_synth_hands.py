@@ -79,8 +79,24 @@ def test_one_hand_scene_is_unchanged_and_options(tmp_path, capsys):
     with pytest.raises(InputError, match="hands must be an integer in \\[1, 2\\]"):
         SynthSource(hands=3)
     out = tmp_path / "two.mcap"
-    assert main(["synth", str(out), "--frames", "4", "--size", "64x40", "--hands", "2",
-                 "--background-frames", "1", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                str(out),
+                "--frames",
+                "4",
+                "--size",
+                "64x40",
+                "--hands",
+                "2",
+                "--background-frames",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     src = SynthSource(frames=4, size=(64, 40), hands=2, background_frames=1)
     with McapReplay(out) as rec:
@@ -93,8 +109,7 @@ def test_one_hand_scene_is_unchanged_and_options(tmp_path, capsys):
 def test_recorder_and_replay_keep_single_and_multi_target_truth(tmp_path):
     base = SynthSource(frames=2, size=(64, 40), seed=1).render(1)[0]
     truths = {"right_hand": PalmPoint(1.0, 2.0, True), "left_hand": PalmPoint(3.0, 4.0), "head": PalmPoint(5.0, 6.0)}
-    multi = Frame(base.timestamp_ns + 1, 2, base.color, base.depth, base.intrinsics, base.joints,
-                  ground_truths=truths)
+    multi = Frame(base.timestamp_ns + 1, 2, base.color, base.depth, base.intrinsics, base.joints, ground_truths=truths)
     assert multi.ground_truth == truths["right_hand"]
     for frame in (base, multi):
         path = tmp_path / f"r{frame.seq}.mcap"

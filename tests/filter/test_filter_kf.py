@@ -45,8 +45,13 @@ def test_matches_filterpy_to_1e9_with_sequential_updates_and_dropouts():
 
 
 def test_hand_worked_two_steps():
-    kf = KalmanFilter(process_noise=(3.0, 1.0), noise_px={"colour": 6.0}, prior=(0, 0, 0, 0),
-                      init_spread_px=10.0, init_velocity_px=2.0)
+    kf = KalmanFilter(
+        process_noise=(3.0, 1.0),
+        noise_px={"colour": 6.0},
+        prior=(0, 0, 0, 0),
+        init_spread_px=10.0,
+        init_velocity_px=2.0,
+    )
     est = kf.step(0, [Measurement("colour", 6.0, 0.0)])
     # K = 100 / (100 + 36): u = 6 K, P_uu = 100 * 36 / 136
     assert est.u == pytest.approx(600 / 136, abs=1e-12) and est.v == 0.0
@@ -61,8 +66,11 @@ def test_kf_is_the_accuracy_reference_the_pf_approaches():
     """Same Gaussian model: a large-N weighted-mean PF lands within 20 % of the optimal KF."""
     sc = scripted_scenario(200, rng=12)
     kf = rmse(run_tracker(KalmanFilter(noise_px=SCENARIO_NOISE_PX), sc), sc.truth, slice(10, None))
-    pf = rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=3000, estimator="weighted_mean", rng=0), sc), sc.truth,
-              slice(10, None))
+    pf = rmse(
+        run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=3000, estimator="weighted_mean", rng=0), sc),
+        sc.truth,
+        slice(10, None),
+    )
     assert kf < rmse(sc.measurements["colour"], sc.truth) and pf < 1.2 * kf, (kf, pf)
 
 

@@ -155,8 +155,10 @@ def test_kmeans_pf_input_errors_and_late_targets():
 def test_independent_baselines_pf_and_kf():
     a, b = crossing()
     rng = np.random.default_rng(1)
-    for factory, evals in ((lambda: ParticleFilter(n_particles=50, noise_px=NOISE, rng=rng), 100),
-                           (lambda: KalmanFilter(noise_px=NOISE), 0)):
+    for factory, evals in (
+        (lambda: ParticleFilter(n_particles=50, noise_px=NOISE, rng=rng), 100),
+        (lambda: KalmanFilter(noise_px=NOISE), 0),
+    ):
         f = IndependentTrackers(["a", "b"], factory)
         out = run(f, a, b, np.random.default_rng(2))
         ea = np.array([[e.targets["a"].u, e.targets["a"].v] for e in out])

@@ -30,7 +30,9 @@ def _clone(rng: np.random.Generator) -> np.random.Generator:
 def test_step_reproduces_equations_3_to_7_by_hand():
     """Predict (eq. 4) and weight update (eqs. 3, 5-7) recomputed independently, to 1e-12."""
     rng = np.random.default_rng(11)
-    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=257, process_noise=(2.0, 0.5), ess_threshold=0.0, rng=rng)
+    pf = ParticleFilter(
+        noise_px=SCENARIO_NOISE_PX, n_particles=257, process_noise=(2.0, 0.5), ess_threshold=0.0, rng=rng
+    )
     pf.step(0, MS)
     x0 = pf.particles.copy()
     logw0 = pf.log_weights.copy()
@@ -65,7 +67,9 @@ def test_not_initialised_until_measurement_or_prior():
     est = pf.step(1, MS)
     fused = np.array([[m.u, m.v] for m in MS]).T @ (w := np.array([1 / 36, 1 / 100, 1 / 225])) / w.sum()
     assert math.hypot(est.u - fused[0], est.v - fused[1]) < 10.0
-    with_prior = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=2000, prior=(100.0, 50.0), init_spread_px=5.0, rng=0)
+    with_prior = ParticleFilter(
+        noise_px=SCENARIO_NOISE_PX, n_particles=2000, prior=(100.0, 50.0), init_spread_px=5.0, rng=0
+    )
     est = with_prior.step(0, [])
     assert est is not None and abs(est.u - 100) < 2 and abs(est.v - 50) < 2
 
@@ -77,7 +81,10 @@ def test_shapes_and_estimate_fields():
     assert est.particles.shape == (123, 2) and est.n_particles == 123
     assert est.cov.shape == (2, 2) and np.allclose(est.cov, est.cov.T) and np.all(np.linalg.eigvalsh(est.cov) > 0)
     assert 1.0 <= est.ess <= 123.0
-    assert ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=10, keep_particles=False, rng=0).step(0, MS).particles is None
+    assert (
+        ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=10, keep_particles=False, rng=0).step(0, MS).particles
+        is None
+    )
 
 
 def test_resampling_happens_exactly_when_ess_below_two_thirds():
@@ -106,10 +113,20 @@ def test_fused_rmse_below_best_single_source(resampler):
     """Paper 003's claim on a scripted path with known noise (sigma 6 / 10 / 15 px)."""
     sc = scripted_scenario(200, noise_px=NOISE, rng=21)
     settle = slice(10, None)
-    fused = rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc), sc.truth, settle)
+    fused = rmse(
+        run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc),
+        sc.truth,
+        settle,
+    )
     raw = {s: rmse(z, sc.truth, settle) for s, z in sc.measurements.items()}
     single = {
-        s: rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc, {s}), sc.truth, settle)
+        s: rmse(
+            run_tracker(
+                ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=500, resampler=resampler, rng=1), sc, {s}
+            ),
+            sc.truth,
+            settle,
+        )
         for s in NOISE
     }
     best = min(min(raw.values()), min(single.values()))
@@ -128,7 +145,11 @@ def test_robust_likelihood_resists_a_lying_source(liar):
     """One source offset by 60 px for 20 frames: the robust mixture stays closer to the truth."""
     sc = scripted_scenario(160, lie_source=liar, lie_start=80, lie_frames=20, rng=3)
     err = {
-        lik: rmse(run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=1000, likelihood=lik, rng=0), sc), sc.truth, sc.lie_frames)
+        lik: rmse(
+            run_tracker(ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=1000, likelihood=lik, rng=0), sc),
+            sc.truth,
+            sc.lie_frames,
+        )
         for lik in ("gaussian", "robust")
     }
     assert err["robust"] < err["gaussian"], err
@@ -140,7 +161,14 @@ def test_low_quality_widens_robust_likelihood():
     """A cue 8 px off pulls by its precision: sigma 10 at quality 1, ~31.6 at quality 0.1."""
     est = {}
     for q in (1.0, 0.1):
-        pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=4000, likelihood="robust", estimator="weighted_mean", ess_threshold=0.0, rng=0)
+        pf = ParticleFilter(
+            noise_px=SCENARIO_NOISE_PX,
+            n_particles=4000,
+            likelihood="robust",
+            estimator="weighted_mean",
+            ess_threshold=0.0,
+            rng=0,
+        )
         pf.step(0, [Measurement("colour", 300.0, 200.0)])
         est[q] = pf.step(1, [Measurement("depth", 308.0, 200.0, quality=q)]).u
     assert est[1.0] > est[0.1] + 1.0, est
@@ -221,8 +249,16 @@ def test_zero_process_noise_components_stay_deterministic(pos, vel):
 
 def test_frame_period_bridges_dropped_frames():
     period = 33_333_333
-    pf = ParticleFilter(noise_px=SCENARIO_NOISE_PX, n_particles=2000, process_noise=(0.0, 0.0), prior=(100, 100, 3, -2), init_spread_px=0.0,
-                        init_velocity_px=0.0, frame_period_ns=period, rng=0)
+    pf = ParticleFilter(
+        noise_px=SCENARIO_NOISE_PX,
+        n_particles=2000,
+        process_noise=(0.0, 0.0),
+        prior=(100, 100, 3, -2),
+        init_spread_px=0.0,
+        init_velocity_px=0.0,
+        frame_period_ns=period,
+        rng=0,
+    )
     pf.step(0, [])
     est = pf.step(3 * period, [])
     assert (est.u, est.v) == pytest.approx((109.0, 94.0))

@@ -32,7 +32,7 @@ def track(f, z, truth):
         # a ParticleFilter weighs its N particles once per frame (no re-initialisation here)
         evals.append(getattr(f, "evaluations", f.n_particles))
     err = np.hypot(*(np.array(est) - truth).T)[5:]
-    return float(np.sqrt((err ** 2).mean())), float(np.mean(evals))
+    return float(np.sqrt((err**2).mean())), float(np.mean(evals))
 
 
 def test_sspf_converges_on_a_scripted_trajectory():
@@ -73,9 +73,13 @@ def test_no_measurement_predicts_and_bad_parameters():
     e = f.step(0, [])
     assert f.evaluations == 0 and math.hypot(e.u - 5.0, e.v - 5.0) < 20
     assert ScatterSearchPF(noise_px=CUE_NOISE, n_particles=10, rng=0).step(0, []) is None
-    for kwargs, match in (({"n_particles": 1}, "n_particles"), ({"refset_size": 3}, "refset_size"),
-                          ({"refset_size": 12, "n_particles": 10}, "refset_size"),
-                          ({"min_step_px": 5.0, "step_px": 1.0}, "min_step_px"), ({"max_rounds": 0}, "max_rounds")):
+    for kwargs, match in (
+        ({"n_particles": 1}, "n_particles"),
+        ({"refset_size": 3}, "refset_size"),
+        ({"refset_size": 12, "n_particles": 10}, "refset_size"),
+        ({"min_step_px": 5.0, "step_px": 1.0}, "min_step_px"),
+        ({"max_rounds": 0}, "max_rounds"),
+    ):
         with pytest.raises(InputError, match=match):
             ScatterSearchPF(**kwargs)
 
@@ -95,8 +99,18 @@ def test_reset_with_prior_follows_the_tracker_contract():
 
 
 def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
-    core = ScatterSearchCore(3, n_particles=10, refset_size=6, process_noise=(3, 1), step_px=4, min_step_px=0.5,
-                             max_rounds=1, init_spread_px=1, init_velocity_px=1, rng=0)
+    core = ScatterSearchCore(
+        3,
+        n_particles=10,
+        refset_size=6,
+        process_noise=(3, 1),
+        step_px=4,
+        min_step_px=0.5,
+        max_rounds=1,
+        init_spread_px=1,
+        init_velocity_px=1,
+        rng=0,
+    )
     # paper 002 §5: six mixes of two (F, R, L) solutions
     assert core._masks.shape == (6, 3, 1)
     t = np.arange(60, dtype=float)
@@ -108,11 +122,20 @@ def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
     assert first.evaluations == 0 and first.targets["b"].state == TrackState.UNINITIALISED
     err = []
     for k in range(1, 60):
-        e = f.step(k, {"a": [Measurement("colour", *(a[k] + rng.normal(0, 3, 2)))],
-                       "b": [Measurement("colour", *(b[k] + rng.normal(0, 3, 2)))]})
+        e = f.step(
+            k,
+            {
+                "a": [Measurement("colour", *(a[k] + rng.normal(0, 3, 2)))],
+                "b": [Measurement("colour", *(b[k] + rng.normal(0, 3, 2)))],
+            },
+        )
         assert e.evaluations > 50
-        err.append([np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
-                    np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1])])
+        err.append(
+            [
+                np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
+                np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1]),
+            ]
+        )
     assert np.max(err[5:]) < 10
 
 

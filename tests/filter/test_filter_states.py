@@ -17,8 +17,15 @@ from fusion_pf.filter.states import (
     step_state,
 )
 
-CFG = StateConfig(max_spread_px=30.0, min_likelihood=0.05, silent_frames=3, degraded_frames=2,
-                  image_size=(320, 200), merge_px=20.0, split_px=35.0)
+CFG = StateConfig(
+    max_spread_px=30.0,
+    min_likelihood=0.05,
+    silent_frames=3,
+    degraded_frames=2,
+    image_size=(320, 200),
+    merge_px=20.0,
+    split_px=35.0,
+)
 GOOD = Evidence((100.0, 100.0), spread_px=5.0, likelihood=0.8, cues=2)
 
 
@@ -74,10 +81,16 @@ def test_combine_then_separate():
 
 def test_state_machine_for_three_targets():
     fsm = TrackStateMachine(["right_hand", "left_hand", "head"], CFG)
-    ev = {"right_hand": Evidence((100.0, 150.0), 5.0, 0.9, 1), "left_hand": Evidence((105.0, 150.0), 5.0, 0.9, 1),
-          "head": Evidence((100.0, 30.0), 5.0, 0.9, 1)}
-    assert fsm.update(ev) == {"right_hand": TrackState.COMBINED, "left_hand": TrackState.COMBINED,
-                              "head": TrackState.TRACKING}
+    ev = {
+        "right_hand": Evidence((100.0, 150.0), 5.0, 0.9, 1),
+        "left_hand": Evidence((105.0, 150.0), 5.0, 0.9, 1),
+        "head": Evidence((100.0, 30.0), 5.0, 0.9, 1),
+    }
+    assert fsm.update(ev) == {
+        "right_hand": TrackState.COMBINED,
+        "left_hand": TrackState.COMBINED,
+        "head": TrackState.TRACKING,
+    }
     ev["left_hand"] = Evidence((160.0, 150.0), 5.0, 0.9, 1)
     assert fsm.update(ev)["left_hand"] == TrackState.UNLABELLED
     assert fsm.update(ev)["left_hand"] == TrackState.TRACKING
@@ -97,11 +110,16 @@ def test_reassign_identities_by_entry_side():
         reassign_identities(entry, np.zeros((3, 2)))
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"max_spread_px": 0}, "max_spread_px"), ({"min_likelihood": 2}, "min_likelihood"),
-    ({"silent_frames": 0}, "silent_frames"), ({"merge_px": 30, "split_px": 20}, "split_px"),
-    ({"merge_px": math.nan}, "merge_px"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"max_spread_px": 0}, "max_spread_px"),
+        ({"min_likelihood": 2}, "min_likelihood"),
+        ({"silent_frames": 0}, "silent_frames"),
+        ({"merge_px": 30, "split_px": 20}, "split_px"),
+        ({"merge_px": math.nan}, "merge_px"),
+    ],
+)
 def test_bad_config(kwargs, match):
     with pytest.raises(InputError, match=match):
         StateConfig(**kwargs)

@@ -26,7 +26,6 @@ CLI = [sys.executable, "-m", "fusion_pf"]
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
 
-
 def fusion_pf(*args, timeout=300):
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 
@@ -57,13 +56,22 @@ def _header(typestore, stamp_ns, frame_id):
 def _camera_info(typestore, stamp_ns, k, frame_id):
     CameraInfo = typestore.types["sensor_msgs/msg/CameraInfo"]
     RegionOfInterest = typestore.types["sensor_msgs/msg/RegionOfInterest"]
-    arrays = {"d": np.zeros(5), "k": np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64),
-              "r": np.eye(3).ravel(), "p": np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], np.float64)}
+    arrays = {
+        "d": np.zeros(5),
+        "k": np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], np.float64),
+        "r": np.eye(3).ravel(),
+        "p": np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], np.float64),
+    }
     if "K" in CameraInfo.__dataclass_fields__:  # ROS 1 names
         arrays = {name.upper(): value for name, value in arrays.items()}
     return CameraInfo(
-        header=_header(typestore, stamp_ns, frame_id), height=k.height, width=k.width,
-        distortion_model="plumb_bob", **arrays, binning_x=0, binning_y=0,
+        header=_header(typestore, stamp_ns, frame_id),
+        height=k.height,
+        width=k.width,
+        distortion_model="plumb_bob",
+        **arrays,
+        binning_x=0,
+        binning_y=0,
         roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
     )
 
@@ -72,8 +80,15 @@ def _image(typestore, stamp_ns, frame_id, array, encoding):
     Image = typestore.types["sensor_msgs/msg/Image"]
     h, w = array.shape[:2]
     data = np.ascontiguousarray(array).view(np.uint8).ravel()
-    return Image(header=_header(typestore, stamp_ns, frame_id), height=h, width=w, encoding=encoding,
-                 is_bigendian=0, step=data.size // h, data=data)
+    return Image(
+        header=_header(typestore, stamp_ns, frame_id),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=data.size // h,
+        data=data,
+    )
 
 
 #: Colour camera origin in the depth camera's optical frame (mm): 15 mm to the left.
@@ -93,7 +108,7 @@ def depth_camera_view(depth_c, kc, kd):
     colour depth where the point at z projects); pixels that do not settle (depth edges,
     outside the colour view) get 0.
     """
-    vd, ud = np.mgrid[0:kd.height, 0:kd.width].astype(np.float64)
+    vd, ud = np.mgrid[0 : kd.height, 0 : kd.width].astype(np.float64)
     rx, ry = (ud - kd.cx) / kd.fx, (vd - kd.cy) / kd.fy
     t = -COLOR_IN_DEPTH_MM  # p_c = p_d + t
 
@@ -119,17 +134,22 @@ def _tf_static(typestore, stamp_ns):
 
     def stamped(parent, child, xyz, q):
         return T["geometry_msgs/msg/TransformStamped"](
-            header=_header(typestore, stamp_ns, parent), child_frame_id=child,
-            transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](
-                x=xyz[0], y=xyz[1], z=xyz[2]), rotation=q))
+            header=_header(typestore, stamp_ns, parent),
+            child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]), rotation=q
+            ),
+        )
 
     # the colour camera 15 mm to the left (+y of camera_link, -x of the optical frames)
-    return T["tf2_msgs/msg/TFMessage"](transforms=[
-        stamped("camera_link", "camera_depth_frame", (0.0, 0.0, 0.0), identity),
-        stamped("camera_depth_frame", "camera_depth_optical_frame", (0.0, 0.0, 0.0), optical),
-        stamped("camera_link", "camera_color_frame", (0.0, 0.015, 0.0), identity),
-        stamped("camera_color_frame", "camera_color_optical_frame", (0.0, 0.0, 0.0), optical),
-    ])
+    return T["tf2_msgs/msg/TFMessage"](
+        transforms=[
+            stamped("camera_link", "camera_depth_frame", (0.0, 0.0, 0.0), identity),
+            stamped("camera_depth_frame", "camera_depth_optical_frame", (0.0, 0.0, 0.0), optical),
+            stamped("camera_link", "camera_color_frame", (0.0, 0.015, 0.0), identity),
+            stamped("camera_color_frame", "camera_color_optical_frame", (0.0, 0.0, 0.0), optical),
+        ]
+    )
 
 
 #: Inverse-depth quantisation of 32FC1 compressedDepth messages: stored = A / depth_m + B.
@@ -148,9 +168,21 @@ def _compressed_depth(depth_mm, encoding):
     return np.frombuffer(struct.pack("<iff", 0, a, b) + png, np.uint8)
 
 
-def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset_ns=2_000_000,
-                   compressed=True, unaligned=True, images=True, ros1=False, compressed_depth=False, sqlite=False,
-                   tf=True):
+def write_ros2_bag(
+    folder,
+    frames,
+    *,
+    depth="16UC1",
+    drop_depth=(),
+    depth_offset_ns=2_000_000,
+    compressed=True,
+    unaligned=True,
+    images=True,
+    ros1=False,
+    compressed_depth=False,
+    sqlite=False,
+    tf=True,
+):
     """Write frames as a realsense2_camera-style bag; return the .mcap (ROS 2), bag folder (sqlite) or .bag path.
 
     Colour ``rgb8`` on /camera/color/image_raw (stamp = frame time), aligned depth on
@@ -176,8 +208,11 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         typestore = get_typestore(Stores.ROS2_HUMBLE)
-        writer = Writer(folder, version=Writer.VERSION_LATEST,
-                        storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
+        writer = Writer(
+            folder,
+            version=Writer.VERSION_LATEST,
+            storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP,
+        )
         serialize = typestore.serialize_cdr
     topics = {
         "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
@@ -186,8 +221,12 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
     if not ros1:
         topics["/tf_static"] = "tf2_msgs/msg/TFMessage"
     if images:
-        topics.update({"/camera/color/image_raw": "sensor_msgs/msg/Image",
-                       "/camera/aligned_depth_to_color/image_raw": "sensor_msgs/msg/Image"})
+        topics.update(
+            {
+                "/camera/color/image_raw": "sensor_msgs/msg/Image",
+                "/camera/aligned_depth_to_color/image_raw": "sensor_msgs/msg/Image",
+            }
+        )
         if compressed:
             topics["/camera/color/image_raw/compressed"] = "sensor_msgs/msg/CompressedImage"
         if unaligned:
@@ -215,27 +254,44 @@ def write_ros2_bag(folder, frames, *, depth="16UC1", drop_depth=(), depth_offset
             put("/camera/color/image_raw", _image(typestore, t, "camera_color_optical_frame", f.color, "rgb8"), log)
             if compressed:
                 ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(f.color, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
-                put("/camera/color/image_raw/compressed",
-                    CompressedImage(header=_header(typestore, t, "camera_color_optical_frame"),
-                                    format="rgb8; jpeg compressed bgr8", data=jpg.ravel()), log)
+                put(
+                    "/camera/color/image_raw/compressed",
+                    CompressedImage(
+                        header=_header(typestore, t, "camera_color_optical_frame"),
+                        format="rgb8; jpeg compressed bgr8",
+                        data=jpg.ravel(),
+                    ),
+                    log,
+                )
             if i not in drop_depth:
                 td = t + depth_offset_ns
                 if depth == "16UC1":
                     array = f.depth
                 else:
                     array = np.where(f.depth > 0, f.depth.astype(np.float32) / 1000, np.nan).astype(np.float32)
-                put("/camera/aligned_depth_to_color/image_raw",
-                    _image(typestore, td, "camera_color_optical_frame", array, depth), log + 1)
+                put(
+                    "/camera/aligned_depth_to_color/image_raw",
+                    _image(typestore, td, "camera_color_optical_frame", array, depth),
+                    log + 1,
+                )
                 if compressed_depth:
-                    put("/camera/aligned_depth_to_color/image_raw/compressedDepth",
-                        CompressedImage(header=_header(typestore, td, "camera_color_optical_frame"),
-                                        format=f"{depth}; compressedDepth png",
-                                        data=_compressed_depth(f.depth, depth)), log + 1)
+                    put(
+                        "/camera/aligned_depth_to_color/image_raw/compressedDepth",
+                        CompressedImage(
+                            header=_header(typestore, td, "camera_color_optical_frame"),
+                            format=f"{depth}; compressedDepth png",
+                            data=_compressed_depth(f.depth, depth),
+                        ),
+                        log + 1,
+                    )
             if unaligned:
                 kd = depth_intrinsics(f.intrinsics)
                 other = depth_camera_view(f.depth, f.intrinsics, kd)
-                put("/camera/depth/image_rect_raw", _image(typestore, t, "camera_depth_optical_frame", other, "16UC1"),
-                    log + 2)
+                put(
+                    "/camera/depth/image_rect_raw",
+                    _image(typestore, t, "camera_depth_optical_frame", other, "16UC1"),
+                    log + 2,
+                )
                 put("/camera/depth/camera_info", _camera_info(typestore, t, kd, "camera_depth_optical_frame"), log + 2)
     if ros1:
         return folder.with_suffix(".bag")

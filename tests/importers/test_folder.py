@@ -27,8 +27,9 @@ def write_png(path, image):
 
 def test_sr305_depth_pngs(tmp_path):
     out = tmp_path / "sr305.mcap"
-    proc = fusion_pf("import", SR305, out, "--depth-unit", "0.125mm", "--intrinsics", SR305 / "intrinsics.json",
-                     "--no-progress")
+    proc = fusion_pf(
+        "import", SR305, out, "--depth-unit", "0.125mm", "--intrinsics", SR305 / "intrinsics.json", "--no-progress"
+    )
     assert proc.returncode == 0, proc.stderr
     assert "4 frames of 640x480 at 30 fps, 4 with depth (0.125mm per count)" in proc.stdout
     assert "no colour images: colour is a grey rendering of depth" in proc.stdout
@@ -170,8 +171,9 @@ def test_intrinsics_files(tmp_path):
     assert (k.width, k.fx, k.fy, k.cx, k.cy) == (640, 500.0, 501.0, 320.5, 240.5)
     assert k.distortion_model == "plumb_bob" and k.distortion == (0.1, -0.2, 0.0, 0.0, 0.05)
     o3d = tmp_path / "intrinsic.json"  # Open3D PinholeCameraIntrinsic: column-major
-    o3d.write_text(json.dumps({"width": 640, "height": 480,
-                               "intrinsic_matrix": [525.0, 0, 0, 0, 526.0, 0, 319.5, 239.5, 1]}))
+    o3d.write_text(
+        json.dumps({"width": 640, "height": 480, "intrinsic_matrix": [525.0, 0, 0, 0, 526.0, 0, 319.5, 239.5, 1]})
+    )
     k = load_intrinsics(o3d)
     assert (k.fx, k.fy, k.cx, k.cy) == (525.0, 526.0, 319.5, 239.5)
     bad = tmp_path / "bad.json"

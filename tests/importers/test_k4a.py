@@ -41,8 +41,12 @@ def test_calibration_reproduces_the_azure_kinect_sdk(calibration):
     pixel = DepthRegistration._project((c.rotation @ depth_point + c.translation_mm)[None], c.color)
     assert np.allclose(pixel, [[250.0, 300.0]], atol=1e-3)
     # colour pixel (250, 300) at depth 250 mm back-projects to the SDK's 3-D point (OpenCV inverse)
-    ray = cv2.undistortPoints(np.array([[[250.0, 300.0]]]), c.color.K, np.asarray(c.color.distortion),
-                              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))[0, 0]
+    ray = cv2.undistortPoints(
+        np.array([[[250.0, 300.0]]]),
+        c.color.K,
+        np.asarray(c.color.distortion),
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+    )[0, 0]
     assert np.allclose([ray[0] * 250, ray[1] * 250], [-154.5365753173828, -26.12171173095703], atol=1e-3)
     assert c.depth.width == 640 and c.depth.height == 576 and c.color.distortion_model == "rational_polynomial"
 
@@ -56,8 +60,12 @@ def test_registration_agrees_with_opencv_and_keeps_the_nearest(calibration, raw_
     pick = rng.choice(len(u), 2000, replace=False)
     u, v = u[pick], v[pick]
     kd, kc = calibration.depth, calibration.color
-    rays = cv2.undistortPoints(np.stack([u, v], 1).astype(np.float64)[:, None], kd.K, np.asarray(kd.distortion),
-                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))[:, 0]
+    rays = cv2.undistortPoints(
+        np.stack([u, v], 1).astype(np.float64)[:, None],
+        kd.K,
+        np.asarray(kd.distortion),
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+    )[:, 0]
     points = np.column_stack([rays, np.ones(len(rays))]) * raw_depth[v, u, None]
     cam = points @ calibration.rotation.T + calibration.translation_mm
     image, _ = cv2.projectPoints(cam[:, None], np.zeros(3), np.zeros(3), kc.K, np.asarray(kc.distortion))

@@ -31,8 +31,10 @@ def test_auto_topics_pairing_and_contents(tmp_path, bag, frames):
     assert proc.returncode == 0, proc.stderr
     assert "colour: /camera/color/image_raw (sensor_msgs/msg/Image, 320x240)" in proc.stdout
     assert "depth: /camera/aligned_depth_to_color/image_raw" in proc.stdout
-    assert ("7 of 8 colour frames paired with depth within half a frame period, 1 without depth; "
-            "0 depth message(s) unpaired") in proc.stdout
+    assert (
+        "7 of 8 colour frames paired with depth within half a frame period, 1 without depth; "
+        "0 depth message(s) unpaired"
+    ) in proc.stdout
     assert "intrinsics from /camera/color/camera_info" in proc.stdout
     assert "/camera/color/image_raw/compressed, /camera/depth/image_rect_raw" in proc.stdout
     info, got = replay(out)
@@ -52,9 +54,11 @@ def test_unaligned_depth_registered_with_tf_static(tmp_path, bag, frames):
     out = tmp_path / "out.mcap"
     proc = fusion_pf("import", bag, out, "--depth-topic", "/camera/depth/image_rect_raw", "--no-progress")
     assert proc.returncode == 0, proc.stderr
-    assert ("depth registered to colour (z-buffered): depth intrinsics from /camera/depth/camera_info, "
-            "camera_depth_optical_frame to camera_color_optical_frame from /tf_static "
-            "(translation 15.0, 0.0, 0.0 mm)") in proc.stdout
+    assert (
+        "depth registered to colour (z-buffered): depth intrinsics from /camera/depth/camera_info, "
+        "camera_depth_optical_frame to camera_color_optical_frame from /tf_static "
+        "(translation 15.0, 0.0, 0.0 mm)"
+    ) in proc.stdout
     _, got = replay(out)
     for a, b in zip(frames, got, strict=True):
         # the depth camera's view was made by backward warping (tests/importers/conftest.py): registering it
@@ -81,8 +85,9 @@ def test_compressed_colour_and_float_depth(tmp_path, frames):
 def test_compressed_depth_topic(tmp_path, frames, encoding):
     bag = write_ros2_bag(tmp_path / "bag", frames, depth=encoding, compressed_depth=True, unaligned=False)
     out = tmp_path / "out.mcap"
-    proc = fusion_pf("import", bag, out, "--no-progress",
-                     "--depth-topic", "/camera/aligned_depth_to_color/image_raw/compressedDepth")
+    proc = fusion_pf(
+        "import", bag, out, "--no-progress", "--depth-topic", "/camera/aligned_depth_to_color/image_raw/compressedDepth"
+    )
     assert proc.returncode == 0, proc.stderr
     assert "depth: /camera/aligned_depth_to_color/image_raw/compressedDepth" in proc.stdout
     _, got = replay(out)
@@ -109,14 +114,24 @@ def test_bag_folders_and_ros1_bag_read_with_rosbags(tmp_path, bag, frames):
 def test_depth_topic_override_and_errors(tmp_path, bag, frames):
     no_tf = write_ros2_bag(tmp_path / "notf", frames[:2], tf=False)
     line = error_line(fusion_pf("import", no_tf, tmp_path / "x.mcap", "--depth-topic", "/camera/depth/image_rect_raw"))
-    assert ("depth topic /camera/depth/image_rect_raw is 360x270 but colour topic /camera/color/image_raw "
-            "is 320x240 and cannot be registered to it (/tf_static does not connect 'camera_depth_optical_frame' "
-            "to 'camera_color_optical_frame')") in line
+    assert (
+        "depth topic /camera/depth/image_rect_raw is 360x270 but colour topic /camera/color/image_raw "
+        "is 320x240 and cannot be registered to it (/tf_static does not connect 'camera_depth_optical_frame' "
+        "to 'camera_color_optical_frame')"
+    ) in line
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--color-topic", "/camera/infra1/image_rect_raw"))
     assert "colour topic /camera/infra1/image_rect_raw is not in the bag" in line
     assert "/camera/color/image_raw (" in line
-    proc = fusion_pf("import", bag, tmp_path / "c.mcap", "--depth-topic", "none", "--no-progress",
-                     "--info-topic", "/camera/aligned_depth_to_color/camera_info")
+    proc = fusion_pf(
+        "import",
+        bag,
+        tmp_path / "c.mcap",
+        "--depth-topic",
+        "none",
+        "--no-progress",
+        "--info-topic",
+        "/camera/aligned_depth_to_color/camera_info",
+    )
     assert proc.returncode == 0 and "depth: none (colour only)" in proc.stdout
     assert "intrinsics from /camera/aligned_depth_to_color/camera_info" in proc.stdout
     line = error_line(fusion_pf("import", bag, tmp_path / "x.mcap", "--info-topic", "/camera/color/image_raw"))
@@ -167,8 +182,14 @@ def _image_msg(array, encoding, *, pad=0, bigendian=False):
     data = np.hstack([rows, np.zeros((h, pad), np.uint8)]).ravel()
     Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
     return ts.types["sensor_msgs/msg/Image"](
-        header=Header(stamp=Time(sec=1, nanosec=0), frame_id="c"), height=h, width=w, encoding=encoding,
-        is_bigendian=int(bigendian), step=rows.shape[1] + pad, data=data)
+        header=Header(stamp=Time(sec=1, nanosec=0), frame_id="c"),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=int(bigendian),
+        step=rows.shape[1] + pad,
+        data=data,
+    )
 
 
 def test_image_encodings(frames):

@@ -10,10 +10,28 @@ from mcap.writer import Writer
 from fusion_pf.cli import main
 
 HEADER = [
-    "frame", "timestamp_ns", "u", "v", "colour_u", "colour_v", "depth_u", "depth_v",
-    "skeleton_u", "skeleton_v", "x_mm", "y_mm", "z_mm", "ess", "resampled", "n_particles",
-    "latency_decode_ms", "latency_colour_ms", "latency_depth_ms", "latency_skeleton_ms",
-    "latency_filter_ms", "latency_total_ms",
+    "frame",
+    "timestamp_ns",
+    "u",
+    "v",
+    "colour_u",
+    "colour_v",
+    "depth_u",
+    "depth_v",
+    "skeleton_u",
+    "skeleton_v",
+    "x_mm",
+    "y_mm",
+    "z_mm",
+    "ess",
+    "resampled",
+    "n_particles",
+    "latency_decode_ms",
+    "latency_colour_ms",
+    "latency_depth_ms",
+    "latency_skeleton_ms",
+    "latency_filter_ms",
+    "latency_total_ms",
 ]
 T0, DT = 1_000_000_000, 33_333_333
 

@@ -119,8 +119,24 @@ def test_tiny_sweep_writes_figures_and_tables_and_is_deterministic(files, capsys
     # the same job tracked in this process and the sweep's RMSE (from the scene's own ground truth) agree.
     seed = job_seed(0, 50, 1)
     cli_csv = files["dir"] / "job.csv"
-    assert main(["track", str(files["rec"]), "-o", str(files["dir"] / "job.mcap"), "--csv", str(cli_csv),
-                 "--particles", "50", "--seed", str(seed), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(files["rec"]),
+                "-o",
+                str(files["dir"] / "job.mcap"),
+                "--csv",
+                str(cli_csv),
+                "--particles",
+                "50",
+                "--seed",
+                str(seed),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     with open_source(str(files["rec"])) as src:
         frames = list(src)
     here_csv = files["dir"] / "job_here.csv"
@@ -130,8 +146,11 @@ def test_tiny_sweep_writes_figures_and_tables_and_is_deterministic(files, capsys
     assert here_csv.read_bytes() == cli_csv.read_bytes()
     gt = ground_truth()
     with open(cli_csv, newline="") as f:
-        e = [math.hypot(float(r["u"]) - gt[int(r["frame"])].u, float(r["v"]) - gt[int(r["frame"])].v)
-             for r in csv.DictReader(f) if r["u"] != "" and int(r["frame"]) in gt]
+        e = [
+            math.hypot(float(r["u"]) - gt[int(r["frame"])].u, float(r["v"]) - gt[int(r["frame"])].v)
+            for r in csv.DictReader(f)
+            if r["u"] != "" and int(r["frame"]) in gt
+        ]
     assert sweep["rmse_px"][1][1][3] == pytest.approx(math.sqrt(np.mean(np.square(e))), abs=2e-3)
 
 
@@ -144,8 +163,22 @@ def test_sweep_on_an_existing_dask_scheduler_matches_in_process(files, capsys):
         remote = score_json(capsys, *argv, "--scheduler", cluster.scheduler_address)["sweep"]
     assert remote["workers"] == 2 and inline["workers"] == 1
     assert remote["bestmax"] == inline["bestmax"] and remote["rmse_px"] == inline["rmse_px"]
-    assert main(["score", str(files["mcap"]), "--ground-truth", str(files["rec"]), "--sweep", "5",
-                 "--scheduler", "tcp://127.0.0.1:9", "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "score",
+                str(files["mcap"]),
+                "--ground-truth",
+                str(files["rec"]),
+                "--sweep",
+                "5",
+                "--scheduler",
+                "tcp://127.0.0.1:9",
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     assert "cannot reach the Dask scheduler 'tcp://127.0.0.1:9'" in capsys.readouterr().err
 
 
@@ -157,12 +190,33 @@ def test_sweep_rejects_a_bad_particle_count_before_tracking(files, capsys):
 
 def test_demo_on_a_small_recording(files, capsys):
     out = files["dir"] / "demo"
-    code = main(["demo", "--recording", str(files["rec"]), "--out", str(out), "--sweep", "5,50", "--runs", "2",
-                 "--workers", "1", "--no-progress"])
+    code = main(
+        [
+            "demo",
+            "--recording",
+            str(files["rec"]),
+            "--out",
+            str(out),
+            "--sweep",
+            "5,50",
+            "--runs",
+            "2",
+            "--workers",
+            "1",
+            "--no-progress",
+        ]
+    )
     stdout, err = capsys.readouterr()
     assert code == 0, err
-    for name in ("tracked.csv", "errors_per_frame.png", "latency_per_frame.png", "bestmax_vs_n.png",
-                 "multiexec_bestmax.png", "score.md", "score.json"):
+    for name in (
+        "tracked.csv",
+        "errors_per_frame.png",
+        "latency_per_frame.png",
+        "bestmax_vs_n.png",
+        "multiexec_bestmax.png",
+        "score.md",
+        "score.json",
+    ):
         assert (out / name).stat().st_size > 0, name
         assert str(out / name) in stdout, name
     assert "## Particle-count sweep (2 runs per N, seed 0)" in stdout and "Demo took" in stdout
@@ -170,8 +224,10 @@ def test_demo_on_a_small_recording(files, capsys):
     assert rep["n_reference"] == len(ground_truth()) and len(rep["sweep"]["bestmax"]) == 2
     # the demo's tracked.csv is `fusion-pf track --csv` with the latency columns filled in
     plain = files["dir"] / "plain.csv"
-    assert main(["track", str(files["rec"]), "-o", str(files["dir"] / "plain.mcap"), "--csv", str(plain),
-                 "--no-progress"]) == 0
+    assert (
+        main(["track", str(files["rec"]), "-o", str(files["dir"] / "plain.mcap"), "--csv", str(plain), "--no-progress"])
+        == 0
+    )
     with open(out / "tracked.csv", newline="") as a, open(plain, newline="") as b:
         demo_rows, plain_rows = list(csv.reader(a)), list(csv.reader(b))
     latency = [i for i, c in enumerate(plain_rows[0]) if c.startswith("latency_")]
@@ -184,5 +240,7 @@ def test_demo_without_recording_is_a_one_line_error(tmp_path, capsys):
     code = main(["demo", "--recording", str(tmp_path / "none.mcap"), "--out", str(tmp_path / "o")])
     out, err = capsys.readouterr()
     assert code == 2 and out == ""
-    assert err.strip() == f"fusion-pf: error: --recording {tmp_path / 'none.mcap'} does not exist; " \
-                          "expected an MCAP recording with ground truth"
+    assert (
+        err.strip() == f"fusion-pf: error: --recording {tmp_path / 'none.mcap'} does not exist; "
+        "expected an MCAP recording with ground truth"
+    )

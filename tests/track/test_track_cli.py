@@ -29,8 +29,10 @@ TRACKER_TOPICS = ("/tracker/estimate", "/tracker/cues", "/tracker/overlay", "/tr
 
 
 def record(path, frames, *, seed=3, background_frames=0, size=(320, 200), start_ns=0):
-    with SynthSource(frames=frames, seed=seed, size=size, background_frames=background_frames,
-                     start_ns=start_ns) as src, McapRecorder(path) as rec:
+    with (
+        SynthSource(frames=frames, seed=seed, size=size, background_frames=background_frames, start_ns=start_ns) as src,
+        McapRecorder(path) as rec,
+    ):
         for f in src:
             rec.write(f)
     return path
@@ -56,8 +58,22 @@ def recording(tmp_path_factory):
 
 def test_outputs_of_a_recording(recording, tmp_path):
     out, table, ply = tmp_path / "out.mcap", tmp_path / "out.csv", tmp_path / "ply"
-    proc = fusion_pf("track", recording, "-o", out, "--csv", table, "--particles", 60, "--seed", 3,
-                     "--export-ply", ply, "--no-progress", "--copy-input")
+    proc = fusion_pf(
+        "track",
+        recording,
+        "-o",
+        out,
+        "--csv",
+        table,
+        "--particles",
+        60,
+        "--seed",
+        3,
+        "--export-ply",
+        ply,
+        "--no-progress",
+        "--copy-input",
+    )
     assert proc.returncode == 0, proc.stderr
     assert f"tracked 40 frames (10 background) of {recording} -> {out}, {table}" in proc.stderr
     # without --copy-input: the tracker topics only, naming the input; same topics byte for byte
@@ -109,8 +125,18 @@ def test_outputs_of_a_recording(recording, tmp_path):
 
     with open(table, newline="") as f:
         rows = list(csv.reader(f))
-    assert rows[0][:10] == ["frame", "timestamp_ns", "u", "v", "colour_u", "colour_v",
-                            "depth_u", "depth_v", "skeleton_u", "skeleton_v"]
+    assert rows[0][:10] == [
+        "frame",
+        "timestamp_ns",
+        "u",
+        "v",
+        "colour_u",
+        "colour_v",
+        "depth_u",
+        "depth_v",
+        "skeleton_u",
+        "skeleton_v",
+    ]
     assert tuple(rows[0]) == CSV_COLUMNS
     assert len(rows) == 41
     for row, e, c in zip(rows[1:], estimates, cues):
@@ -130,8 +156,19 @@ def test_same_seed_gives_the_same_csv(recording, tmp_path):
     tables = []
     for name, seed, extra in (("a", 5, ()), ("b", 5, ()), ("c", 5, ("--csv-latency",))):
         table = tmp_path / f"{name}.csv"
-        proc = fusion_pf("track", recording, "-o", tmp_path / f"{name}.mcap", "--csv", table, "--seed", seed,
-                         "--particles", 30, *extra)
+        proc = fusion_pf(
+            "track",
+            recording,
+            "-o",
+            tmp_path / f"{name}.mcap",
+            "--csv",
+            table,
+            "--seed",
+            seed,
+            "--particles",
+            30,
+            *extra,
+        )
         assert proc.returncode == 0, proc.stderr
         tables.append(table.read_bytes())
     assert tables[0] == tables[1]
@@ -166,23 +203,32 @@ def test_background_from_a_separate_file(tmp_path):
     assert "background is 160x100 but frame 0 is 320x200" in proc.stderr
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--particles", "0"], "particles (--particles) must be an integer in [1, 100000], got 0"),
-    (["--particles", "many"], "particles (--particles) must be an integer in [1, 100000], got 'many'"),
-    (["--seed", "-1"], "seed (--seed) must be an integer in [0,"),
-    (["--filter", "ukf"], "filter (--filter) must be one of pf, kf, got 'ukf'"),
-    (["--likelihood", "cauchy"], "likelihood (--likelihood) must be one of gaussian, robust, got 'cauchy'"),
-    (["--filter", "kf", "--likelihood", "robust"], "the Kalman filter (filter kf) is Gaussian only, got likelihood 'robust'"),
-    (["--roi-prior", "face"], "roi_prior (--roi-prior) must be one of auto, filter, skeleton, got 'face'"),
-    (["--noise", "colour=x"], "--noise: expected NAME=NUMBER,... (e.g. colour=4,depth=8), got 'colour=x'"),
-    (["--noise", "sonar=3"], "noise_px (--noise) has unknown source(s) sonar"),
-    (["--noise", "depth=0"], "noise_px (--noise): depth must be a number in [0.01, 10000] px, got 0.0"),
-    (["--process-noise", "3"], "--process-noise: expected 2 comma-separated numbers, got '3'"),
-    (["--sources", "colour,sonar"], "sources (--sources): cues must be distinct names among colour, depth, skeleton"),
-    (["--background-k", "0"], "background_k (--background-k) must be an integer in [1, 10000], got 0"),
-    (["--background", "nowhere.mcap"], "--background nowhere.mcap does not exist"),
-    (["--color-format", "gif"], "--color-format must be one of auto, raw, jpeg, png, got 'gif'"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--particles", "0"], "particles (--particles) must be an integer in [1, 100000], got 0"),
+        (["--particles", "many"], "particles (--particles) must be an integer in [1, 100000], got 'many'"),
+        (["--seed", "-1"], "seed (--seed) must be an integer in [0,"),
+        (["--filter", "ukf"], "filter (--filter) must be one of pf, kf, got 'ukf'"),
+        (["--likelihood", "cauchy"], "likelihood (--likelihood) must be one of gaussian, robust, got 'cauchy'"),
+        (
+            ["--filter", "kf", "--likelihood", "robust"],
+            "the Kalman filter (filter kf) is Gaussian only, got likelihood 'robust'",
+        ),
+        (["--roi-prior", "face"], "roi_prior (--roi-prior) must be one of auto, filter, skeleton, got 'face'"),
+        (["--noise", "colour=x"], "--noise: expected NAME=NUMBER,... (e.g. colour=4,depth=8), got 'colour=x'"),
+        (["--noise", "sonar=3"], "noise_px (--noise) has unknown source(s) sonar"),
+        (["--noise", "depth=0"], "noise_px (--noise): depth must be a number in [0.01, 10000] px, got 0.0"),
+        (["--process-noise", "3"], "--process-noise: expected 2 comma-separated numbers, got '3'"),
+        (
+            ["--sources", "colour,sonar"],
+            "sources (--sources): cues must be distinct names among colour, depth, skeleton",
+        ),
+        (["--background-k", "0"], "background_k (--background-k) must be an integer in [1, 10000], got 0"),
+        (["--background", "nowhere.mcap"], "--background nowhere.mcap does not exist"),
+        (["--color-format", "gif"], "--color-format must be one of auto, raw, jpeg, png, got 'gif'"),
+    ],
+)
 def test_bad_options_exit_2_with_one_line(recording, tmp_path, capsys, args, message):
     out = tmp_path / "out.mcap"
     assert main(["track", str(recording), "-o", str(out), *args]) == 2
@@ -222,9 +268,21 @@ def test_error_midway_leaves_a_valid_output(tmp_path):
 
 def test_ctrl_c_finalises_the_output(tmp_path):
     out = tmp_path / "live.mcap"
-    proc = subprocess.Popen([*CLI, "track", "synth:frames=100000,size=320x200,background_frames=5", "-o", str(out),
-                             "--copy-input", "--csv", str(tmp_path / "live.csv")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            *CLI,
+            "track",
+            "synth:frames=100000,size=320x200,background_frames=5",
+            "-o",
+            str(out),
+            "--copy-input",
+            "--csv",
+            str(tmp_path / "live.csv"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 2_000_000):
@@ -255,16 +313,43 @@ def test_kalman_baseline_writes_no_particles(recording, tmp_path, capsys):
     assert all(len(topics[t]) == 40 for t in TRACKER_TOPICS[:3])
     for _, _, data in topics["/tracker/estimate"]:
         e = json.loads(data)
-        assert (e["filter"], e["likelihood"], e["n_particles"], e["ess"], e["resampled"]) == ("kf", "gaussian", 0, None, False)
+        assert (e["filter"], e["likelihood"], e["n_particles"], e["ess"], e["resampled"]) == (
+            "kf",
+            "gaussian",
+            0,
+            None,
+            False,
+        )
     ann = ImageAnnotations.FromString(topics["/tracker/overlay"][0][2])
     assert len(ann.circles) == 1 and all(len(p.points) in (1, 4) for p in ann.points)
 
 
 def test_options_reach_the_tracker(recording, tmp_path, capsys):
     out = tmp_path / "opts.mcap"
-    argv = ["track", str(recording), "-o", str(out), "--copy-input", "--roi-prior", "skeleton", "--sources", "colour,depth",
-            "--cue-noise", "colour=2", "--noise", "skeleton=30", "--process-noise", "4,1.5",
-            "--likelihood", "gaussian", "--particles", "20", "--joint", "right_hand", "--no-progress"]
+    argv = [
+        "track",
+        str(recording),
+        "-o",
+        str(out),
+        "--copy-input",
+        "--roi-prior",
+        "skeleton",
+        "--sources",
+        "colour,depth",
+        "--cue-noise",
+        "colour=2",
+        "--noise",
+        "skeleton=30",
+        "--process-noise",
+        "4,1.5",
+        "--likelihood",
+        "gaussian",
+        "--particles",
+        "20",
+        "--joint",
+        "right_hand",
+        "--no-progress",
+    ]
     assert main(argv) == 0, capsys.readouterr().err
     with McapReplay(out) as replay:
         settings = json.loads(replay.info().metadata["tracker"])

@@ -140,7 +140,9 @@ def test_filter_only_reruns_reproduce_track(scene_frames):
             continue
         assert (d.estimate.u, d.estimate.v, d.estimate.ess) == (r.estimate.u, r.estimate.v, r.estimate.ess)
         assert (d.xyz_mm is None and r.xyz_mm is None) or np.array_equal(d.xyz_mm, r.xyz_mm)
-        assert r.latency_ns["total"] == sum(r.latency_ns[s] for s in ("decode", "colour", "depth", "skeleton", "filter"))
+        assert r.latency_ns["total"] == sum(
+            r.latency_ns[s] for s in ("decode", "colour", "depth", "skeleton", "filter")
+        )
     other = run_filter(rows, config, rng=5)
     assert any(a.estimate.u != b.estimate.u for a, b in zip(rerun, other) if a.estimate is not None)
 

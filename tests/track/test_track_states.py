@@ -125,5 +125,7 @@ def test_depth_cue_sees_a_hand_in_front_of_an_invalid_background():
 
 def test_init_starts_the_filter_at_the_given_point():
     frames = disc_frames(circle(10))
-    first = next(iter(track(frames, TrackConfig(cues=("skin_rgb",), noise_px=EXACT, init=(120.0, 60.0), particles=500))))
+    first = next(
+        iter(track(frames, TrackConfig(cues=("skin_rgb",), noise_px=EXACT, init=(120.0, 60.0), particles=500)))
+    )
     assert math.hypot(first.estimate.u - 120.0, first.estimate.v - 60.0) < 5.0
