@@ -1408,3 +1408,48 @@ class McapReplay(ReplaySource):
             metadata=dict(self._metadata),
             notes=tuple(self._notes + [note for note in self.stats.notes if note not in self._notes]),
         )
+
+
+class McapTopics(McapReplay):
+    """Any topic of an MCAP file, read with the replay's own index, CRC checks and damage handling.
+
+    The one MCAP reading path for what is not a frame: the tracker outputs
+    (``/tracker/*``), ground truth and metadata, e.g. of a ``fusion-pf track``
+    output that holds no ``/camera/color``. Open it like :class:`McapReplay`
+    (a ``with`` block); no frame topic is required. A corrupt chunk is skipped
+    with a note in ``stats.notes`` (its messages are missing).
+    """
+
+    def _finish_index(self) -> None:
+        self._blocks.sort(key=lambda b: (b.start_ns, b.offset))
+        self._block_start = np.array([b.start_ns for b in self._blocks], np.int64)
+        self._block_end = np.array([b.end_ns for b in self._blocks], np.int64)
+
+    def __len__(self) -> int:
+        """No frames are read through this class."""
+        return 0
+
+    @property
+    def topics(self) -> set[str]:
+        """The topics of the file's channels."""
+        self._require_open()
+        return {c.topic for c in self._channels.values()}
+
+    def messages(self, topic: str) -> list[tuple[int, str, bytes]]:
+        """``(log_time, message encoding, data)`` of every message on ``topic``, in time order."""
+        self._require_open()
+        cids = {cid for cid, c in self._channels.items() if c.topic == topic}
+        out: list[tuple[int, str, bytes]] = []
+        for block in self._blocks:
+            if not block.channels & cids:
+                continue
+            try:
+                records = self._block_records(block)
+            except _Corrupt as exc:
+                self._corrupt_block(block, exc)
+                continue
+            out += [
+                (t, self._channels[cid].message_encoding, bytes(data)) for cid, t, data, _ in records if cid in cids
+            ]
+        out.sort(key=lambda m: m[0])
+        return out

@@ -3,7 +3,7 @@
 Reads a tracked recording (the output of ``fusion-pf track -o``): the frames through
 :class:`drivers.mcap_replay.McapReplay` (from the tracked file, or, when it has no colour,
 from the input recording), the tracker topics ``/tracker/estimate``, ``/tracker/cues`` and
-``/tracker/particles`` with the ``mcap`` reader, matched to the frames by log time.
+``/tracker/particles`` with :class:`~drivers.mcap_replay.McapTopics`, matched to the frames by log time.
 
 ``/tracker/cues`` is read as a mapping ``source -> {"u", "v", "quality"} or null`` for
 whatever sources it holds (besides ``frame``, ``timestamp_ns`` and the optional ``roi``
@@ -27,7 +27,7 @@ from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame
 
 from . import mcap_format as fmt
-from .mcap_replay import McapReplay
+from .mcap_replay import McapReplay, McapTopics
 
 #: Colours (RGB) of the known sources; other sources take :data:`EXTRA_COLOURS` in sorted order.
 SOURCE_COLOURS = {
@@ -127,32 +127,25 @@ def read_tracker_topics(path: Path) -> dict[int, TrackerFrame]:
     InputError
         When the file has no tracker topic or a message is malformed.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
     out: dict[int, TrackerFrame] = {}
-    topics = [fmt.ESTIMATE_TOPIC, fmt.CUES_TOPIC, fmt.PARTICLES_TOPIC]
-    try:
-        with open(path, "rb") as fh:
-            for _schema, channel, message in make_reader(fh).iter_messages(topics=topics):
-                t = message.log_time
-                where = f"{path}: {channel.topic} at log_time {t}"
+    with McapTopics(path) as rec:
+        for topic in (fmt.ESTIMATE_TOPIC, fmt.CUES_TOPIC, fmt.PARTICLES_TOPIC):
+            for t, _encoding, data in rec.messages(topic):
+                where = f"{path}: {topic} at log_time {t}"
                 item = out.setdefault(t, TrackerFrame())
-                if channel.topic == fmt.PARTICLES_TOPIC:
-                    item.particles = _particles(message.data, where)
+                if topic == fmt.PARTICLES_TOPIC:
+                    item.particles = _particles(data, where)
                     continue
                 try:
-                    msg = json.loads(message.data)
-                except ValueError:
+                    msg = json.loads(data)
+                except (ValueError, RecursionError):
                     raise InputError(f"{where}: not valid JSON") from None
                 if not isinstance(msg, dict):
                     raise InputError(f"{where}: expected a JSON object, got {type(msg).__name__}")
-                if channel.topic == fmt.ESTIMATE_TOPIC:
+                if topic == fmt.ESTIMATE_TOPIC:
                     item.estimate = msg
                 else:
                     item.cues, item.roi = _parse_cues(msg, where)
-    except McapError as exc:
-        raise InputError(f"{path}: cannot read the MCAP file ({exc})") from None
     if not out:
         raise InputError(
             f"{path} has no {fmt.ESTIMATE_TOPIC}, {fmt.CUES_TOPIC} or {fmt.PARTICLES_TOPIC} messages; "
@@ -170,20 +163,14 @@ def image_recording(tracked: Path, input_path: Path | None) -> Path:
     InputError
         When no such recording exists.
     """
-    from mcap.reader import make_reader
-
     if input_path is not None:
         if not input_path.is_file():
             raise InputError(f"--input {input_path} does not exist; expected the recording that was tracked")
         return input_path
-    with open(tracked, "rb") as fh:
-        reader = make_reader(fh)
-        summary = reader.get_summary()
-        topics = set() if summary is None else {c.topic for c in summary.channels.values()}
-        if fmt.COLOR_TOPIC in topics:
+    with McapTopics(tracked) as rec:
+        if fmt.COLOR_TOPIC in rec.topics:
             return tracked
-        meta = {m.name: m.metadata for m in reader.iter_metadata()}
-    source = meta.get(fmt.RECORDING_METADATA, {}).get("source")
+        source = rec.metadata().get("source")
     if source is None or not Path(source).is_file():
         raise InputError(
             f"{tracked} has no {fmt.COLOR_TOPIC} images and its metadata source {source!r} is not a file; "

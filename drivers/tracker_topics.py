@@ -8,8 +8,10 @@ point cloud are encoded here.
 
 Reading: :func:`read_json_topic` returns the JSON messages of one topic
 (``/tracker/*``, ``/ground_truth/palm``) and :func:`recording_metadata` the
-``fusion_pf.recording`` metadata, for the scorer, ``render`` and sweeps. The
-frames themselves are read by :class:`~drivers.mcap_replay.McapReplay`.
+``fusion_pf.recording`` metadata, for the scorer, ``render`` and sweeps. Every
+MCAP read goes through the replay's own reader: frames through
+:class:`~drivers.mcap_replay.McapReplay`, other topics through its
+:class:`~drivers.mcap_replay.McapTopics`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from fusion_pf.errors import InputError
 from fusion_pf.pipeline import TrackConfig, TrackResult, cues_json, estimate_json
 
 from . import mcap_format as fmt
+from .mcap_replay import McapTopics
 
 __all__ = [
     "OVERLAY_COLOURS",
@@ -41,30 +44,28 @@ __all__ = [
 def read_json_topic(path: str | Path, topic: str) -> list[tuple[int, dict]]:
     """``(log_time, message)`` of every JSON message on ``topic`` in the MCAP file ``path``.
 
+    Read through :class:`~drivers.mcap_replay.McapTopics` (the replay's reader:
+    damaged chunks are skipped, not fatal).
+
     Raises
     ------
+    RecordingError
+        When the file is not MCAP.
     InputError
-        When the file cannot be read as MCAP, the topic is not JSON or a
-        message is not valid JSON.
+        When the topic is not JSON or a message is not valid JSON.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
-    path = str(path)
+    with McapTopics(path) as rec:
+        messages = rec.messages(topic)
     out = []
-    try:
-        with open(path, "rb") as f:
-            for _schema, channel, message in make_reader(f).iter_messages(topics=[topic]):
-                if channel.message_encoding != "json":
-                    raise InputError(f"{path}: topic {topic} must be JSON-encoded, got {channel.message_encoding!r}")
-                try:
-                    out.append((message.log_time, json.loads(message.data)))
-                except (ValueError, RecursionError):
-                    raise InputError(
-                        f"{path}: topic {topic} has a message that is not valid JSON at log_time {message.log_time}"
-                    ) from None
-    except McapError as exc:
-        raise InputError(f"{path}: cannot read the MCAP file ({exc})") from None
+    for log_time, encoding, data in messages:
+        if encoding != "json":
+            raise InputError(f"{path}: topic {topic} must be JSON-encoded, got {encoding!r}")
+        try:
+            out.append((log_time, json.loads(data)))
+        except (ValueError, RecursionError):
+            raise InputError(
+                f"{path}: topic {topic} has a message that is not valid JSON at log_time {log_time}"
+            ) from None
     return out
 
 
@@ -79,18 +80,8 @@ def read_topic(path: str | Path, kind: str) -> list[tuple[int, dict]]:
 
 def recording_metadata(path: str | Path) -> dict[str, str]:
     """The ``fusion_pf.recording`` metadata of an MCAP file (later records override earlier keys; {} if none)."""
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
-    out: dict[str, str] = {}
-    try:
-        with open(path, "rb") as f:
-            for meta in make_reader(f).iter_metadata():
-                if meta.name == fmt.RECORDING_METADATA:
-                    out.update(meta.metadata)
-    except (McapError, ValueError):
-        return {}
-    return out
+    with McapTopics(path) as rec:
+        return rec.metadata()
 
 
 def _timestamp(ns: int):
