@@ -1,19 +1,12 @@
 """The console script: help texts, one-line errors, exit codes (run as a real subprocess)."""
 
-import subprocess
-import sys
-
 import pytest
 
 from fusion_pf.cli import build_parser
 
 
-def run(*args, timeout=60):
-    return subprocess.run([sys.executable, "-m", "fusion_pf", *args], capture_output=True, text=True, timeout=timeout)
-
-
-def test_help_lists_every_subcommand():
-    p = run("--help")
+def test_help_lists_every_subcommand(fusion_pf):
+    p = fusion_pf("--help")
     assert p.returncode == 0
     sub = build_parser()._subparsers._group_actions[0].choices
     for name in sub:
@@ -22,14 +15,14 @@ def test_help_lists_every_subcommand():
 
 
 @pytest.mark.parametrize("name", sorted(build_parser()._subparsers._group_actions[0].choices))
-def test_every_subcommand_has_help(name):
-    p = run(name, "--help")
+def test_every_subcommand_has_help(name, fusion_pf):
+    p = fusion_pf(name, "--help")
     assert p.returncode == 0, p.stderr
     assert "usage: fusion-pf " + name in p.stdout
 
 
-def test_unknown_source_is_one_line_exit_2(tmp_path):
-    p = run("record", "webcam:0", str(tmp_path / "x.mcap"))
+def test_unknown_source_is_one_line_exit_2(tmp_path, fusion_pf):
+    p = fusion_pf("record", "webcam:0", str(tmp_path / "x.mcap"))
     assert p.returncode == 2
     assert p.stderr.strip().count("\n") == 0, p.stderr
     assert "unknown source 'webcam:0'" in p.stderr

@@ -1,7 +1,6 @@
 """``fusion-pf info`` on good, truncated, corrupt and non-conforming files (subprocess, with timeouts)."""
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,10 +15,6 @@ from fusion_pf.frame import Frame, Intrinsics, Joint, PalmPoint
 from fusion_pf.rng import as_rng
 
 CLI = [sys.executable, "-m", "fusion_pf"]
-
-
-def fusion_pf(*args):
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 def frames(n, size=(64, 48), seed=0):
@@ -73,7 +68,7 @@ def one_error_line(proc):
     return lines[0]
 
 
-def test_info_text_and_json(tmp_path):
+def test_info_text_and_json(tmp_path, fusion_pf):
     path = recording(tmp_path / "rec.mcap", color_format="jpeg")
     proc = fusion_pf("info", path)
     assert proc.returncode == 0 and proc.stderr == ""
@@ -91,7 +86,7 @@ def test_info_text_and_json(tmp_path):
     assert info["frames"] == 10 and info["fps"] == pytest.approx(25.0) and info["metadata"]["generator"] == "test"
 
 
-def test_truncated_file_is_described_with_a_warning(tmp_path):
+def test_truncated_file_is_described_with_a_warning(tmp_path, fusion_pf):
     data = recording(tmp_path / "rec.mcap").read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 2 // 3])
@@ -103,7 +98,7 @@ def test_truncated_file_is_described_with_a_warning(tmp_path):
     assert len(warnings) == 1 and warnings[0].startswith("fusion-pf: warning: file truncated")
 
 
-def test_verify_reports_a_corrupt_chunk(tmp_path):
+def test_verify_reports_a_corrupt_chunk(tmp_path, fusion_pf):
     path = recording(tmp_path / "rec.mcap")
     with McapReplay(path) as replay:
         victim = replay._blocks[1]
@@ -139,7 +134,7 @@ def test_verify_reports_a_corrupt_chunk(tmp_path):
     ],
     ids=["not-mcap", "empty", "depth-320x200", "no-calibration", "truncated-early", "missing"],
 )
-def test_unusable_files_exit_2_with_one_line(tmp_path, make, message):
+def test_unusable_files_exit_2_with_one_line(tmp_path, make, message, fusion_pf):
     import re
 
     path = tmp_path / "bad.mcap"
@@ -149,7 +144,7 @@ def test_unusable_files_exit_2_with_one_line(tmp_path, make, message):
     assert re.search(message, one_error_line(proc))
 
 
-def test_ten_cut_points_never_traceback_or_hang(tmp_path):
+def test_ten_cut_points_never_traceback_or_hang(tmp_path, fusion_pf):
     data = recording(tmp_path / "rec.mcap", n=12).read_bytes()
     results = []
     for cut in np.linspace(1, len(data) - 1, 10).astype(int):

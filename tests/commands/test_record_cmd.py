@@ -18,17 +18,13 @@ CLI = [sys.executable, "-m", "fusion_pf"]
 SYNTH = "synth:frames=6,seed=2,size=160x100,background_frames=2"
 
 
-def fusion_pf(*args):
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
 def error_line(proc):
     lines = proc.stderr.splitlines()
     assert "Traceback" not in proc.stderr and len([x for x in lines if x.startswith("fusion-pf: error:")]) == 1
     return next(x for x in lines if x.startswith("fusion-pf: error:"))
 
 
-def test_record_synth_matches_the_source(tmp_path):
+def test_record_synth_matches_the_source(tmp_path, fusion_pf):
     out = tmp_path / "synth.mcap"
     proc = fusion_pf("record", SYNTH, out)
     assert proc.returncode == 0, proc.stderr
@@ -44,7 +40,7 @@ def test_record_synth_matches_the_source(tmp_path):
     assert info.metadata["source"] == SYNTH and info.metadata["generator"] == "fusion_pf.synth"
 
 
-def test_limits_formats_and_overwrite(tmp_path):
+def test_limits_formats_and_overwrite(tmp_path, fusion_pf):
     out = tmp_path / "x.mcap"
     assert (
         fusion_pf(
@@ -77,7 +73,7 @@ def test_limits_formats_and_overwrite(tmp_path):
         assert len(replay) == 2
 
 
-def test_rerecording_a_recording(tmp_path):
+def test_rerecording_a_recording(tmp_path, fusion_pf):
     first, second = tmp_path / "a.mcap", tmp_path / "b.mcap"
     assert fusion_pf("record", SYNTH, first).returncode == 0
     assert fusion_pf("record", first, second, "--color-format", "png").returncode == 0
@@ -117,7 +113,7 @@ def _source_that_fails_at_frame(path, n_good):
     return path
 
 
-def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path):
+def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path, fusion_pf):
     """Issue 14 item 6: one malformed optional message costs only that message, and says so."""
     src = _source_that_fails_at_frame(tmp_path / "in.mcap", 4)
     out = tmp_path / "out.mcap"
@@ -134,7 +130,7 @@ def test_malformed_skeleton_midway_is_skipped_and_reported(tmp_path):
         assert [f.joints is None for f in frames] == [i == 4 for i in range(7)]
 
 
-def test_corrupt_chunk_in_the_source_is_a_warning(tmp_path):
+def test_corrupt_chunk_in_the_source_is_a_warning(tmp_path, fusion_pf):
     src, out = tmp_path / "in.mcap", tmp_path / "out.mcap"
     assert fusion_pf("record", "synth:frames=12,size=320x200", src).returncode == 0
     with McapReplay(src) as replay:
@@ -152,7 +148,7 @@ def test_corrupt_chunk_in_the_source_is_a_warning(tmp_path):
     assert 0 < n < 12 and f"recorded {n} frames" in proc.stdout and f"{12 - n} dropped" in proc.stdout
 
 
-def test_bad_arguments(tmp_path):
+def test_bad_arguments(tmp_path, fusion_pf):
     proc = fusion_pf("record", "webcam:0", tmp_path / "w.mcap")
     assert proc.returncode == 2 and "unknown source 'webcam:0'" in error_line(proc)
     proc = fusion_pf("record", SYNTH, tmp_path / "missing-dir" / "w.mcap")
@@ -162,7 +158,7 @@ def test_bad_arguments(tmp_path):
     assert not (tmp_path / "w.mcap").exists()
 
 
-def test_ctrl_c_finalises_the_file(tmp_path):
+def test_ctrl_c_finalises_the_file(tmp_path, fusion_pf):
     out = tmp_path / "live.mcap"
     proc = subprocess.Popen(
         [*CLI, "record", "synth:frames=100000,size=640x400", str(out)],
@@ -187,7 +183,7 @@ def test_ctrl_c_finalises_the_file(tmp_path):
     assert f"recorded {info['frames']} frames (interrupted)" in stdout
 
 
-def test_size_and_fps_reach_the_source(tmp_path):
+def test_size_and_fps_reach_the_source(tmp_path, fusion_pf):
     out = tmp_path / "small.mcap"
     proc = fusion_pf("record", "synth:frames=4", out, "--size", "160x100", "--fps", "10")
     assert proc.returncode == 0, proc.stderr

@@ -38,10 +38,6 @@ def record(path, frames, *, seed=3, background_frames=0, size=(320, 200), start_
     return path
 
 
-def fusion_pf(*args):
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300)
-
-
 def messages(path):
     """``{topic: [(schema name, log_time, data)]}`` read with the mcap library."""
     out: dict[str, list] = {}
@@ -56,7 +52,7 @@ def recording(tmp_path_factory):
     return record(tmp_path_factory.mktemp("rec") / "in.mcap", 50, background_frames=10)
 
 
-def test_outputs_of_a_recording(recording, tmp_path):
+def test_outputs_of_a_recording(recording, tmp_path, fusion_pf):
     out, table, ply = tmp_path / "out.mcap", tmp_path / "out.csv", tmp_path / "ply"
     proc = fusion_pf(
         "track",
@@ -152,7 +148,7 @@ def test_outputs_of_a_recording(recording, tmp_path):
     assert len(pts) > 1000 and np.allclose(pts[-1], estimates[-1]["xyz_mm"], atol=0.01)
 
 
-def test_same_seed_gives_the_same_csv(recording, tmp_path):
+def test_same_seed_gives_the_same_csv(recording, tmp_path, fusion_pf):
     tables = []
     for name, seed, extra in (("a", 5, ()), ("b", 5, ()), ("c", 5, ("--csv-latency",))):
         table = tmp_path / f"{name}.csv"
@@ -178,7 +174,7 @@ def test_same_seed_gives_the_same_csv(recording, tmp_path):
     assert [(r["u"], r["v"]) for r in with_latency] == [(r["u"], r["v"]) for r in plain]
 
 
-def test_background_from_a_separate_file(tmp_path):
+def test_background_from_a_separate_file(tmp_path, fusion_pf):
     empty = record(tmp_path / "empty.mcap", 8, background_frames=8)
     scene = record(tmp_path / "scene.mcap", 40, start_ns=10**9)
     coverage, colour = {}, {}
@@ -247,7 +243,7 @@ def test_existing_output_and_unknown_source(recording, tmp_path, capsys):
     assert "unknown source 'webcam:0'" in capsys.readouterr().err
 
 
-def test_error_midway_leaves_a_valid_output(tmp_path):
+def test_error_midway_leaves_a_valid_output(tmp_path, fusion_pf):
     source = tmp_path / "resized.mcap"
     with McapRecorder(source) as rec:
         for size, n, bg, t0 in (((320, 200), 20, 5, 0), ((256, 160), 5, 0, 10**9)):
@@ -360,7 +356,7 @@ def test_options_reach_the_tracker(recording, tmp_path, capsys):
     assert {e["n_particles"] for e in estimates} == {20}
 
 
-def test_damaged_recording_is_tracked_as_far_as_it_reads_and_says_what_it_skipped(recording, tmp_path):
+def test_damaged_recording_is_tracked_as_far_as_it_reads_and_says_what_it_skipped(recording, tmp_path, fusion_pf):
     data = bytearray(recording.read_bytes())
     middle = len(data) // 2
     data[middle] ^= 0xFF  # one flipped byte in a chunk in the middle

@@ -1,0 +1,27 @@
+"""Test helpers shared by every test folder.
+
+* ``fusion_pf`` fixture: run the ``fusion-pf`` command line in a subprocess,
+  ``fusion_pf(*args, timeout=300) -> subprocess.CompletedProcess`` (text output);
+  arguments are converted with ``str``.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+#: The command line as a subprocess runs it (the interpreter of the test run).
+CLI = (sys.executable, "-m", "fusion_pf")
+
+
+def run_cli(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``fusion-pf ARGS`` in a subprocess; stdout and stderr captured as text."""
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def fusion_pf():
+    """The command line in a subprocess (:func:`run_cli`)."""
+    return run_cli
