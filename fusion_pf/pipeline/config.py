@@ -20,8 +20,8 @@ from ..options import option, parse_pairs, parse_tuple, validate
 
 __all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TrackConfig"]
 
-#: ``--filter`` values: the particle filter and the Kalman baseline.
-FILTERS = ("pf", "kf")
+#: ``--filter`` values: the particle filter, the Kalman baseline and the scatter-search PF (paper 002).
+FILTERS = ("pf", "kf", "sspf")
 #: ``--roi-prior`` values.
 ROI_PRIORS = ("auto", "filter", "skeleton")
 #: Frames of the running-median background when the source has no empty-scene frame.
@@ -112,7 +112,11 @@ class TrackConfig:
     :mod:`fusion_pf.pipeline.run` for the ROI prior, background and 3-D palm.
     """
 
-    filter: str = option("pf", choices=FILTERS, help="the particle filter (paper 003) or the Kalman baseline")
+    filter: str = option(
+        "pf",
+        choices=FILTERS,
+        help="the particle filter (paper 003), the Kalman baseline or the scatter-search PF (paper 002)",
+    )
     particles: int = option(
         100, kind="int", lo=1, hi=100_000, metavar="N", help="particles of the particle filter (ignored by kf)"
     )
@@ -292,8 +296,9 @@ class TrackConfig:
         validate(self)
         if self.likelihood is None:
             object.__setattr__(self, "likelihood", "robust" if self.filter == "pf" else "gaussian")
-        if self.filter == "kf" and self.likelihood != "gaussian":
-            raise InputError(f"the Kalman filter (filter kf) is Gaussian only, got likelihood {self.likelihood!r}")
+        if self.filter != "pf" and self.likelihood != "gaussian":
+            what = "the Kalman filter" if self.filter == "kf" else "the scatter-search PF"
+            raise InputError(f"{what} (filter {self.filter}) is Gaussian only, got likelihood {self.likelihood!r}")
         if not isinstance(self.cue_options, CueOptions):
             raise InputError(f"cue_options must be a CueOptions, got {type(self.cue_options).__name__}")
         if self.cues is not None and self.sources is not None:

@@ -151,6 +151,7 @@ def estimate_json(result: TrackResult, config: TrackConfig) -> dict:
         "resampled": None if e is None else e.resampled,
         "n_particles": 0 if e is None else e.n_particles,
         "state": result.state,
+        "likelihood_evaluations": result.evaluations,
         "filter": config.filter,
         "likelihood": config.likelihood,
         "latency_ns": {k: int(v) for k, v in result.latency_ns.items()},

@@ -80,6 +80,7 @@ from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2
+from ..filter.sspf import ScatterSearchPF
 from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
 from ..geometry import backproject, depth_at
@@ -220,6 +221,8 @@ class TrackResult:
     state : str
         Track state after this frame, one of :data:`STATES` (``lost`` and
         ``uninitialised`` frames have no estimate).
+    evaluations : int
+        Likelihood evaluations the filter made in this frame (paper 002's cost measure).
     """
 
     frame: int
@@ -235,6 +238,7 @@ class TrackResult:
     ground_truth: PalmPoint | None = None
     source_frame: Frame | None = None
     state: str = TrackState.UNINITIALISED.value
+    evaluations: int = 0
 
 
 # ---------------------------------------------------------------------- background
@@ -440,6 +444,15 @@ def make_tracker(
     process = (config.process_noise[0] * s, config.process_noise[1] * s)
     if config.filter == "kf":
         return KalmanFilter(process_noise=process, noise_px=noise, frame_period_ns="auto", init_spread_px=20.0 * s)
+    if config.filter == "sspf":
+        return ScatterSearchPF(
+            n_particles=config.particles,
+            process_noise=process,
+            noise_px=noise,
+            frame_period_ns="auto",
+            init_spread_px=20.0 * s,
+            rng=config.seed if rng is None else rng,
+        )
     return ParticleFilter(
         n_particles=config.particles,
         process_noise=process,
@@ -564,6 +577,15 @@ class _FilterStage:
         reach = self.config.jump_sigmas * (math.sqrt(self._var[m.source]) + self._spread)
         return math.hypot(m.u - predicted[0], m.v - predicted[1]) > reach
 
+    @staticmethod
+    def _evaluations(tracker: Tracker, ms: Sequence[Measurement]) -> int:
+        """Likelihood evaluations of this step: SSPF counts its own, a PF weighs its N particles once per frame with cues."""
+        if isinstance(tracker, ScatterSearchPF):
+            return tracker.evaluations
+        if isinstance(tracker, ParticleFilter):
+            return tracker.n_particles if ms else 0
+        return 0
+
     def _trust(self, m: Measurement) -> float:
         # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
         return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
@@ -611,6 +633,9 @@ class _FilterStage:
             if isinstance(tracker, ParticleFilter):
                 particles = tracker.particles[:, :2].copy()
                 weights = np.exp(tracker.log_weights)
+            elif isinstance(tracker, ScatterSearchPF):
+                particles = tracker.particles[:, :2].copy()
+                weights = np.full(len(particles), 1.0 / len(particles))
         lat = dict(row.latency_ns)
         lat["filter"] = time.perf_counter_ns() - t0
         return TrackResult(
@@ -626,6 +651,7 @@ class _FilterStage:
             weights=weights,
             ground_truth=row.ground_truth,
             state=self.status.state.value,
+            evaluations=self._evaluations(tracker, ms),
         )
 
 

@@ -205,7 +205,7 @@ def test_background_from_a_separate_file(tmp_path, fusion_pf):
         (["--particles", "0"], "particles (--particles) must be an integer in [1, 100000], got 0"),
         (["--particles", "many"], "particles (--particles) must be an integer in [1, 100000], got 'many'"),
         (["--seed", "-1"], "seed (--seed) must be an integer in [0,"),
-        (["--filter", "ukf"], "filter (--filter) must be one of pf, kf, got 'ukf'"),
+        (["--filter", "ukf"], "filter (--filter) must be one of pf, kf, sspf, got 'ukf'"),
         (["--likelihood", "cauchy"], "likelihood (--likelihood) must be one of gaussian, robust, got 'cauchy'"),
         (
             ["--filter", "kf", "--likelihood", "robust"],
@@ -370,3 +370,21 @@ def test_damaged_recording_is_tracked_as_far_as_it_reads_and_says_what_it_skippe
     assert len(warning) == 1 and "is corrupt" in warning[0] and "truncated" in warning[0]
     rows = len(table.read_text().splitlines()) - 1
     assert 0 < rows < 40  # 40 person frames in the intact file
+
+
+def test_scatter_search_filter_tracks_and_counts_its_evaluations(recording, tmp_path):
+    out = tmp_path / "sspf.mcap"
+    assert (
+        main(["track", str(recording), "-o", str(out), "--filter", "sspf", "--particles", "30", "--no-progress"]) == 0
+    )
+    estimates = [json.loads(d) for _, _, d in messages(out)["/tracker/estimate"]]
+    assert len(estimates) == 40 and all(e["filter"] == "sspf" and e["u"] is not None for e in estimates)
+    evaluations = [e["likelihood_evaluations"] for e in estimates]
+    assert min(evaluations) > 0 and len(set(evaluations)) > 1  # time-adaptive (paper 002)
+    pf = tmp_path / "pf.mcap"
+    assert main(["track", str(recording), "-o", str(pf), "--particles", "30", "--no-progress"]) == 0
+    assert {json.loads(d)["likelihood_evaluations"] for _, _, d in messages(pf)["/tracker/estimate"]} == {30}
+    assert (
+        main(["track", str(recording), "-o", str(tmp_path / "x.mcap"), "--filter", "sspf", "--likelihood", "robust"])
+        == 2
+    )

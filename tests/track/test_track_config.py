@@ -24,7 +24,7 @@ def test_partial_noise_keeps_the_other_defaults():
     "kwargs, message",
     [
         ({"filter": "kf", "likelihood": "robust"}, "Gaussian only"),
-        ({"filter": "ekf"}, "filter (--filter) must be one of pf, kf, got 'ekf'"),
+        ({"filter": "ekf"}, "filter (--filter) must be one of pf, kf, sspf, got 'ekf'"),
         ({"particles": 0}, "particles (--particles) must be an integer in [1, 100000], got 0"),
         ({"particles": 2.5}, "particles (--particles) must be an integer in [1, 100000], got 2.5"),
         ({"joint": ""}, "joint (--joint) must be a non-empty string"),
