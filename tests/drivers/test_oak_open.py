@@ -317,7 +317,11 @@ def test_hands_wire_the_landmark_queues_on_rvc2_and_are_refused_on_rvc4(connect)
         assert tracker.landmark_in.type == "depthai.InputQueue" and tracker.landmark_out.type == "depthai.MessageQueue"
         assert "inputs['palm']" in pipelines[0].feeds
     device = make(_answers(platform="RVC4"))
-    with pytest.raises(DeviceError, match="run on RVC2, but the connected OAK is RVC4; use hands=none"):
+    with pytest.raises(
+        DeviceError,
+        match=r"run on RVC2, but the connected OAK is RVC4; use hands=zoo or hands=PALM.tar.xz\+LANDMARKS.tar.xz "
+        r"\(NN archives for RVC4\), or hands=none$",
+    ):
         OakSource(OakConfig(pose="none", hands="lite")).open()
     assert device.calls[-1].name == "close"
 

@@ -180,7 +180,7 @@ def test_no_pose_model_builds_colour_and_depth_only() -> None:
 
 
 def test_hand_networks_on_rvc2_and_refused_on_rvc4() -> None:
-    hands = resolve_hand_models("lite")
+    hands = resolve_hand_models("lite", "RVC2")
     assert hands.palm_input_size == (128, 128) and hands.landmark_input_size == (224, 224)
     p = _build("RVC2", None, hands)
     (manip,) = p.of(dai.node.ImageManip)
@@ -193,7 +193,11 @@ def test_hand_networks_on_rvc2_and_refused_on_rvc4() -> None:
     streams = p.streams  # type: ignore[attr-defined]
     assert streams.landmark_in.type == "depthai.InputQueue"
     assert streams.landmark_out.type == "depthai.MessageQueue"
-    with pytest.raises(DeviceError, match="run on RVC2, but the connected OAK is RVC4; use hands=none"):
+    with pytest.raises(
+        DeviceError,
+        match=r"run on RVC2, but the connected OAK is RVC4; use hands=zoo or hands=PALM.tar.xz\+LANDMARKS.tar.xz "
+        r"\(NN archives for RVC4\), or hands=none$",
+    ):
         _build("RVC4", None, hands)
 
 

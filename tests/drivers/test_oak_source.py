@@ -59,7 +59,11 @@ def test_spec_options_and_typed_overrides() -> None:
             "unknown oak option.* duration; expected: size, fps, pose, device, timeout, ir_laser, hands",
         ),
         ({"ir_laser": "5000"}, r"oak ir_laser must be in \[0, 1200\] mA, got 5000"),
-        ({"hands": "huge"}, "oak hands must be none or one of lite, full, sparse, got 'huge'"),
+        (
+            {"hands": "huge"},
+            r"hands must be none, lite, full, sparse \(RVC2 blobs\), zoo or PALM.tar.xz\+LANDMARKS.tar.xz "
+            r"\(NN archives\), got 'huge'",
+        ),
         ({"device": ""}, "oak device must be a non-empty"),
     ],
 )
