@@ -26,10 +26,13 @@ from fusion_pf.errors import InputError
 from fusion_pf.filter.multi import associate
 from fusion_pf.filter.states import TrackState
 from fusion_pf.frame import Frame
+from fusion_pf.score.targets import count_swaps
 
 __all__ = [
+    "Associator",
     "FrameInputs",
     "Run",
+    "frame_input",
     "frame_inputs",
     "identity_swaps",
     "label_blobs",
@@ -60,6 +63,19 @@ class FrameInputs:
     truths: dict[str, tuple[float, float]]
 
 
+def frame_input(frame: Frame, targets: Sequence[str], skin: SkinCue | None, *, skeleton: bool = True) -> FrameInputs:
+    """The measurements and ground truth of one person frame (see :func:`frame_inputs`)."""
+    blobs = skin_blobs(frame.color, skin) if skin is not None else []
+    labelled: dict[str, list[Measurement]] = {}
+    for t in targets:
+        j = frame.joint(t) if skeleton else None
+        labelled[t] = [Measurement("skeleton", j.u, j.v, j.confidence)] if j is not None else []
+    truths = {k: (p.u, p.v) for k, p in (frame.ground_truths or {}).items()}
+    if not truths and frame.ground_truth is not None:
+        truths = {targets[0]: (frame.ground_truth.u, frame.ground_truth.v)}
+    return FrameInputs(frame.timestamp_ns, blobs, labelled, truths)
+
+
 def frame_inputs(
     frames: Iterable[Frame], targets: Sequence[str], skin: SkinCue | None, *, skeleton: bool = True
 ) -> list[FrameInputs]:
@@ -74,19 +90,7 @@ def frame_inputs(
     skeleton : bool
         Use the skeleton joint of each target (source ``"skeleton"``).
     """
-    out = []
-    for f in frames:
-        if f.background:
-            continue
-        blobs = skin_blobs(f.color, skin) if skin is not None else []
-        labelled: dict[str, list[Measurement]] = {}
-        for t in targets:
-            j = f.joint(t) if skeleton else None
-            labelled[t] = [Measurement("skeleton", j.u, j.v, j.confidence)] if j is not None else []
-        truths = {k: (p.u, p.v) for k, p in (f.ground_truths or {}).items()}
-        if not truths and f.ground_truth is not None:
-            truths = {targets[0]: (f.ground_truth.u, f.ground_truth.v)}
-        out.append(FrameInputs(f.timestamp_ns, blobs, labelled, truths))
+    out = [frame_input(f, targets, skin, skeleton=skeleton) for f in frames if not f.background]
     if not out:
         raise InputError("the recording has no person (non-background) frames to track")
     return out
@@ -111,26 +115,28 @@ class Run:
     restarts: dict[str, int] = field(default_factory=dict)
 
 
-def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0, lost_gate_px: float = 120.0) -> Run:
-    """Track ``inputs`` with ``tracker``: associate the blobs, step, collect.
+class Associator:
+    """Per frame: blobs to targets (nearest prediction, gated), then one tracker step (see :func:`run_tracker`).
 
     Parameters
     ----------
     tracker : KMeansParticleFilter, IndependentTrackers or JointScatterSearchPF
         Anything with ``targets``, ``predictions()`` and ``step(t, {target: [Measurement]})``.
-    inputs : sequence of FrameInputs
     gate_px : float
         Association gate of a tracked target.
     lost_gate_px : float
         Wider gate of a target in the ``lost`` state (paper 004: the lost state
         "tries to use prior information of the target position to retrieve the track").
     """
-    targets = tracker.targets
-    est = {t: np.full((len(inputs), 2), np.nan) for t in targets}
-    states: dict[str, list[TrackState]] = {t: [] for t in targets}
-    evals = np.zeros(len(inputs), dtype=np.int64)
-    gates = np.full(len(targets), float(gate_px))
-    for i, fi in enumerate(inputs):
+
+    def __init__(self, tracker, gate_px: float = 40.0, lost_gate_px: float = 120.0) -> None:
+        self.tracker = tracker
+        self.gate_px, self.lost_gate_px = float(gate_px), float(lost_gate_px)
+        self.gates = np.full(len(tracker.targets), self.gate_px)
+
+    def __call__(self, fi: FrameInputs):
+        """Associate ``fi``'s blobs and step the tracker; returns its ``MultiEstimate``."""
+        tracker, targets = self.tracker, self.tracker.targets
         ms = {t: list(fi.labelled.get(t, ())) for t in targets}
         if fi.blobs:
             pos = np.array([[b.u, b.v] for b in fi.blobs])
@@ -143,16 +149,29 @@ def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0, l
                         pred[k] = (ms[t][0].u, ms[t][0].v)
                     elif t in first:
                         pred[k] = pos[first[t]]
-            for k, j in enumerate(associate(pred, pos, gates)):
+            for k, j in enumerate(associate(pred, pos, self.gates)):
                 if j >= 0:
                     ms[targets[k]].append(fi.blobs[j])
         out = tracker.step(fi.timestamp_ns, ms)
-        evals[i] = out.evaluations
         for k, t in enumerate(targets):
+            self.gates[k] = self.lost_gate_px if out.targets[t].state == TrackState.LOST else self.gate_px
+        return out
+
+
+def run_tracker(tracker, inputs: Sequence[FrameInputs], gate_px: float = 40.0, lost_gate_px: float = 120.0) -> Run:
+    """Track ``inputs`` with ``tracker``: associate the blobs, step, collect (:class:`Associator`)."""
+    targets = tracker.targets
+    est = {t: np.full((len(inputs), 2), np.nan) for t in targets}
+    states: dict[str, list[TrackState]] = {t: [] for t in targets}
+    evals = np.zeros(len(inputs), dtype=np.int64)
+    step = Associator(tracker, gate_px, lost_gate_px)
+    for i, fi in enumerate(inputs):
+        out = step(fi)
+        evals[i] = out.evaluations
+        for t in targets:
             e = out.targets[t]
             est[t][i] = (e.u, e.v)
             states[t].append(e.state)
-            gates[k] = lost_gate_px if e.state == TrackState.LOST else gate_px
     return Run(est, states, evals, dict(getattr(tracker, "restarts", {})))
 
 
@@ -206,22 +225,9 @@ def rmse(run: Run, inputs: Sequence[FrameInputs], target: str, skip: int = 0) ->
 
 
 def identity_swaps(run: Run, inputs: Sequence[FrameInputs], pair: tuple[str, str], min_separation_px: float) -> int:
-    """How many times the two targets' estimates swap identities.
-
-    On every frame where the true positions are at least ``min_separation_px``
-    apart (joined hands are ambiguous), the estimates are *swapped* when
-    exchanging them lowers the total error. A swap is a change of that flag
-    from one such frame to the next (starting unswapped).
-    """
+    """How many times the two targets' estimates swap identities (:func:`fusion_pf.score.targets.count_swaps`)."""
     a, b = pair
-    ta, tb = _truth(inputs, a), _truth(inputs, b)
-    ea, eb = run.estimates[a], run.estimates[b]
-    sep = np.hypot(*(ta - tb).T)
-    straight = np.hypot(*(ea - ta).T) + np.hypot(*(eb - tb).T)
-    crossed = np.hypot(*(ea - tb).T) + np.hypot(*(eb - ta).T)
-    ok = (sep >= min_separation_px) & np.isfinite(straight) & np.isfinite(crossed)
-    flags = np.concatenate([[False], (crossed < straight)[ok]])
-    return int(np.count_nonzero(flags[1:] != flags[:-1]))
+    return count_swaps(run.estimates[a], run.estimates[b], _truth(inputs, a), _truth(inputs, b), min_separation_px)
 
 
 def state_counts(run: Run, target: str) -> dict[str, int]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
 
@@ -105,6 +106,30 @@ def sweep_recording(recording: str, reference, config, counts, args):
     )
 
 
+def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
+    """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
+    import math
+
+    from drivers.mcap_replay import McapReplay
+    from fusion_pf.score.targets import score_targets, targets_markdown, truths_by_target
+
+    truths = truths_by_target(args.ground_truth, read_topic)
+    with McapReplay(args.ground_truth) as rec:
+        w, h = rec.frame(0).size
+    result = score_targets(table, truths, math.hypot(w, h))
+    errors = result.pop("errors")
+    if args.plots is not None:
+        from fusion_pf.score.plots import plot_targets
+
+        figure = plot_targets(errors, table.states, Path(args.plots) / "targets.png")
+        print(f"fusion-pf score: wrote {figure}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(result, indent=1, default=lambda x: None))
+    else:
+        print(targets_markdown(result, args.tracked, args.ground_truth), end="")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Score, optionally sweep, write and print the report; returns the exit status."""
     from drivers.tracker_topics import read_topic, recording_metadata
@@ -123,6 +148,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
     if args.scheduler is not None and args.workers is not None:
         raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+    if args.ground_truth is not None and file_kind(args.tracked) == "csv":
+        from fusion_pf.score.targets import read_targets_csv
+
+        table = read_targets_csv(args.tracked)
+        if table is not None:
+            return _score_targets(table, args, read_topic)
     reference = read_reference(args.reference, args.ground_truth, read_topic)
     ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol, read_topic=read_topic)
     if args.reference is not None:

@@ -136,6 +136,53 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
+def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) -> int:
+    """``--targets``: the multi-target tracker over SOURCE, its CSV rows and ``/tracker/estimate`` messages."""
+    import csv
+    import sys
+
+    from drivers import mcap_format as fmt
+    from fusion_pf.errors import PARTIAL_EXIT_CODE
+    from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row, targets_json
+    from fusion_pf.pipeline.targets import track_targets
+    from fusion_pf.signals import sigint_deferred
+
+    writer = None if table is None else csv.writer(table, lineterminator="\n")
+    if writer is not None:
+        writer.writerow(targets_csv_columns(config.targets))
+    counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
+    tracked = n_background = 0
+    for result in track_targets(src, config):
+        with sigint_deferred():
+            assert result.source_frame is not None
+            if args.copy_input:
+                recorder.write(result.source_frame)
+            if not result.background:
+                recorder.write_json(
+                    fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, targets_json(result, config), result.timestamp_ns
+                )
+                if writer is not None:
+                    writer.writerow(targets_csv_row(result))
+                    table.flush()
+                for t, (_u, _v, state) in result.targets.items():
+                    counts[t][state] = counts[t].get(state, 0) + 1
+        n_background += result.background
+        tracked += not result.background
+        bar.update(1)
+    print(
+        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
+        + (f", {args.csv}" if args.csv is not None else ""),
+        file=sys.stderr,
+    )
+    for t, c in counts.items():
+        print(f"{t}: " + ", ".join(f"{n} {s}" for s, n in sorted(c.items())), file=sys.stderr)
+    stats = getattr(src, "stats", None)
+    if stats is not None and stats.partial:
+        print(f"fusion-pf: warning: {stats.loss_summary()}", file=sys.stderr)
+        return PARTIAL_EXIT_CODE
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Track SOURCE, writing OUT.mcap (and the CSV / PLY files); returns the exit status."""
     import json
@@ -168,8 +215,10 @@ def run(args: argparse.Namespace) -> int:
         options["metadata"]["tracker"] = json.dumps(config.settings(), sort_keys=True)
         if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
             options["metadata"]["source_sha256"] = recording_sha256(args.source)
-        table = None
-        if args.csv is not None:  # opened first: a CSV that cannot be written leaves no MCAP behind
+        table = targets_csv = None
+        if args.csv is not None and config.targets is not None:  # opened first: a failing CSV leaves no MCAP
+            targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
+        elif args.csv is not None:
             table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
         recorder = stack.enter_context(McapRecorder(args.output, **options))
         total = len(src) if isinstance(src, ReplaySource) else None
@@ -182,6 +231,8 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         )
+        if config.targets is not None:
+            return _track_targets(src, config, args, recorder, targets_csv, bar)
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()
         for result in track(src, config, background=background, stats=track_stats):

@@ -18,7 +18,7 @@ from ..filter.motion import DEFAULT_PROCESS_NOISE
 from ..geometry import DEFAULT_DEPTH_RADIUS
 from ..options import option, parse_pairs, parse_tuple, validate
 
-__all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TrackConfig"]
+__all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TARGETS", "TrackConfig"]
 
 #: ``--filter`` values: the particle filter, the Kalman baseline and the scatter-search PF (paper 002).
 FILTERS = ("pf", "kf", "sspf")
@@ -98,6 +98,20 @@ def _check_init(label: str, value) -> tuple[float, float]:
     return u, v
 
 
+#: Targets ``--targets`` can name (skeleton joint names; the two-hand synthetic scene's ground truth).
+TARGETS = ("right_hand", "left_hand", "head")
+
+
+def _check_targets(label: str, value) -> tuple[str, ...]:
+    names = tuple(value)
+    bad = [n for n in names if n not in TARGETS]
+    if bad or not names or len(set(names)) != len(names):
+        raise InputError(
+            f"{label} must be distinct names among {', '.join(TARGETS)}, got {','.join(map(str, names))!r}"
+        )
+    return names
+
+
 def _path(label: str, value) -> Path:
     return Path(value)
 
@@ -131,6 +145,16 @@ class TrackConfig:
     )
     joint: str = option(
         "right_hand", kind="str", metavar="NAME", help="skeleton joint used as the skeleton cue and ROI prior"
+    )
+    targets: tuple[str, ...] | None = option(
+        None,
+        optional=True,
+        parse=_names,
+        check=_check_targets,
+        metavar="TARGET,...",
+        show=lambda v: "the palm only",
+        help=f"track several targets, among {', '.join(TARGETS)} (skin blobs + skeleton joints per target, "
+        "papers 000/002/004); CSV columns <target>_u, <target>_v, <target>_state",
     )
     cues: tuple[str, ...] | None = option(
         None,

@@ -20,7 +20,17 @@ from ..errors import InputError
 from .config import TrackConfig
 from .run import TrackResult, stages
 
-__all__ = ["CSV_COLUMNS", "TrackCsv", "csv_columns", "csv_row", "cues_json", "estimate_json"]
+__all__ = [
+    "CSV_COLUMNS",
+    "TrackCsv",
+    "csv_columns",
+    "csv_row",
+    "cues_json",
+    "estimate_json",
+    "targets_csv_columns",
+    "targets_csv_row",
+    "targets_json",
+]
 
 
 def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
@@ -166,3 +176,35 @@ def cues_json(result: TrackResult) -> dict:
     if result.roi is not None:
         out["roi"] = result.roi.as_list()
     return out
+
+
+def targets_csv_columns(targets: Sequence[str]) -> tuple[str, ...]:
+    """CSV columns of a multi-target run: ``frame, timestamp_ns``, per target ``u, v, state``, evaluations."""
+    return (
+        "frame",
+        "timestamp_ns",
+        *(f"{t}_{c}" for t in targets for c in ("u", "v", "state")),
+        "likelihood_evaluations",
+    )
+
+
+def targets_csv_row(result) -> list[str]:
+    """The CSV cells of a :class:`~fusion_pf.pipeline.targets.TargetsResult`, in :func:`targets_csv_columns` order."""
+    cells = [str(result.frame), str(result.timestamp_ns)]
+    for u, v, state in result.targets.values():
+        cells += [_f(u, 3), _f(v, 3), state]
+    cells.append(str(result.evaluations))
+    return cells
+
+
+def targets_json(result, config: TrackConfig) -> dict:
+    """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state}`` (u, v null when none)."""
+    return {
+        "frame": result.frame,
+        "timestamp_ns": result.timestamp_ns,
+        "targets": {
+            t: {"u": _finite_or_none(u), "v": _finite_or_none(v), "state": s} for t, (u, v, s) in result.targets.items()
+        },
+        "filter": config.filter,
+        "likelihood_evaluations": result.evaluations,
+    }

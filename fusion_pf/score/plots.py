@@ -259,3 +259,45 @@ def plot_latency(
     ax.grid(alpha=0.3, which="both")
     _legend(ax, 4)
     return _save(fig, path)
+
+
+#: Colours of the track states on the per-target timelines (paper 004 §5.2).
+STATE_COLOURS = {
+    "uninitialised": "lightgrey",
+    "unlabelled": "tab:orange",
+    "tracking": "tab:green",
+    "combined": "tab:blue",
+    "lost": "tab:red",
+}
+
+
+def plot_targets(errors: Mapping[str, np.ndarray], states: Mapping[str, list[str]], path: str | Path) -> Path:
+    """Per-target error per frame (top) and each target's track-state timeline (bottom).
+
+    Parameters
+    ----------
+    errors : mapping of str to ndarray, shape (n,)
+        Per target, the error in px per frame (NaN: no estimate or no reference).
+    states : mapping of str to list of str
+        Per target, the track state per frame.
+    path : str or Path
+        PNG to write.
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    fig = Figure(figsize=(10.0, 6.0), dpi=110)
+    top, bottom = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    for k, (t, e) in enumerate(errors.items()):
+        top.plot(np.arange(len(e)), e, linewidth=1.2, color=_OTHER_COLOURS[k % len(_OTHER_COLOURS)], label=t)
+        colours = [STATE_COLOURS.get(s, "black") for s in states[t]]
+        bottom.bar(np.arange(len(colours)), 0.8, bottom=k - 0.4, width=1.0, color=colours, linewidth=0)
+    top.set_ylabel("error (px)")
+    top.set_title("Error per target and track states")
+    top.grid(alpha=0.3)
+    top.legend(fontsize=9)
+    bottom.set_yticks(range(len(errors)), list(errors))
+    bottom.set_xlabel("tracked frame")
+    handles = [Patch(color=c, label=s) for s, c in STATE_COLOURS.items()]
+    bottom.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.45), ncol=5, fontsize=8, frameon=False)
+    return _save(fig, path)
