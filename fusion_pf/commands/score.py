@@ -148,10 +148,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
     if args.scheduler is not None and args.workers is not None:
         raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
-    if args.ground_truth is not None and file_kind(args.tracked) == "csv":
-        from fusion_pf.score.targets import read_targets_csv
+    if args.ground_truth is not None:
+        from fusion_pf.score.targets import read_targets_csv, read_targets_topic
 
-        table = read_targets_csv(args.tracked)
+        kind = file_kind(args.tracked)
+        table = read_targets_csv(args.tracked) if kind == "csv" else read_targets_topic(args.tracked, read_topic)
         if table is not None:
             return _score_targets(table, args, read_topic)
     reference = read_reference(args.reference, args.ground_truth, read_topic)

@@ -18,10 +18,18 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-from .inputs import GROUND_TRUTH_TOPIC, TopicReader
+from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, TopicReader
 from .metrics import rmse
 
-__all__ = ["TargetsTable", "count_swaps", "read_targets_csv", "score_targets", "targets_markdown", "truths_by_target"]
+__all__ = [
+    "TargetsTable",
+    "count_swaps",
+    "read_targets_csv",
+    "read_targets_topic",
+    "score_targets",
+    "targets_markdown",
+    "truths_by_target",
+]
 
 #: Hands closer than this fraction of the image diagonal are joined: an identity is not defined there
 #: (25 px at 320 x 200, about 8 cm at the hands).
@@ -63,6 +71,28 @@ def read_targets_csv(path: str | Path) -> TargetsTable | None:
     uv = {t: np.array([[num(r[col[f"{t}_u"]]), num(r[col[f"{t}_v"]])] for r in body]).reshape(-1, 2) for t in targets}
     states = {t: [r[col[f"{t}_state"]] for r in body] for t in targets}
     return TargetsTable(str(path), ts, uv, states)
+
+
+def read_targets_topic(path: str, read_topic: TopicReader) -> TargetsTable | None:
+    """The multi-target ``/tracker/estimate`` messages of a ``track --targets -o`` output, or None when it has none."""
+    msgs = [
+        (ts, m)
+        for ts, m in read_topic(path, ESTIMATE_TOPIC)
+        if isinstance(m, dict) and isinstance(m.get("targets"), dict)
+    ]
+    if not msgs:
+        return None
+    targets = list(msgs[0][1]["targets"])
+
+    def xy(value: object) -> float:
+        return float(value) if isinstance(value, (int, float)) else math.nan
+
+    uv = {
+        t: np.array([[xy(m["targets"].get(t, {}).get("u")), xy(m["targets"].get(t, {}).get("v"))] for _, m in msgs])
+        for t in targets
+    }
+    states = {t: [str(m["targets"].get(t, {}).get("state", "")) for _, m in msgs] for t in targets}
+    return TargetsTable(path, np.array([int(ts) for ts, _ in msgs], dtype=np.int64), uv, states)
 
 
 def truths_by_target(path: str, read_topic: TopicReader) -> dict[str, dict[int, tuple[float, float]]]:

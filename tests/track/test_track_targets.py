@@ -71,6 +71,11 @@ def test_every_target_is_tracked_scored_and_keeps_its_identity(scene, tmp_path, 
     for t in TARGETS.split(","):
         assert rep["targets"][t]["coverage"] >= 0.95 and rep["targets"][t]["rmse_px"] < 10.0, (t, rep["targets"][t])
     assert rep["swaps"] == 0
+    assert main(["score", str(out), "--ground-truth", str(scene), "--json"]) == 0  # the MCAP output scores the same
+    from_mcap = json.loads(capsys.readouterr().out)
+    assert from_mcap["swaps"] == 0
+    for t in TARGETS.split(","):
+        assert from_mcap["targets"][t]["rmse_px"] == pytest.approx(rep["targets"][t]["rmse_px"], abs=2e-3)
     if filt == "pf":
         assert main(["score", str(table), "--ground-truth", str(scene), "--plots", str(tmp_path / "p")]) == 0
         assert (tmp_path / "p" / "targets.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
