@@ -42,8 +42,14 @@ EXTRA_COLOURS = ((255, 255, 255), (150, 255, 150), (255, 200, 200), (200, 200, 1
 PARTICLE_COLOUR = (255, 220, 30)
 ESTIMATE_COLOUR = (255, 30, 30)
 ROI_COLOUR = (235, 235, 235)
-#: Colours of the track states (paper 004's states for one target).
-STATE_COLOURS = {"tracking": (40, 230, 60), "lost": (255, 40, 40), "uninitialised": (255, 200, 0)}
+#: Colours of the track states (paper 004 §5.2).
+STATE_COLOURS = {
+    "tracking": (40, 230, 60),
+    "lost": (255, 40, 40),
+    "uninitialised": (255, 200, 0),
+    "unlabelled": (255, 140, 0),
+    "combined": (60, 140, 255),
+}
 #: Keys of a ``/tracker/cues`` message that are not sources.
 CUE_META_KEYS = ("frame", "timestamp_ns", "roi")
 #: Images narrower than this are scaled up by an integer factor before drawing.
@@ -245,6 +251,20 @@ def draw(frame: Frame, out: TrackerFrame | None, sources: list[str], scale: int)
                 cv2.drawMarker(img, c, (0, 0, 0), cv2.MARKER_TILTED_CROSS, 15, 4)
                 cv2.drawMarker(img, c, colour, cv2.MARKER_TILTED_CROSS, 14, 2)
         e = out.estimate or {}
+        targets = e.get("targets")
+        if isinstance(targets, dict):  # several targets (track --targets): a ring per target, coloured by state
+            for k, (name, te) in enumerate(targets.items()):
+                te = te if isinstance(te, dict) else {}
+                tu, tv, ts = _number(te.get("u")), _number(te.get("v")), te.get("state")
+                colour = STATE_COLOURS.get(ts, (255, 255, 255)) if isinstance(ts, str) else (255, 255, 255)
+                label(f"{name}: {ts}", (6, 34 + 16 * k), colour)
+                if tu is not None and tv is not None:
+                    c = px(tu, tv)
+                    cv2.circle(img, c, 9, (0, 0, 0), 4, cv2.LINE_AA)
+                    cv2.circle(img, c, 9, colour, 2, cv2.LINE_AA)
+                    label(name.replace("_hand", ""), (c[0] + 11, c[1] - 11), colour)
+            label(header, (6, 16), (255, 255, 255))
+            return img
         u, v = _number(e.get("u")), _number(e.get("v"))
         if u is not None and v is not None:
             c = px(u, v)

@@ -77,6 +77,7 @@ def test_every_target_is_tracked_scored_and_keeps_its_identity(scene, tmp_path, 
     for t in TARGETS.split(","):
         assert from_mcap["targets"][t]["rmse_px"] == pytest.approx(rep["targets"][t]["rmse_px"], abs=2e-3)
     if filt == "pf":
+        assert main(["render", str(out), "--sheet", str(tmp_path / "s.png"), "--every", "40"]) == 0  # a ring per target
         assert main(["score", str(table), "--ground-truth", str(scene), "--plots", str(tmp_path / "p")]) == 0
         assert (tmp_path / "p" / "targets.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert "| right_hand |" in capsys.readouterr().out
