@@ -77,7 +77,8 @@ def size_check(lo: int, hi: int):
             and all(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi for v in value)
         )
         if not ok:
-            raise InputError(f"{label} must be WxH with both in [{lo}, {hi}], e.g. 640x400, got {value!r}")
+            got = "x".join(map(str, value)) if isinstance(value, tuple) and len(value) == 2 else repr(value)
+            raise InputError(f"{label} must be WxH with both in [{lo}, {hi}], e.g. 640x400, got {got}")
         return int(value[0]), int(value[1])
 
     return check
