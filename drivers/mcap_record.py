@@ -31,9 +31,12 @@ from fusion_pf.signals import sigint_deferred
 
 from . import mcap_format as fmt
 from .base import Sink
+from .encoding import COMPRESSION_NAMES, EncodingOptions
 
 #: Compression names accepted by :class:`McapRecorder`.
-COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+COMPRESSIONS = dict(
+    zip(COMPRESSION_NAMES, (CompressionType.ZSTD, CompressionType.LZ4, CompressionType.NONE), strict=True)
+)
 #: Default uncompressed chunk size in bytes (about one raw 640x400 RGB-D frame).
 CHUNK_SIZE = 1 << 20
 #: Bytes a message adds to a chunk besides its data (record header 9, channel 2, sequence 4, two times 16).
@@ -82,10 +85,10 @@ class McapRecorder(Sink):
         self,
         path: str | Path,
         *,
-        compression: str = "zstd",
-        color_format: str = "raw",
-        depth_format: str = "raw",
-        jpeg_quality: int = 90,
+        compression: str = EncodingOptions.compression,
+        color_format: str = EncodingOptions.color_format,
+        depth_format: str = EncodingOptions.depth_format,
+        jpeg_quality: int = EncodingOptions.jpeg_quality,
         metadata: Mapping[str, str] | None = None,
         chunk_size: int = CHUNK_SIZE,
     ) -> None:

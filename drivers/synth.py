@@ -282,9 +282,10 @@ _REFERENCE_FX = 0.78 * 640.0
 _OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands")
 #: Ground-truth targets of the two-hand scene, the primary one first.
 TARGETS = ("right_hand", "left_hand", "head")
-_MAX_FRAMES = 10_000_000
-_MAX_SIZE = 4096
-_MIN_SIZE = 32
+#: Most frames a synthetic recording may have.
+MAX_FRAMES = 10_000_000
+#: Range of the image width and height in pixels.
+MIN_SIZE, MAX_SIZE = 32, 4096
 
 
 def _int_option(name: str, value: object, lo: int, hi: int) -> int:
@@ -313,7 +314,7 @@ def _fps_option(value: object) -> float:
 
 
 def _size_option(value: object) -> tuple[int, int]:
-    expected = f"WxH with both in [{_MIN_SIZE}, {_MAX_SIZE}], e.g. 640x400"
+    expected = f"WxH with both in [{MIN_SIZE}, {MAX_SIZE}], e.g. 640x400"
     if isinstance(value, str):
         parts = value.lower().split("x")
     elif isinstance(value, (tuple, list)):
@@ -326,7 +327,7 @@ def _size_option(value: object) -> tuple[int, int]:
         w, h = (int(str(p).strip()) for p in parts)
     except ValueError:
         raise InputError(f"synth option size must be {expected}, got {value!r}") from None
-    if not (_MIN_SIZE <= w <= _MAX_SIZE and _MIN_SIZE <= h <= _MAX_SIZE):
+    if not (MIN_SIZE <= w <= MAX_SIZE and MIN_SIZE <= h <= MAX_SIZE):
         raise InputError(f"synth option size must be {expected}, got {value!r}")
     return w, h
 
@@ -376,7 +377,7 @@ class SynthSource(ReplaySource):
     ) -> None:
         super().__init__()
         self.hands = _int_option("synth option hands", hands, 1, 2)
-        self._n = _int_option("synth option frames", frames, 1, _MAX_FRAMES)
+        self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
         self.size = _size_option(size)
         self.fps = _fps_option(fps)
@@ -449,8 +450,8 @@ class SynthSource(ReplaySource):
 
         ``stop`` beyond the end is clipped to ``len(self)``.
         """
-        start = _int_option("frames() start", start, 0, _MAX_FRAMES)
-        stop = self._n if stop is None else min(_int_option("frames() stop", stop, 0, _MAX_FRAMES), self._n)
+        start = _int_option("frames() start", start, 0, MAX_FRAMES)
+        stop = self._n if stop is None else min(_int_option("frames() stop", stop, 0, MAX_FRAMES), self._n)
         for i in range(start, stop):
             t = self.timestamp_ns(i)
             if start_ns is not None and t < start_ns:

@@ -62,6 +62,8 @@ class Spec:
         Whether the field has a command line flag.
     optional : bool
         None is a valid value (it means what the help says).
+    const : object or None
+        Value of the bare flag: when set, the flag's argument may be left out.
     """
 
     help: str
@@ -77,6 +79,7 @@ class Spec:
     metavar: str | None = None
     cli: bool = True
     optional: bool = False
+    const: Any = None
 
 
 def option(
@@ -231,7 +234,8 @@ def add_options(
             )
             continue
         metavar = spec.metavar or ("|".join(map(str, spec.choices)) if spec.choices else f.name.upper())
-        target.add_argument(flag, dest=f.name, default=argparse.SUPPRESS, metavar=metavar, help=option_help(f))
+        bare = {} if spec.const is None else {"nargs": "?", "const": spec.const}
+        target.add_argument(flag, dest=f.name, default=argparse.SUPPRESS, metavar=metavar, help=option_help(f), **bare)
 
 
 def _parse(f: dataclasses.Field, spec: Spec, text: Any) -> Any:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import ast
 import dataclasses
 import subprocess
@@ -11,7 +12,9 @@ from pathlib import Path
 import pytest
 
 import fusion_pf
-from fusion_pf.cli import build_parser
+from fusion_pf.cli import _command_modules, build_parser
+from fusion_pf.commands.cues import WINDOW_OPTIONS
+from fusion_pf.commands.demo import TRACK_OPTIONS
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.filter import KalmanFilter, ParticleFilter
 from fusion_pf.options import from_args, option_help
@@ -65,35 +68,65 @@ def _help_of(command: str) -> dict[str, str]:
     return {a.dest: a.help for a in sub._actions}
 
 
-@pytest.mark.parametrize("command", ["track", "cues"])
-def test_help_shows_the_real_defaults(command):
-    from fusion_pf.commands.cues import WINDOW_OPTIONS
+#: The command modules by command name.
+COMMANDS = {m.NAME: m for m in _command_modules()}
+#: (command, config class) -> the only fields it registers, where a command takes part of a config.
+PARTIAL = {("cues", TrackConfig): WINDOW_OPTIONS, ("demo", TrackConfig): TRACK_OPTIONS}
+#: Options with a plain argparse default that is not an option of a stage: output places and encodings.
+PLAIN_DEFAULTS = {("demo", "out"), ("track", "color_format"), ("cues", "prior")}
 
+
+def _shown(spec, default) -> str:
+    """The default as ``--help`` should show it, computed here independently of options.option_help."""
+    if spec.show:
+        return spec.show(default)
+    if default is None:
+        return "none"
+    if isinstance(default, bool):
+        return "on" if default else "off"
+    return f"{default:g}" if isinstance(default, float) else str(default)
+
+
+@pytest.mark.parametrize(
+    "command, cls",
+    [(name, cls) for name, module in COMMANDS.items() for cls in module.CONFIGS],
+    ids=lambda x: x if isinstance(x, str) else x.__name__,
+)
+def test_help_shows_the_real_defaults(command, cls):
     helps = _help_of(command)
-    seen = 0
-    for cls in (TrackConfig, CueOptions):
-        for f in dataclasses.fields(cls):
-            own = command == "cues" and cls is TrackConfig and f.name not in WINDOW_OPTIONS
-            if f.name in helps and not own:
-                assert helps[f.name] == option_help(f)
-                default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-                spec = f.metadata["spec"]
-                shown = (
-                    spec.show(default)
-                    if spec.show
-                    else (
-                        "none"
-                        if default is None
-                        else ("on" if default else "off")
-                        if isinstance(default, bool)
-                        else f"{default:g}"
-                        if isinstance(default, float)
-                        else str(default)
-                    )
-                )
-                assert f"[default: {shown}]" in helps[f.name], (f.name, helps[f.name])
-                seen += 1
-    assert seen >= (10 if command == "track" else 8)
+    only = PARTIAL.get((command, cls))
+    fields = [
+        f
+        for f in dataclasses.fields(cls)
+        if "spec" in f.metadata and f.metadata["spec"].cli and (only is None or f.name in only)
+    ]
+    assert fields
+    for f in fields:
+        assert helps.get(f.name) == option_help(f), (command, f.name)
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        assert f"[default: {_shown(f.metadata['spec'], default)}]" in helps[f.name], (f.name, helps[f.name])
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_option_default_comes_from_a_config(command):
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    registered = {
+        f.name
+        for cls in COMMANDS[command].CONFIGS
+        for f in dataclasses.fields(cls)
+        if f.name in PARTIAL.get((command, cls), (f.name,))
+    }
+    plain = {a.dest for a in sub._actions if a.option_strings and a.default not in (None, False, [], argparse.SUPPRESS)}
+    assert plain - {d for c, d in PLAIN_DEFAULTS if c == command} == set()
+    # a config's flag keeps its default in the config (argparse sees SUPPRESS)
+    assert all(a.default is argparse.SUPPRESS for a in sub._actions if a.dest in registered and a.option_strings)
+
+
+def test_the_commands_with_options_have_configs():
+    with_configs = {name for name, module in COMMANDS.items() if module.CONFIGS}
+    assert with_configs == {"annotate", "cues", "demo", "import", "record", "render", "score", "synth", "track"}
+    assert COMMANDS["info"].CONFIGS == COMMANDS["annotations"].CONFIGS == ()
 
 
 def test_flags_left_out_keep_the_config_defaults():

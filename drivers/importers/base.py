@@ -29,6 +29,8 @@ from ..base import Source
 
 #: Horizontal field of view (degrees) assumed when a source carries no intrinsics.
 DEFAULT_HFOV_DEG = 60.0
+#: Valid horizontal fields of view in degrees (inclusive).
+HFOV_RANGE_DEG = (1.0, 179.0)
 
 _UNIT_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3}
 _UNIT_RE = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)?\s*(mm|cm|m|um)\s*$")
@@ -87,8 +89,9 @@ def fov_intrinsics(width: int, height: int, hfov_deg: float = DEFAULT_HFOV_DEG) 
     ``fx = fy = (width / 2) / tan(hfov / 2)``, principal point at the image centre
     (``((width - 1) / 2, (height - 1) / 2)``, pixel centres at integers).
     """
-    if not 1.0 <= hfov_deg <= 179.0:
-        raise InputError(f"field of view must be in [1, 179] degrees, got {hfov_deg}")
+    lo, hi = HFOV_RANGE_DEG
+    if not lo <= hfov_deg <= hi:
+        raise InputError(f"field of view must be in [{lo:g}, {hi:g}] degrees, got {hfov_deg}")
     f = width / 2 / math.tan(math.radians(hfov_deg) / 2)
     return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
 

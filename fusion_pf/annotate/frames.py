@@ -21,8 +21,7 @@ import numpy as np
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame
 
-#: Image formats :class:`FrameImages` can encode the colour image to.
-COLOR_FORMATS = ("jpeg", "png")
+from .options import COLOR_FORMATS, ServeOptions
 
 
 @runtime_checkable
@@ -140,9 +139,9 @@ class FrameImages:
         self,
         provider: FrameProvider,
         *,
-        color_format: str = "jpeg",
+        color_format: str = ServeOptions.image_format,
         jpeg_quality: int = 90,
-        cache_size: int = 256,
+        cache_size: int = ServeOptions.cache,
     ) -> None:
         if color_format not in COLOR_FORMATS:
             raise InputError(f"color_format must be one of {COLOR_FORMATS}, got {color_format!r}")

@@ -64,6 +64,7 @@ from fusion_pf.errors import InputError, RecordingError
 
 from .db import MAX_OPERATOR_LEN, AnnotationDB, summarize_frame, validate_operator
 from .frames import FrameImages
+from .options import ServeOptions
 
 #: Largest request body accepted, in bytes (a click is ~100 bytes).
 MAX_BODY_BYTES = 4096
@@ -337,10 +338,10 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
 
 def serve(
     app: Flask,
-    host: str = "127.0.0.1",
-    port: int = 8765,
+    host: str = ServeOptions.host,
+    port: int = ServeOptions.port,
     *,
-    threads: int = 8,
+    threads: int = ServeOptions.threads,
     on_ready: Callable[[str], None] | None = None,
 ) -> None:
     """Serve ``app`` with waitress until interrupted.

@@ -6,6 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from fusion_pf.annotate.options import ServeOptions
+from fusion_pf.options import add_options, from_args
+
 NAME = "annotate"
 HELP = "serve a local web page where operators click the palm centre of every frame"
 DESCRIPTION = (
@@ -22,24 +25,15 @@ DESCRIPTION = (
 )
 
 
+#: The config classes whose flags the command registers.
+CONFIGS = (ServeOptions,)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf annotate``."""
     p.add_argument("recording", type=Path, metavar="REC.mcap", help="recording to annotate")
     p.add_argument("--db", type=Path, required=True, help="SQLite file of the clicks (created if missing)")
-    p.add_argument(
-        "--host",
-        default="127.0.0.1",
-        help="interface to bind; anything but a loopback address exposes the tool to the network",
-    )
-    p.add_argument("--port", type=int, default=8765, help="TCP port (0 = pick a free one)")
-    p.add_argument("--threads", type=int, default=8, help="worker threads serving requests")
-    p.add_argument(
-        "--image-format",
-        choices=("jpeg", "png"),
-        default="jpeg",
-        help="encoding of the colour frames sent to the browser",
-    )
-    p.add_argument("--cache", type=int, default=256, help="encoded images kept in memory (LRU)")
+    add_options(p, ServeOptions)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,10 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.errors import InputError
     from fusion_pf.signals import stop_on_terminate
 
-    if not 0 <= args.port <= 65535:
-        raise InputError(f"--port must be in [0, 65535], got {args.port}")
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    opts = from_args(ServeOptions, args)
     if not args.recording.is_file():
         raise FileNotFoundError(2, "no such file", str(args.recording))
     if args.db.is_dir():
@@ -64,17 +55,17 @@ def run(args: argparse.Namespace) -> int:
     if not args.db.parent.is_dir():
         raise InputError(f"--db {args.db}: the folder {args.db.parent} does not exist")
     try:
-        loopback = ipaddress.ip_address(args.host).is_loopback
+        loopback = ipaddress.ip_address(opts.host).is_loopback
     except ValueError:
-        loopback = args.host == "localhost"
+        loopback = opts.host == "localhost"
     if not loopback:
         print(
-            f"fusion-pf annotate: warning: binding {args.host}, the annotator is reachable from "
+            f"fusion-pf annotate: warning: binding {opts.host}, the annotator is reachable from "
             "the network without any authentication",
             file=sys.stderr,
         )
     with McapReplay(args.recording) as replay:
-        images = FrameImages(ReplayProvider(replay), color_format=args.image_format, cache_size=args.cache)
+        images = FrameImages(ReplayProvider(replay), color_format=opts.image_format, cache_size=opts.cache)
         first = images.meta(0)
         db = AnnotationDB(
             args.db,
@@ -96,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                 )
 
             with stop_on_terminate():
-                serve(app, args.host, args.port, threads=args.threads, on_ready=ready)
+                serve(app, opts.host, opts.port, threads=opts.threads, on_ready=ready)
         finally:
             db.close()
     return 0

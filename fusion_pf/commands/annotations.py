@@ -23,6 +23,10 @@ DESCRIPTION = (
 )
 
 
+#: The config classes whose flags the command registers: none, its only flags are paths and switches.
+CONFIGS: tuple[type, ...] = ()
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the ``export`` action and its options."""
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fusion_pf.cues.registry import CueOptions
+from fusion_pf.pipeline import TrackConfig
+
 NAME = "cues"
 HELP = "run the colour, depth, skin and skeleton cues on one frame; write stage contact sheets"
 DESCRIPTION = (
@@ -19,6 +22,8 @@ DESCRIPTION = (
     "runs on frame K-1 so its temporal difference (I_d6) is that of frame K."
 )
 
+#: The config classes whose flags the command registers (of TrackConfig only WINDOW_OPTIONS).
+CONFIGS = (TrackConfig, CueOptions)
 #: TrackConfig fields that place the window and build the background (shared with ``track``).
 WINDOW_OPTIONS = ("joint", "roi_half_size", "roi_extent_mm", "depth_radius", "background", "background_k")
 
@@ -37,9 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf cues``: its own, the window's (as ``track``) and the cues'."""
     import dataclasses
 
-    from fusion_pf.cues.registry import CueOptions
     from fusion_pf.options import add_options
-    from fusion_pf.pipeline import TrackConfig
 
     p.add_argument("file", type=Path, metavar="REC.mcap", help="recording to read")
     p.add_argument(
@@ -114,10 +117,10 @@ def run(args: argparse.Namespace) -> int:
     from drivers.mcap_replay import McapReplay
     from fusion_pf.cues import contact_sheet
     from fusion_pf.cues.base import CueContext
-    from fusion_pf.cues.registry import CUES, CueOptions, build_cues
+    from fusion_pf.cues.registry import CUES, build_cues
     from fusion_pf.errors import InputError
     from fusion_pf.options import from_args
-    from fusion_pf.pipeline import TrackConfig, cue_window
+    from fusion_pf.pipeline import cue_window
 
     options = from_args(CueOptions, args)
     config = from_args(TrackConfig, args, cue_options=options)

@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
-from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
+from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS
+from fusion_pf.options import add_options, from_args, validate
+from fusion_pf.pipeline.config import TrackConfig
+
+from ._options import counts_option, runs_option, workers_option
 
 NAME = "demo"
 HELP = "track + score the sample recording (recordings/sample.mcap): figures 8-10 and tables"
@@ -25,6 +31,24 @@ DESCRIPTION = (
 SAMPLE = Path("recordings") / "sample.mcap"
 
 
+@dataclass(frozen=True)
+class DemoOptions:
+    """The sweep options of ``fusion-pf demo`` (validated on construction)."""
+
+    sweep: tuple[int, ...] = counts_option(PAPER_PARTICLE_COUNTS, help="particle counts of the sweep (paper 003 §4.4)")
+    runs: int = runs_option()
+    workers: int | None = workers_option("worker processes of the sweep's local Dask cluster; 1: in this process")
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+#: The tracker options of the tracked output (and of the sweep), as ``fusion-pf track`` has them.
+TRACK_OPTIONS = ("particles", "seed", "cue_noise_px")
+#: The config classes whose flags the command registers (of TrackConfig only TRACK_OPTIONS).
+CONFIGS = (DemoOptions, TrackConfig)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf demo``."""
     p.add_argument("--out", type=Path, default=Path("out") / "demo", metavar="DIR", help="output directory")
@@ -35,27 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="REC.mcap",
         help=f"recording with ground truth; not given: {SAMPLE} of the repository",
     )
-    p.add_argument(
-        "--sweep",
-        default=",".join(map(str, PAPER_PARTICLE_COUNTS)),
-        metavar="N1,N2,...",
-        help="particle counts of the sweep (paper 003 §4.4)",
-    )
-    p.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
-    p.add_argument("--particles", type=int, default=100, help="particle count of the tracked output")
-    p.add_argument("--seed", type=int, default=0, help="seed of the tracked output and base seed of the sweep")
-    p.add_argument(
-        "--cue-noise",
-        default=None,
-        metavar="SRC=PX,...",
-        help="Gaussian noise (px per axis) added to cue positions, as paper 003 §4.2-4.3 does, "
-        "e.g. colour=4,depth=4; not given: none",
-    )
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="worker processes of the sweep's local Dask cluster; not given: one per core; 1: in this process",
+    add_options(p, DemoOptions)
+    add_options(
+        p, TrackConfig, exclude=[f.name for f in dataclasses.fields(TrackConfig) if f.name not in TRACK_OPTIONS]
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
 
@@ -90,25 +96,19 @@ def run(args: argparse.Namespace) -> int:
     from drivers import ReplaySource, open_source
     from drivers.tracker_topics import read_topic
     from fusion_pf.errors import InputError
-    from fusion_pf.experiments import parse_counts, run_sweep
+    from fusion_pf.experiments import run_sweep
     from fusion_pf.frame import SOURCES
-    from fusion_pf.options import parse_pairs
-    from fusion_pf.pipeline import TrackConfig, TrackCsv, track
+    from fusion_pf.pipeline import TrackCsv, track
     from fusion_pf.score.evaluate import evaluate, markdown, write_report
     from fusion_pf.score.inputs import align, read_ground_truth
 
     t_start = time.perf_counter()
-    counts = parse_counts(args.sweep)
-    for name, value, lo in (("--runs", args.runs, 1), ("--particles", args.particles, 1), ("--seed", args.seed, 0)):
-        if value < lo:
-            raise InputError(f"{name} must be >= {lo}, got {value}")
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    opts = from_args(DemoOptions, args)
+    config = from_args(TrackConfig, args, cues=SOURCES)
+    counts = opts.sweep
     if args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out} is a file; expected a directory")
     recording = find_sample(args.recording)
-    cue_noise = parse_pairs(args.cue_noise) if args.cue_noise else {}
-    config = TrackConfig(cues=SOURCES, particles=args.particles, seed=args.seed, cue_noise_px=cue_noise)
     reference = read_ground_truth(recording, read_topic)
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     ev = evaluate(tracked, reference)
     t_track = time.perf_counter() - t_start
 
-    print(f"demo: tracking again for N = {', '.join(map(str, counts))} with {args.runs} runs each", file=log)
+    print(f"demo: tracking again for N = {', '.join(map(str, counts))} with {opts.runs} runs each", file=log)
     person = [(i, f) for i, f in enumerate(frames) if not f.background]
     uv, _ = align(
         np.array([i for i, _ in person], dtype=np.int64),
@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         name=str(recording),
     )
     sweep = run_sweep(
-        frames, config, uv, counts, args.runs, seed=args.seed, workers=args.workers, progress=not args.no_progress
+        frames, config, uv, counts, opts.runs, seed=config.seed, workers=opts.workers, progress=not args.no_progress
     )
     files = write_report(ev, args.out, sweep)
     figures = [str(p) for name, p in files.items() if name.endswith(".png")]

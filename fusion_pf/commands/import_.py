@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from .record import _positive
+from drivers.encoding import EncodingOptions
+from drivers.importers.base import DEFAULT_HFOV_DEG, DEPTH_UNIT_EXAMPLES, HFOV_RANGE_DEG, parse_depth_unit
+from fusion_pf.errors import InputError
+from fusion_pf.options import add_options, from_args, option, validate
 
 NAME = "import"
 HELP = "import a ROS bag, Azure Kinect .mkv, image folder or video into an MCAP recording"
@@ -20,75 +26,123 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Register the options of ``fusion-pf import``."""
-    from drivers.importers.base import DEFAULT_HFOV_DEG, DEPTH_UNIT_EXAMPLES
+def _text(label: str, value: Any) -> str | None:
+    if value is not None and (not isinstance(value, str) or not value):
+        raise InputError(f"{label} must be a non-empty string, got {value!r}")
+    return value
 
-    p.add_argument("source", type=Path, metavar="SRC", help="recording, folder or video to import")
-    p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
-    ros = p.add_argument_group("ROS bags")
-    ros.add_argument("--color-topic", metavar="TOPIC", help="colour image topic; if absent, chosen by type and name")
-    ros.add_argument(
-        "--depth-topic",
-        metavar="TOPIC",
-        help="depth image topic, 16UC1 mm or 32FC1 m, or 'none'; if absent, chosen by type and name "
-        "(aligned_depth_to_color first)",
+
+def _depth_unit(label: str, value: Any) -> str | None:
+    value = _text(label, value)
+    if value is not None:
+        parse_depth_unit(value)
+    return value
+
+
+def _path(label: str, value: Any) -> Path:
+    return Path(value)
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """What ``fusion-pf import`` reads and assumes (validated on construction)."""
+
+    color_topic: str | None = option(
+        None, check=_text, metavar="TOPIC", show=lambda v: "chosen by type and name", help="colour image topic"
     )
-    ros.add_argument(
-        "--info-topic",
+    depth_topic: str | None = option(
+        None,
+        check=_text,
         metavar="TOPIC",
-        help="CameraInfo topic of the colour camera; if absent, the one next to the colour topic",
+        show=lambda v: "chosen by type and name, aligned_depth_to_color first",
+        help="depth image topic, 16UC1 mm or 32FC1 m, or 'none'",
     )
-    folder = p.add_argument_group("image folders and videos")
-    folder.add_argument(
-        "--depth-unit",
+    info_topic: str | None = option(
+        None,
+        check=_text,
+        metavar="TOPIC",
+        show=lambda v: "the one next to the colour topic",
+        help="CameraInfo topic of the colour camera",
+    )
+    depth_unit: str | None = option(
+        None,
+        check=_depth_unit,
         metavar="UNIT",
-        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}; if absent, 1mm",
+        show=lambda v: "1mm",
+        help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}",
     )
-    folder.add_argument(
-        "--fps",
-        type=_positive(float),
+    fps: float | None = option(
+        None,
+        kind="float",
+        lo=0.001,
+        hi=1000.0,
+        optional=True,
         metavar="F",
-        help="frame rate giving the timestamps (folders: 30 if absent; videos: replaces the file's own)",
+        show=lambda v: "folders: 30; videos: the file's own",
+        help="frame rate giving the timestamps (videos: replaces the file's own)",
     )
-    folder.add_argument(
-        "--intrinsics",
-        type=Path,
+    intrinsics: Path | None = option(
+        None,
+        optional=True,
+        check=_path,
         metavar="FILE",
         help="colour intrinsics, JSON or YAML: width, height, fx, fy, cx, cy; a ROS camera_info "
         "YAML; or an Open3D intrinsic JSON",
     )
-    for name in ("fx", "fy", "cx", "cy"):
-        folder.add_argument(
-            f"--{name}",
-            type=float,
-            metavar="PX",
-            help=f"colour intrinsics {name} in pixels"
-            + (" (fy defaults to fx, cx/cy to the image centre)" if name == "fx" else ""),
-        )
-    folder.add_argument(
-        "--hfov",
-        type=_positive(float),
-        default=DEFAULT_HFOV_DEG,
+    fx: float | None = option(
+        None,
+        kind="float",
+        lo=0.001,
+        optional=True,
+        unit="px",
+        metavar="PX",
+        help="colour intrinsics fx (fy defaults to fx, cx/cy to the image centre)",
+    )
+    fy: float | None = option(
+        None, kind="float", lo=0.001, optional=True, unit="px", metavar="PX", help="colour intrinsics fy"
+    )
+    cx: float | None = option(None, kind="float", optional=True, unit="px", metavar="PX", help="colour intrinsics cx")
+    cy: float | None = option(None, kind="float", optional=True, unit="px", metavar="PX", help="colour intrinsics cy")
+    hfov: float = option(
+        DEFAULT_HFOV_DEG,
+        kind="float",
+        lo=HFOV_RANGE_DEG[0],
+        hi=HFOV_RANGE_DEG[1],
+        unit="deg",
         metavar="DEG",
         help="horizontal field of view assumed when no intrinsics are given",
     )
+    frames: int | None = option(
+        None, kind="int", lo=1, optional=True, metavar="N", show=lambda v: "all", help="import at most N frames"
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.fx is None and any(v is not None for v in (self.fy, self.cx, self.cy)):
+            raise InputError("--fy/--cx/--cy need --fx")
+        if self.intrinsics is not None and self.fx is not None:
+            raise InputError("give the intrinsics either as --intrinsics FILE or as --fx/--fy/--cx/--cy, not both")
+
+
+#: ``--help`` headings and the ImportOptions fields under each (``frames`` goes under "output").
+GROUPS = {
+    "ROS bags": ("color_topic", "depth_topic", "info_topic"),
+    "image folders and videos": ("depth_unit", "fps", "intrinsics", "fx", "fy", "cx", "cy", "hfov"),
+}
+#: The config classes whose flags the command registers.
+CONFIGS = (ImportOptions, EncodingOptions)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf import``."""
+    p.add_argument("source", type=Path, metavar="SRC", help="recording, folder or video to import")
+    p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
+    names = [f.name for f in dataclasses.fields(ImportOptions)]
+    for title, group in GROUPS.items():
+        add_options(p, ImportOptions, exclude=[n for n in names if n not in group], title=title)
     out = p.add_argument_group("output")
-    out.add_argument("--frames", type=_positive(int), metavar="N", help="import at most N frames")
-    out.add_argument(
-        "--color-format",
-        choices=("raw", "jpeg", "png"),
-        default="raw",
-        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
-    )
-    out.add_argument(
-        "--depth-format",
-        choices=("raw", "png"),
-        default="raw",
-        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
-    )
-    out.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
-    out.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
+    add_options(out, ImportOptions, exclude=[n for n in names if n != "frames"])
+    add_options(out, EncodingOptions)
     out.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
     out.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
@@ -96,34 +150,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Import SRC into OUT.mcap and print what was chosen and written."""
     from drivers.importers import IntrinsicsOption, open_import, write_recording
-    from fusion_pf.errors import InputError
 
     from ._paths import check_output
 
+    opts = from_args(ImportOptions, args)
+    encoding = from_args(EncodingOptions, args)
     check_output(args.output, force=args.force, inputs=(args.source,))
-    if args.fx is None and any(getattr(args, k) is not None for k in ("fy", "cx", "cy")):
-        raise InputError("--fy/--cx/--cy need --fx")
-    if args.intrinsics is not None and args.fx is not None:
-        raise InputError("give the intrinsics either as --intrinsics FILE or as --fx/--fy/--cx/--cy, not both")
-    intrinsics = IntrinsicsOption(args.intrinsics, args.fx, args.fy, args.cx, args.cy, args.hfov)
+    intrinsics = IntrinsicsOption(opts.intrinsics, opts.fx, opts.fy, opts.cx, opts.cy, opts.hfov)
     source = open_import(
         args.source,
-        color_topic=args.color_topic,
-        depth_topic=args.depth_topic,
-        info_topic=args.info_topic,
-        depth_unit=args.depth_unit,
-        fps=args.fps,
+        color_topic=opts.color_topic,
+        depth_topic=opts.depth_topic,
+        info_topic=opts.info_topic,
+        depth_unit=opts.depth_unit,
+        fps=opts.fps,
         intrinsics=intrinsics,
     )
     summary = write_recording(
         source,
         args.output,
-        max_frames=args.frames,
+        max_frames=opts.frames,
         progress=False if args.no_progress else None,
-        color_format=args.color_format,
-        depth_format=args.depth_format,
-        jpeg_quality=args.jpeg_quality,
-        compression=args.compression,
+        **encoding.recorder_kwargs(),
     )
     for line in summary.report:
         print(f"  {line}")

@@ -19,6 +19,10 @@ DESCRIPTION = (
 )
 
 
+#: The config classes whose flags the command registers: none, its only flags are paths and switches.
+CONFIGS: tuple[type, ...] = ()
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf info``."""
     p.add_argument("file", type=Path, metavar="FILE.mcap", help="recording to describe")

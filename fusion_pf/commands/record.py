@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
+from drivers.encoding import EncodingOptions
+from fusion_pf.options import add_options, from_args, option, validate
+
+from ._options import parse_size, size_check
 
 NAME = "record"
 HELP = "record a source (synthetic scene, OAK camera, recording) into an MCAP file"
@@ -28,53 +32,68 @@ def _meta(text: str) -> tuple[str, str]:
     return key, value
 
 
-def _positive(kind: type) -> Callable[[str], object]:
-    def parse(text: str) -> object:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}") from None
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
-        return value
+@dataclass(frozen=True)
+class RecordOptions:
+    """When ``fusion-pf record`` stops and how the source is set up (validated on construction)."""
 
-    return parse
+    duration: float | None = option(
+        None,
+        kind="float",
+        lo=0.001,
+        optional=True,
+        unit="s",
+        metavar="S",
+        show=lambda v: "no limit",
+        help="stop after S seconds of capture time",
+    )
+    frames: int | None = option(
+        None, kind="int", lo=1, optional=True, metavar="N", show=lambda v: "no limit", help="stop after N frames"
+    )
+    size: tuple[int, int] | None = option(
+        None,
+        optional=True,
+        parse=parse_size,
+        check=size_check(1, 65535),
+        metavar="WxH",
+        unit="px",
+        show=lambda v: "the source's own, 640x400",
+        help="colour/depth size for a camera or synthetic source",
+    )
+    fps: float | None = option(
+        None,
+        kind="float",
+        lo=0.001,
+        hi=1000.0,
+        optional=True,
+        metavar="F",
+        show=lambda v: "the source's own, 30",
+        help="frame rate for a camera or synthetic source",
+    )
+    ir_laser: float | None = option(
+        None,
+        kind="float",
+        lo=0.0,
+        optional=True,
+        unit="mA",
+        metavar="MA",
+        show=lambda v: "off",
+        help="OAK Pro IR dot-projector current, at most the camera's 1200",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+#: The config classes whose flags the command registers.
+CONFIGS = (RecordOptions, EncodingOptions)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf record``."""
     p.add_argument("source", metavar="SOURCE", help=f"what to record: {SOURCE_SPECS}")
     p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
-    p.add_argument("--duration", type=_positive(float), metavar="S", help="stop after S seconds of capture time")
-    p.add_argument("--frames", type=_positive(int), metavar="N", help="stop after N frames")
-    p.add_argument(
-        "--size",
-        metavar="WxH",
-        help="colour/depth size in pixels for a camera or synthetic source (default: the source's own, 640x400)",
-    )
-    p.add_argument(
-        "--fps",
-        type=_positive(float),
-        metavar="F",
-        help="frame rate for a camera or synthetic source (default: the source's own, 30)",
-    )
-    p.add_argument(
-        "--ir-laser", type=float, metavar="MA", help="OAK Pro IR dot-projector current in mA, 0-1200 (default: off)"
-    )
-    p.add_argument(
-        "--color-format",
-        choices=("raw", "jpeg", "png"),
-        default="raw",
-        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
-    )
-    p.add_argument(
-        "--depth-format",
-        choices=("raw", "png"),
-        default="raw",
-        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
-    )
-    p.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
-    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
+    add_options(p, RecordOptions)
+    add_options(p, EncodingOptions)
     p.add_argument(
         "--meta",
         type=_meta,
@@ -122,26 +141,24 @@ def _record(args: argparse.Namespace) -> int:
 
     from drivers import ReplaySource, open_source
     from drivers.mcap_record import McapRecorder
-    from fusion_pf.errors import RecordingError
+    from fusion_pf.errors import InputError, RecordingError
     from fusion_pf.signals import sigint_deferred
     from fusion_pf.text import printable
 
     from ._paths import check_output
 
+    opts = from_args(RecordOptions, args)
+    encoding = from_args(EncodingOptions, args)
     check_output(args.output, force=args.force, inputs=(args.source,))
-    overrides = {k: v for k, v in (("size", args.size), ("fps", args.fps)) if v is not None}
+    overrides = {k: v for k, v in (("size", opts.size), ("fps", opts.fps)) if v is not None}
     if overrides and args.source.lower().endswith(".mcap"):
-        from fusion_pf.errors import InputError
-
         raise InputError(f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}")
-    if args.ir_laser is not None:
+    if opts.ir_laser is not None:
         if not args.source.lower().startswith("oak"):
-            from fusion_pf.errors import InputError
-
             raise InputError(f"--ir-laser applies to an OAK camera source, not to {args.source}")
-        overrides["ir_laser"] = args.ir_laser
+        overrides["ir_laser"] = opts.ir_laser
     source = open_source(args.source, **overrides)
-    duration_ns = None if args.duration is None else int(round(args.duration * 1e9))
+    duration_ns = None if opts.duration is None else int(round(opts.duration * 1e9))
     failure: BaseException | None = None
     interrupted: int | None = None
     started = time.monotonic()
@@ -152,21 +169,14 @@ def _record(args: argparse.Namespace) -> int:
             metadata.update(source_metadata())
         metadata.update(dict(args.meta))
         total = len(src) if isinstance(src, ReplaySource) else None
-        if args.frames is not None:
-            total = args.frames if total is None else min(total, args.frames)
-        recorder = McapRecorder(
-            args.output,
-            compression=args.compression,
-            color_format=args.color_format,
-            depth_format=args.depth_format,
-            jpeg_quality=args.jpeg_quality,
-            metadata=metadata,
-        )
+        if opts.frames is not None:
+            total = opts.frames if total is None else min(total, opts.frames)
+        recorder = McapRecorder(args.output, metadata=metadata, **encoding.recorder_kwargs())
         frames = iter(src)
         try:
             with recorder, tqdm(total=total, unit="frame", desc=src.describe(), disable=None, file=sys.stderr) as bar:
                 first_ns = None
-                while args.frames is None or recorder.frames_written < args.frames:
+                while opts.frames is None or recorder.frames_written < opts.frames:
                     try:
                         frame = next(frames)
                     except StopIteration:

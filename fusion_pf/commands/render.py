@@ -43,6 +43,10 @@ class RenderOptions:
         validate(self)
 
 
+#: The config classes whose flags the command registers.
+CONFIGS = (RenderOptions,)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf render``."""
     p.add_argument("tracked", type=Path, metavar="TRACKED.mcap", help="output of fusion-pf track -o")

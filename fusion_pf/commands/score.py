@@ -5,9 +5,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS, PAPER_RUNS
+from fusion_pf.errors import InputError
+from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS
+from fusion_pf.options import add_options, from_args, option, validate
+from fusion_pf.score.metrics import TIE_TOL_PX
+
+from ._options import counts_option, runs_option, workers_option
 
 NAME = "score"
 HELP = "RMSE, coverage, p95 and BestMax of a tracker output; particle-count sweeps and figures"
@@ -25,6 +31,59 @@ DESCRIPTION = (
 )
 
 
+@dataclass(frozen=True)
+class ScoreOptions:
+    """The scoring and sweep options of ``fusion-pf score`` (validated on construction)."""
+
+    tie_tol: float = option(
+        TIE_TOL_PX,
+        kind="float",
+        lo=0.0,
+        hi=1000.0,
+        unit="px",
+        metavar="PX",
+        help="BestMax: errors within this many pixels of the best tie (each tied source scores)",
+    )
+    sweep: tuple[int, ...] | None = counts_option(
+        None,
+        const=PAPER_PARTICLE_COUNTS,
+        help="re-run the filter for these particle counts (alone: the paper's "
+        f"{','.join(map(str, PAPER_PARTICLE_COUNTS))})",
+    )
+    runs: int = runs_option()
+    seed: int = option(
+        0,
+        kind="int",
+        lo=0,
+        hi=2**63 - 1,
+        metavar="S",
+        help="base seed; run r of count N uses SeedSequence([seed, N, r])",
+    )
+    workers: int | None = workers_option(
+        "worker processes of the local Dask cluster; 1: in this process (not with --scheduler)"
+    )
+    scheduler: str | None = option(
+        None,
+        kind="str",
+        optional=True,
+        metavar="tcp://HOST:PORT",
+        show=lambda v: "a local cluster",
+        help="run the sweep on this existing Dask scheduler instead of a local cluster",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.scheduler is not None and self.workers is not None:
+            raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+
+
+#: The fields shown under the sweep heading of ``--help``.
+SWEEP_OPTIONS = ("sweep", "runs", "seed", "workers", "scheduler")
+SWEEP_TITLE = "particle-count sweep (paper 003 §4.4-4.5)"
+#: The config classes whose flags the command registers.
+CONFIGS = (ScoreOptions,)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf score``."""
     p.add_argument("tracked", metavar="TRACKED", help="tracker output: TRACKED.csv or TRACKED.mcap")
@@ -33,46 +92,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     ref.add_argument("--ground-truth", metavar="REC.mcap", help="recording with /ground_truth/palm (synthetic)")
     p.add_argument("--plots", metavar="DIR", help="write the PNG figures, score.md and score.json to DIR")
     p.add_argument("--json", action="store_true", help="print the report as JSON instead of Markdown")
+    add_options(p, ScoreOptions, exclude=SWEEP_OPTIONS)
+    add_options(p, ScoreOptions, exclude=("tie_tol",), title=SWEEP_TITLE)
     p.add_argument(
-        "--tie-tol",
-        type=float,
-        default=1e-6,
-        metavar="PX",
-        help="BestMax: errors within this many pixels of the best tie (each tied source scores)",
-    )
-    s = p.add_argument_group("particle-count sweep (paper 003 §4.4-4.5)")
-    s.add_argument(
-        "--sweep",
-        metavar="N1,N2,...",
-        nargs="?",
-        const=",".join(map(str, PAPER_PARTICLE_COUNTS)),
-        help="re-run the filter for these particle counts (alone: the paper's "
-        f"{','.join(map(str, PAPER_PARTICLE_COUNTS))})",
-    )
-    s.add_argument("--runs", type=int, default=PAPER_RUNS, help="runs (seeds) per particle count (paper 003 §4.5)")
-    s.add_argument("--seed", type=int, default=0, help="base seed; run r of count N uses SeedSequence([seed, N, r])")
-    s.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="worker processes of the local Dask cluster; not given: one per core; 1: in this process",
-    )
-    s.add_argument(
-        "--scheduler",
-        metavar="tcp://HOST:PORT",
-        help="run the sweep on this existing Dask scheduler instead of a local cluster",
-    )
-    s.add_argument(
         "--recording",
         metavar="SOURCE",
         help="recording to re-track for the sweep; not given: the input named in TRACKED.mcap's "
         "metadata (key 'source'), else the --ground-truth recording. The sweep uses the tracker "
         "settings stored in TRACKED.mcap (defaults for a CSV)",
     )
-    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
-def sweep_recording(recording: str, reference, config, counts, args):
+def sweep_recording(recording: str, reference, config, counts, args, opts: ScoreOptions):
     """Decode ``recording``, align the reference to its tracked frames and run the sweep."""
     import numpy as np
 
@@ -83,7 +115,7 @@ def sweep_recording(recording: str, reference, config, counts, args):
     from .track import load_background
 
     for n in counts:
-        job_config(config, args.seed, n, 0)
+        job_config(config, opts.seed, n, 0)
     with open_source(str(recording)) as src:
         frames = list(src)
     person = [(i, f) for i, f in enumerate(frames) if not f.background]
@@ -96,13 +128,13 @@ def sweep_recording(recording: str, reference, config, counts, args):
         config,
         uv,
         counts,
-        args.runs,
-        seed=args.seed,
+        opts.runs,
+        seed=opts.seed,
         background=background,
-        workers=args.workers,
-        scheduler=args.scheduler,
+        workers=opts.workers,
+        scheduler=opts.scheduler,
         progress=not args.no_progress,
-        tie_tol=args.tie_tol,
+        tie_tol=opts.tie_tol,
     )
 
 
@@ -133,21 +165,12 @@ def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
 def run(args: argparse.Namespace) -> int:
     """Score, optionally sweep, write and print the report; returns the exit status."""
     from drivers.tracker_topics import read_topic, recording_metadata
-    from fusion_pf.errors import InputError
-    from fusion_pf.experiments import parse_counts
     from fusion_pf.pipeline import TrackConfig
     from fusion_pf.score.evaluate import as_json, evaluate, markdown, read_reference, write_report
     from fusion_pf.score.inputs import file_kind
 
-    counts = parse_counts(args.sweep) if args.sweep is not None else None
-    if args.runs < 1:
-        raise InputError(f"--runs must be >= 1, got {args.runs}")
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
-    if args.seed < 0:
-        raise InputError(f"--seed must be >= 0, got {args.seed}")
-    if args.scheduler is not None and args.workers is not None:
-        raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+    opts = from_args(ScoreOptions, args)
+    counts = opts.sweep
     if args.ground_truth is not None:
         from fusion_pf.score.targets import read_targets_csv, read_targets_topic
 
@@ -156,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         if table is not None:
             return _score_targets(table, args, read_topic)
     reference = read_reference(args.reference, args.ground_truth, read_topic)
-    ev = evaluate(args.tracked, reference, tie_tol=args.tie_tol, read_topic=read_topic)
+    ev = evaluate(args.tracked, reference, tie_tol=opts.tie_tol, read_topic=read_topic)
     if args.reference is not None:
         from fusion_pf.annotate.db import check_reference_matches
 
@@ -179,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise InputError(f"{args.tracked}: its tracker settings are not valid JSON") from None
         config = TrackConfig.from_settings(settings if isinstance(settings, dict) else {})
-        sweep = sweep_recording(recording, reference, config, counts, args)
+        sweep = sweep_recording(recording, reference, config, counts, args, opts)
     figures: list[str] = []
     if args.plots is not None:
         files = write_report(ev, args.plots, sweep)

@@ -3,7 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
+from dataclasses import dataclass
 from pathlib import Path
+
+from drivers.encoding import EncodingOptions
+from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, SynthSource
+from fusion_pf.errors import InputError
+from fusion_pf.options import add_options, from_args, option, validate
+
+from ._options import parse_size, show_size, size_check
 
 NAME = "synth"
 HELP = "render the synthetic RGB-D scene (with skeleton and ground truth) into an MCAP file"
@@ -16,43 +26,78 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Register the options of ``fusion-pf synth``."""
-    p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
-    p.add_argument("--frames", default="200", metavar="N", help="frames to render, background frames included")
-    p.add_argument("--seed", default="0", metavar="S", help="scene and noise seed (non-negative int)")
-    p.add_argument("--background-frames", default="0", metavar="K", help="empty-scene frames at the start")
-    p.add_argument("--size", default="640x400", metavar="WxH", help="image size in pixels")
-    p.add_argument("--fps", default="30", metavar="F", help="frame rate (timestamps 1/F s apart)")
-    p.add_argument(
-        "--depth-model",
-        default="realistic",
-        metavar="realistic|basic",
+#: The synthetic scene's own defaults (``SynthSource``'s keyword arguments): defined once, there.
+_SCENE = {name: p.default for name, p in inspect.signature(SynthSource).parameters.items()}
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """The scene options of ``fusion-pf synth`` (validated on construction)."""
+
+    frames: int = option(
+        _SCENE["frames"],
+        kind="int",
+        lo=1,
+        hi=MAX_FRAMES,
+        metavar="N",
+        help="frames to render, background frames included",
+    )
+    seed: int = option(_SCENE["seed"], kind="int", lo=0, hi=2**63 - 1, metavar="S", help="scene and noise seed")
+    background_frames: int = option(
+        _SCENE["background_frames"],
+        kind="int",
+        lo=0,
+        hi=MAX_FRAMES,
+        metavar="K",
+        help="empty-scene frames at the start",
+    )
+    size: tuple[int, int] = option(
+        _SCENE["size"],
+        parse=parse_size,
+        check=size_check(MIN_SIZE, MAX_SIZE),
+        show=show_size,
+        metavar="WxH",
+        unit="px",
+        help="image size",
+    )
+    fps: float = option(
+        _SCENE["fps"], kind="float", lo=0.001, hi=1000.0, metavar="F", help="frame rate (timestamps 1/F s apart)"
+    )
+    depth_model: str = option(
+        _SCENE["depth_model"],
+        choices=DEPTH_MODELS,
         help="depth sensor model: realistic stereo artefacts (noise ~ z^2, 1/8 px disparity steps, "
         "flying pixels and holes at depth steps, speckle holes, range limits), or basic "
         "(the model recordings/sample.mcap was made with)",
     )
-    p.add_argument(
-        "--hands",
-        default="1",
+    hands: int = option(
+        _SCENE["hands"],
+        kind="int",
+        lo=1,
+        hi=2,
         metavar="H",
         help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
         "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)",
     )
-    p.add_argument(
-        "--color-format",
-        choices=("raw", "jpeg", "png"),
-        default="raw",
-        help="colour as RawImage rgb8, or CompressedImage jpeg/png",
-    )
-    p.add_argument(
-        "--depth-format",
-        choices=("raw", "png"),
-        default="raw",
-        help="depth as RawImage 16UC1, or 16-bit PNG CompressedImage",
-    )
-    p.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100")
-    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd", help="chunk compression")
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.background_frames > self.frames:
+            raise InputError(
+                f"background_frames (--background-frames) must be in [0, frames {self.frames}], "
+                f"got {self.background_frames}"
+            )
+
+
+#: The config classes whose flags the command registers.
+CONFIGS = (SynthOptions, EncodingOptions)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Register the options of ``fusion-pf synth``."""
+    p.add_argument("output", type=Path, metavar="OUT.mcap", help="MCAP file to write")
+    add_options(p, SynthOptions)
+    add_options(p, EncodingOptions)
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -65,31 +110,15 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from drivers.mcap_record import McapRecorder
-    from drivers.synth import SynthSource
 
     from ._paths import check_output
 
-    source = SynthSource.from_options(
-        {
-            "frames": args.frames,
-            "seed": args.seed,
-            "background_frames": args.background_frames,
-            "size": args.size,
-            "fps": args.fps,
-            "depth_model": args.depth_model,
-            "hands": args.hands,
-        }
-    )
+    scene = from_args(SynthOptions, args)
+    encoding = from_args(EncodingOptions, args)
+    source = SynthSource(**dataclasses.asdict(scene))
     out: Path = args.output
     check_output(out, force=args.force)
-    recorder = McapRecorder(
-        out,
-        compression=args.compression,
-        color_format=args.color_format,
-        depth_format=args.depth_format,
-        jpeg_quality=args.jpeg_quality,
-        metadata=source.metadata(),
-    )
+    recorder = McapRecorder(out, metadata=source.metadata(), **encoding.recorder_kwargs())
     started = time.monotonic()
     with (
         source,

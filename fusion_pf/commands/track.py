@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
+from fusion_pf.cues.registry import CueOptions
+from fusion_pf.pipeline import TrackConfig
 
 NAME = "track"
 HELP = "track the palm (data-fusion particle filter or Kalman baseline) and write MCAP/CSV outputs"
@@ -26,15 +28,16 @@ DESCRIPTION = (
 )
 
 
+#: The config classes whose flags the command registers.
+CONFIGS = (TrackConfig, CueOptions)
+
 #: ``--color-format`` values.
 COLOR_FORMATS = ("auto", "raw", "jpeg", "png")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf track``: the command's own, then the pipeline's and the cues'."""
-    from fusion_pf.cues.registry import CueOptions
     from fusion_pf.options import add_options
-    from fusion_pf.pipeline import TrackConfig
 
     p.add_argument("source", metavar="SOURCE", help=f"what to track: {SOURCE_SPECS}")
     p.add_argument(
@@ -76,9 +79,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace):
     """The :class:`~fusion_pf.pipeline.TrackConfig` of the command line (InputError on bad values)."""
-    from fusion_pf.cues.registry import CueOptions
     from fusion_pf.options import from_args
-    from fusion_pf.pipeline import TrackConfig
 
     return from_args(TrackConfig, args, cue_options=from_args(CueOptions, args))
 

@@ -419,7 +419,7 @@ def test_synth_command_writes_a_recording(tmp_path, capsys):
     assert main(argv) == 2
     assert "already exists" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "t.mcap"), "--frames", "many"]) == 2
-    assert "frames must be an integer" in capsys.readouterr().err
+    assert "frames (--frames) must be an integer in [1, 10000000], got 'many'" in capsys.readouterr().err
     assert not (tmp_path / "t.mcap").exists()
 
 

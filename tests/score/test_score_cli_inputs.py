@@ -179,7 +179,9 @@ def test_bad_cell(tmp_path, capsys):
     [
         (["--sweep", "5,x"], "'x'"),
         (["--sweep", "0,5"], "must be >= 1, got 0"),
-        (["--sweep", "5", "--runs", "0"], "--runs must be >= 1, got 0"),
+        (["--sweep", "5", "--runs", "0"], "runs (--runs) must be an integer in [1, 100000], got 0"),
+        (["--workers", "0"], "workers (--workers) must be an integer in [1, 1024], got 0"),
+        (["--workers", "2", "--scheduler", "tcp://h:1"], "with --scheduler the cluster's own workers run"),
     ],
 )
 def test_bad_sweep_options(tmp_path, capsys, extra, expected):

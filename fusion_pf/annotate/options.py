@@ -1,0 +1,35 @@
+"""The options of the annotation server (``fusion-pf annotate``), defined once.
+
+:func:`~fusion_pf.annotate.server.serve` and
+:class:`~fusion_pf.annotate.frames.FrameImages` take their defaults from
+:class:`ServeOptions`; the command line makes its flags from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from fusion_pf.options import option, validate
+
+__all__ = ["COLOR_FORMATS", "ServeOptions"]
+
+#: Image formats the colour frames can be sent to the browser in.
+COLOR_FORMATS = ("jpeg", "png")
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    """Where the annotator listens and how it serves the frames (validated on construction)."""
+
+    host: str = option(
+        "127.0.0.1",
+        kind="str",
+        help="interface to bind; anything but a loopback address exposes the tool to the network",
+    )
+    port: int = option(8765, kind="int", lo=0, hi=65535, help="TCP port (0 = pick a free one)")
+    threads: int = option(8, kind="int", lo=1, hi=256, help="worker threads serving requests")
+    image_format: str = option("jpeg", choices=COLOR_FORMATS, help="encoding of the colour frames sent to the browser")
+    cache: int = option(256, kind="int", lo=1, hi=1_000_000, help="encoded images kept in memory (LRU)")
+
+    def __post_init__(self) -> None:
+        validate(self)
