@@ -164,4 +164,4 @@ def test_synth_command_depth_model(tmp_path, capsys):
     capsys.readouterr()
     assert main([*argv, "--force", "--depth-model", "tof"]) == 2
     err = capsys.readouterr().err
-    assert "depth_model must be one of realistic, basic, got 'tof'" in err and err.count("\n") == 1
+    assert "depth_model (--depth-model) must be one of realistic, basic, got 'tof'" in err and err.count("\n") == 1
