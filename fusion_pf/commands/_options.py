@@ -57,6 +57,11 @@ def workers_option(help: str) -> Any:
     )
 
 
+def fps_option(show: str, help: str) -> Any:
+    """An optional frame rate in (0, 1000] frames/s; None means ``show``."""
+    return option(None, kind="float", lo=0.001, hi=1000.0, optional=True, metavar="F", show=lambda v: show, help=help)
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``"640x400"`` -> ``(640, 400)``."""
     parts = text.lower().replace(" ", "").split("x")

@@ -13,6 +13,8 @@ from drivers.importers.base import DEFAULT_HFOV_DEG, DEPTH_UNIT_EXAMPLES, HFOV_R
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
 
+from ._options import fps_option
+
 NAME = "import"
 HELP = "import a ROS bag, Azure Kinect .mkv, image folder or video into an MCAP recording"
 DESCRIPTION = (
@@ -71,15 +73,8 @@ class ImportOptions:
         show=lambda v: "1mm",
         help=f"length of one depth count in the depth images, e.g. {DEPTH_UNIT_EXAMPLES}",
     )
-    fps: float | None = option(
-        None,
-        kind="float",
-        lo=0.001,
-        hi=1000.0,
-        optional=True,
-        metavar="F",
-        show=lambda v: "folders: 30; videos: the file's own",
-        help="frame rate giving the timestamps (videos: replaces the file's own)",
+    fps: float | None = fps_option(
+        "folders: 30; videos: the file's own", "frame rate giving the timestamps (videos: replaces the file's own)"
     )
     intrinsics: Path | None = option(
         None,

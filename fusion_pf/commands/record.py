@@ -10,7 +10,7 @@ from drivers import SOURCE_SPECS
 from drivers.encoding import EncodingOptions
 from fusion_pf.options import add_options, from_args, option, validate
 
-from ._options import parse_size, size_check
+from ._options import fps_option, parse_size, size_check
 
 NAME = "record"
 HELP = "record a source (synthetic scene, OAK camera, recording) into an MCAP file"
@@ -59,16 +59,7 @@ class RecordOptions:
         show=lambda v: "the source's own, 640x400",
         help="colour/depth size for a camera or synthetic source",
     )
-    fps: float | None = option(
-        None,
-        kind="float",
-        lo=0.001,
-        hi=1000.0,
-        optional=True,
-        metavar="F",
-        show=lambda v: "the source's own, 30",
-        help="frame rate for a camera or synthetic source",
-    )
+    fps: float | None = fps_option("the source's own, 30", "frame rate for a camera or synthetic source")
     ir_laser: float | None = option(
         None,
         kind="float",
