@@ -35,6 +35,8 @@ __all__ = [
     "DEFAULT_OUTLIER_AREA_PX2",
     "LIKELIHOODS",
     "MAX_COORD_PX",
+    "MIN_OUTLIER_PROB",
+    "PROBABILITY_QUALITY",
     "UNDERFLOW_LOG",
     "JointLikelihood",
     "check_noise_px",
@@ -54,9 +56,11 @@ __all__ = [
 #: bare forearm pulls its centroid 5-7 px toward the elbow; the skeleton's
 #: joint is biased 15-70 px during occlusion, which the robust likelihood
 #: absorbs. The skin cues share the colour cue's forearm bias and take its value.
-#: The learned hand cue is the most precise source on real frames: 6 px RMSE on
-#: 256 x 256 hand crops (hand-graph-cnn dev frames 477-582); 1.5 px (at 320 x
-#: 200, so 1.44 px there) was the best of {1, 1.5, 2, 3} on those frames.
+#: The learned hand cue is the most precise source on real frames: its palm error
+#: is about 5 % of the palm's length (wrist to middle-finger base; 6 px RMSE for a
+#: 115 px palm on 256 x 256 crops, 9.9 px for a 210 px palm at 1280 x 720,
+#: hand-graph-cnn dev frames 477-582), i.e. 1 px for the reference scene's 18.7 px
+#: palm; ``track`` scales every noise with the palm's apparent size.
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0,
     "depth": 4.0,
@@ -64,8 +68,15 @@ DEFAULT_NOISE_PX: Mapping[str, float] = {
     "skin_rgb": 12.0,
     "skin_rg": 12.0,
     "skin_lab": 12.0,
-    "hand": 1.5,
+    "hand": 1.0,
 }
+
+#: Sources whose quality is a probability that the measurement is right (the hand
+#: cue's presence score): the robust likelihood's outlier probability for them is
+#: ``1 - quality``, floored at :data:`MIN_OUTLIER_PROB` and capped at ``outlier_prob``.
+PROBABILITY_QUALITY = frozenset({"hand"})
+#: Smallest outlier probability of a :data:`PROBABILITY_QUALITY` source.
+MIN_OUTLIER_PROB = 1e-3
 
 #: Area of the robust likelihood's uniform outlier density: a 1280 x 800 frame.
 DEFAULT_OUTLIER_AREA_PX2 = 1280.0 * 800.0
@@ -270,12 +281,20 @@ class JointLikelihood:
             return effective_sigma(s, m.quality, self.min_quality)
         return s
 
+    def outlier(self, m: Measurement) -> float:
+        """The robust mixture's outlier probability for ``m``: ``outlier_prob``, or ``1 - quality``
+        (within [:data:`MIN_OUTLIER_PROB`, ``outlier_prob``]) for a :data:`PROBABILITY_QUALITY` source."""
+        if m.source in PROBABILITY_QUALITY:
+            # eps = 1 - P(the cue is right), bounded
+            return min(max(1.0 - m.quality, MIN_OUTLIER_PROB), self.outlier_prob)
+        return self.outlier_prob
+
     def source_loglik(self, positions: np.ndarray, m: Measurement, out: np.ndarray) -> np.ndarray:
         """Unnormalised log-likelihood of one source (eqs. 5-6, or the robust mixture)."""
         self._buffers(out)
         d2 = squared_distance(positions, (m.u, m.v), out=out, scratch=self._work)
         if self.likelihood == "robust":
-            return robust_loglik(d2, self.sigma(m), self.outlier_prob, self.outlier_area_px2, out=d2)
+            return robust_loglik(d2, self.sigma(m), self.outlier(m), self.outlier_area_px2, out=d2)
         return gaussian_loglik(d2, self.sigma(m), out=d2)
 
     def _buffers(self, out: np.ndarray) -> None:
@@ -342,7 +361,7 @@ class JointLikelihood:
             ll = self.source_loglik(positions, m, self._scratch)
             peak = float(ll.max())
             # some particle has (1 - eps) N(d) >= eps / A  <=>  log Lh >= log(2 eps / A)
-            inlier = inlier or peak >= math.log(2.0 * self.outlier_prob / self.outlier_area_px2)
+            inlier = inlier or peak >= math.log(2.0 * self.outlier(m) / self.outlier_area_px2)
             peaks += peak
             # Lh = Lh_K (x) Lh_C (x) Lh_D  ->  log Lh = sum_phi log Lh_phi
             out += ll

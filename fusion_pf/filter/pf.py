@@ -5,7 +5,11 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
 1. initialisation (first step only): particles around the first available
    measurements (their precision-weighted mean) or around ``prior``, weights 1/N;
 2. dynamic model: constant-velocity prediction (eq. 4), one frame step per call
-   (see :mod:`fusion_pf.filter.motion`);
+   (see :mod:`fusion_pf.filter.motion`), optionally with manoeuvres (a
+   heavy-tailed mixture, :mod:`fusion_pf.filter.proposal`); with
+   ``proposal="guided"`` the particles are drawn from the optimal proposal
+   given the frame's most precise cue instead, which removes the bootstrap
+   filter's lag when the palm moves further than the process noise;
 3. observation model: squared distance per source (eq. 5), per-source
    likelihood (eq. 6, or the robust mixture), each normalised (step 3), joint
    likelihood as their product (eq. 7) -- all as sums of logs -- and the weight
@@ -39,6 +43,7 @@ from .base import Estimate, Tracker, check_prior, check_timestamp, fused_positio
 from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
+from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
 from .resample import RESAMPLERS
 
 __all__ = ["ParticleFilter"]
@@ -79,6 +84,21 @@ class ParticleFilter(Tracker):
         Std of the initial particle positions around the first measurement / prior.
     init_velocity_px : float
         Std of the initial particle velocities (px / frame) around 0 / the prior's.
+    proposal : {"prior", "guided"}
+        Where particles move to. ``"prior"``: the paper's bootstrap filter,
+        eq. 4 then weights from eqs. 5-7. ``"guided"``: the locally optimal
+        proposal (Doucet, Godsill & Andrieu 2000) for the most precise source
+        of the frame (the *anchor*): each particle is drawn from
+        ``p(x_k | x_(k-1), z_anchor)``, exact for eq. 4's Gaussian position
+        noise, the manoeuvre mixture and the robust outlier mixture (a mixture
+        of up to four Gaussians per particle), and weighted by
+        ``p(z_anchor | x_(k-1))`` times the other sources' eqs. 5-7. Without a
+        measurement it is the prior proposal.
+    manoeuvre : (float, float)
+        ``(prob, std_px)``: with probability ``prob`` a step's position noise
+        has std ``std_px`` instead of ``process_noise[0]`` (a heavy-tailed
+        eq. 4 for hands that start, stop or turn faster than a constant
+        velocity allows); ``prob = 0`` is eq. 4.
     prior : (u, v) or (u, v, du, dv), optional
         State at the first step (which therefore does not predict); without it
         the filter waits for the first measurement.
@@ -135,6 +155,8 @@ class ParticleFilter(Tracker):
         top_fraction: float = 0.1,
         init_spread_px: float = 20.0,
         init_velocity_px: float = 2.0,
+        proposal: str = "prior",
+        manoeuvre: tuple[float, float] = (0.0, 0.0),
         prior=None,
         frame_period_ns: float | str | None = None,
         keep_particles: bool = True,
@@ -153,8 +175,12 @@ class ParticleFilter(Tracker):
         for name, value in (("init_spread_px", init_spread_px), ("init_velocity_px", init_velocity_px)):
             if not (math.isfinite(float(value)) and float(value) >= 0.0):
                 raise InputError(f"{name} must be a finite number >= 0, got {value}")
+        if proposal not in PROPOSALS:
+            raise InputError(f"proposal must be one of {', '.join(PROPOSALS)}, got {proposal!r}")
         self.n_particles = int(n_particles)
         self.process_noise = check_process_noise(process_noise)
+        self.proposal = proposal
+        self.manoeuvre = check_manoeuvre(manoeuvre)
         self._like = JointLikelihood(
             noise_px,
             likelihood=likelihood,
@@ -189,6 +215,7 @@ class ParticleFilter(Tracker):
         self._joint = np.empty(n)
         self._std_unit = noise_std(self.process_noise, 1.0)
         self.reinitialisations = 0
+        self._expected: np.ndarray | None = None
         self.reset()
 
     @property
@@ -281,20 +308,86 @@ class ParticleFilter(Tracker):
             self._initialise(self._centre_of(ms))
         elif self._last_ns is not None:
             dt = self._clock.steps(t, self._last_ns)
-            std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
-            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
-            predict(self._x, std, self.rng, dt=dt, scratch=self._noise)
+            if self.proposal == "guided" and ms:
+                self._last_ns = t
+                self._guided(ms, dt)
+                return self._finish(t)
+            self._move(dt)
         self._last_ns = t
         if ms:
             self._update(ms)
         return self._finish(t)
+
+    def _move(self, dt: float) -> None:
+        """The prior proposal: eq. 4 over ``dt`` frame steps (with manoeuvres when configured)."""
+        std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
+        if self.manoeuvre[0] == 0.0:
+            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
+            predict(self._x, std, self.rng, dt=dt, scratch=self._noise)
+            return
+        # eq. 4 without its position noise, then that noise and the manoeuvres
+        predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
+        prior_positions(self._x, self.process_noise[0], self.manoeuvre, self.rng, dt)
+
+    def _guided(self, ms: Sequence[Measurement], dt: float) -> None:
+        """Guided step: positions from the anchor cue's optimal proposal, weights from all cues.
+
+        The anchor is the most precise measurement (smallest quality-widened
+        sigma); with the Gaussian likelihood it is the product of all cues
+        (one Gaussian around their precision-weighted mean, see
+        :class:`~fusion_pf.filter.likelihood.JointLikelihood`). When the anchor
+        is an outlier for every particle and so are the other cues, the
+        particles are re-initialised around the cues as in the prior proposal.
+        """
+        std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
+        # velocity: v_k = v_(k-1) + sigma_v N(0, I); positions: mu = p_(k-1) + dt v_(k-1)
+        predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
+        like = self._like
+        if like.likelihood == "gaussian":
+            prec = np.array([1.0 / like.noise_px[m.source] ** 2 for m in ms])
+            # z_bar = sum_phi z_phi / rho_phi / P, sigma^2 = 1 / P   (eq. 7 as one Gaussian)
+            z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
+            sigma, rest, outlier = 1.0 / math.sqrt(prec.sum()), [], None
+        else:
+            anchor = min(ms, key=like.sigma)
+            z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
+            rest = [m for m in ms if m is not anchor]
+            outlier = (like.outlier(anchor), like.outlier_area_px2)
+        log_ev, self._expected, inlier = guided_positions(
+            self._x[:2], self._x[2:], self.process_noise[0], self.manoeuvre, z, sigma, self.rng, outlier=outlier, dt=dt
+        )
+        joint = None
+        if rest:
+            joint, lost = like(self._x[:2].T, rest, self._joint)
+            inlier = inlier or not lost
+        if not inlier:
+            self._expected = None
+            self.reinitialisations += 1
+            self._initialise(self._centre_of(ms))
+            self._update(ms)
+            return
+        logw = self._logw
+        # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) prod_(other phi) p(z_phi | x_k)   (eq. 3 with the guided proposal)
+        logw += log_ev
+        if joint is not None:
+            logw += joint
+        peak = logw.max()
+        w = np.subtract(logw, peak, out=self._w)
+        np.exp(w, out=w)
+        total = w.sum()
+        # w~_i = w_i / sum_j w_j   (eq. 2)
+        w *= 1.0 / total
+        logw -= peak + math.log(total)
 
     def _finish(self, t: int) -> Estimate:
         """Estimation phase, ESS and the optional resampling phase."""
         w = self._w
         n = self.n_particles
         positions = self._x[:2].T
-        u, v = self._estimate(positions, w, self.top_fraction)
+        # guided steps estimate from E[x_k | x_(k-1), z] (Rao-Blackwellised over the proposal's components)
+        centres = positions if self._expected is None else self._expected.T
+        self._expected = None
+        u, v = self._estimate(centres, w, self.top_fraction)
         cov = weighted_covariance(positions, w, weighted_mean(positions, w), work=self._noise)
         # ESS = 1 / sum_i w_i^2
         ess = 1.0 / dot_product(w, w)

@@ -15,6 +15,7 @@ from ..cues.registry import CUES, CueOptions, check_cue_names
 from ..errors import InputError
 from ..filter.likelihood import DEFAULT_NOISE_PX, LIKELIHOODS
 from ..filter.motion import DEFAULT_PROCESS_NOISE
+from ..filter.proposal import PROPOSALS, check_manoeuvre
 from ..geometry import DEFAULT_DEPTH_RADIUS
 from ..options import option, parse_pairs, parse_tuple, validate
 
@@ -24,6 +25,8 @@ __all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TARGETS", "TrackCon
 FILTERS = ("pf", "kf", "sspf")
 #: ``--roi-prior`` values.
 ROI_PRIORS = ("auto", "filter", "skeleton")
+#: Manoeuvre mixture of the particle filter's position noise: (probability per frame, std px at 320 x 200).
+DEFAULT_MANOEUVRE = (0.1, 20.0)
 #: Frames of the running-median background when the source has no empty-scene frame.
 DEFAULT_BACKGROUND_K = 30
 
@@ -52,6 +55,13 @@ def _check_noise(label: str, value) -> dict[str, float]:
             raise InputError(f"{label}: {s} must be a number in [0.01, 10000] px, got {sigma!r}")
         out[s] = x
     return out
+
+
+def _check_manoeuvre(label: str, value) -> tuple[float, float]:
+    try:
+        return check_manoeuvre(value)
+    except InputError as exc:
+        raise InputError(f"{label}: {exc}") from None
 
 
 def _check_cue_noise(label: str, value) -> dict[str, float]:
@@ -196,6 +206,23 @@ class TrackConfig:
         unit="px, px/frame",
         help="process noise std per frame step of eq. 4",
     )
+    proposal: str = option(
+        "guided",
+        choices=PROPOSALS,
+        help="particle filter only: move particles with eq. 4 and let the cues weight them (prior, the "
+        "paper's bootstrap filter), or draw them from the optimal proposal given the most precise cue "
+        "(guided), which follows hands faster than the motion model without lag",
+    )
+    manoeuvre: tuple[float, float] = option(
+        DEFAULT_MANOEUVRE,
+        parse=parse_tuple(2),
+        check=_check_manoeuvre,
+        metavar="PROB,PX",
+        show=lambda v: f"{v[0]:g},{v[1]:g}",
+        unit="probability, px",
+        help="particle filter only: with this probability per frame a particle's position noise has "
+        "this std instead of --process-noise's (heavy-tailed motion: hands start, stop and turn); 0,0 is eq. 4",
+    )
     cue_noise_px: Mapping[str, float] = option(
         factory=dict,
         parse=parse_pairs,
@@ -280,6 +307,14 @@ class TrackConfig:
         help="scale --noise, --process-noise and the window without depth with the image "
         "diagonal: the values are px at 320x200",
     )
+    palm_scale: bool = option(
+        True,
+        kind="bool",
+        help="with --scale-noise, scale the noises with the palm's apparent size instead of the image "
+        "diagonal wherever it is known: the hand cue's wrist-to-middle-finger-base length, else "
+        "fx x 95 mm over the depth at the best cue (the values are px for a palm 18.7 px long, "
+        "the sample's)",
+    )
     adapt_noise: bool = option(
         False,
         kind="bool",
@@ -347,7 +382,7 @@ class TrackConfig:
 
         names = {f.name for f in dataclasses.fields(cls)}
         kwargs = {k: v for k, v in settings.items() if k in names}
-        for key in ("process_noise", "cues", "sources"):
+        for key in ("process_noise", "manoeuvre", "cues", "sources"):
             if isinstance(kwargs.get(key), list):
                 kwargs[key] = tuple(kwargs[key])
         opts = kwargs.get("cue_options")

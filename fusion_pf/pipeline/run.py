@@ -75,7 +75,7 @@ import numpy as np
 from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.base import SOURCES, CueContext
 from ..cues.regions import DEFAULT_PALM_AREA
-from ..cues.registry import build_cues
+from ..cues.registry import CUES, build_cues
 from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
@@ -108,6 +108,15 @@ PATCH_MARGIN = 32
 REFERENCE_SIZE = (320, 200)
 #: Track states of the single target (paper 004 §5.2), as written to the outputs.
 STATES = (TrackState.UNINITIALISED.value, TrackState.TRACKING.value, TrackState.LOST.value)
+#: Palm length (wrist to middle-finger base) of an adult hand, mm: turns depth into an apparent palm size.
+PALM_LENGTH_MM = 95.0
+#: Apparent palm length in the reference scene, px: the synthetic person's palm at its median
+#: distance in ``recordings/sample.mcap`` (1269 mm, fx 249.6 px at 320 x 200).
+REFERENCE_PALM_PX = PALM_LENGTH_MM * 249.6 / 1269.0
+#: Weight of one frame in the smoothed palm scale (a time constant of 5 frames).
+PALM_RATE = 0.2
+#: Relative change of the palm scale before the filter's noises are set again.
+RESCALE_TOLERANCE = 0.02
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
 #: Weight of one frame in the online measurement-noise estimate (a time constant of 20 frames).
@@ -258,10 +267,20 @@ def _timed(source: Iterable[Frame]) -> Iterator[tuple[int, Frame, int]]:
         index += 1
 
 
+def _needs_background(config: TrackConfig, frame: Frame) -> bool:
+    """Whether a cue ``config`` runs on ``frame``'s recording subtracts a background (colour or depth)."""
+    return any("background" in CUES[name].needs for name in cue_names(config, frame))
+
+
 def _with_background(
     source: Iterable[Frame], config: TrackConfig, background: BackgroundModel | None
 ) -> Iterator[tuple[int, Frame, int, BackgroundModel | None]]:
-    """Frames with the background model to use for them (None for background frames)."""
+    """Frames with the background model to use for them (None for background frames).
+
+    Without a cue that needs a background (e.g. the hand cue alone), no model
+    is learnt: tracked frames get an empty :class:`BackgroundModel` and cost
+    no background subtractor update.
+    """
     frames = _timed(source)
     model = background
     empties: list[Frame] = []
@@ -271,6 +290,8 @@ def _with_background(
                 empties.append(frame)
             yield index, frame, dec, None
             continue
+        if model is None and not _needs_background(config, frame):
+            model = BackgroundModel(None, None)
         if model is None:
             if empties:
                 model = BackgroundModel.from_frames(empties)
@@ -297,7 +318,8 @@ def _with_background(
                         model.adapt(f)
                 continue
             empties.clear()
-        _check_size(model, index, frame)
+        if model.ready:
+            _check_size(model, index, frame)
         yield index, frame, dec, model
         if isinstance(model, AdaptiveBackground):
             model.adapt(frame)
@@ -458,6 +480,8 @@ def make_tracker(
         process_noise=process,
         noise_px=noise,
         likelihood=config.likelihood or "robust",
+        proposal=config.proposal,
+        manoeuvre=(config.manoeuvre[0], config.manoeuvre[1] * s),
         resampler="residual",
         estimator="robust_mean",
         frame_period_ns="auto",
@@ -496,9 +520,12 @@ class _FilterStage:
         self._spread: float | None = None
         self._base: dict[str, float] = {}
         self._var: dict[str, float] = {}
+        self._palm_k: float | None = None
+        self._applied_k: float | None = None
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
+        self._init_spread = 20.0 * pixel_scale(size, self.config)
         self._base = dict(self.tracker.noise_px)
         self._var = {s: v * v for s, v in self._base.items()}
         self._process = self.tracker.process_noise
@@ -586,6 +613,63 @@ class _FilterStage:
             return tracker.n_particles if ms else 0
         return 0
 
+    def _palm_px(self, row: CueRow, ms: Sequence[Measurement]) -> float | None:
+        """Apparent palm length in this frame: from the hand landmarks, else depth at the best cue (None without either)."""
+        hand = row.cues.get("hand")
+        landmarks = None if hand is None else hand.extras.get("landmarks")
+        if landmarks is not None:
+            lm = np.asarray(landmarks, dtype=np.float64)
+            # wrist (0) to middle-finger base (9)
+            return float(math.hypot(lm[9, 0] - lm[0, 0], lm[9, 1] - lm[0, 1]))
+        if row.depth_patch is None or not ms:
+            return None
+        best = min(ms, key=self._trust)
+        x0, y0 = row.patch_origin
+        h, w = row.depth_patch.shape
+        if not (x0 - 0.5 <= best.u < x0 + w - 0.5 and y0 - 0.5 <= best.v < y0 + h - 0.5):
+            return None
+        z = depth_at(row.depth_patch, best.u - x0, best.v - y0, radius=self.config.depth_radius)
+        # l_px = fx L_mm / z
+        return None if z is None else row.intrinsics.fx * PALM_LENGTH_MM / z
+
+    def _rescale(self, row: CueRow, ms: Sequence[Measurement]) -> None:
+        """Scale the noises with the palm's apparent size (``config.palm_scale``).
+
+        The defaults are px in the reference scene, where the palm is
+        :data:`REFERENCE_PALM_PX` long; a palm ``k`` times longer gets ``k``
+        times the measurement, process and manoeuvre noise (a cue's error and a
+        hand's motion in pixels both grow with its image size). The scale is an
+        exponential average (rate :data:`PALM_RATE`) of ``palm_px / REFERENCE_PALM_PX``
+        and keeps its value in frames without a palm size; the filter's noises
+        are reset when it moved by more than :data:`RESCALE_TOLERANCE`.
+        """
+        palm = self._palm_px(row, ms)
+        if palm is None or not palm > 0.0:
+            return
+        k = palm / REFERENCE_PALM_PX
+        # k_bar <- k the first time, then (1 - a) k_bar + a k
+        self._palm_k = k if self._palm_k is None else (1.0 - PALM_RATE) * self._palm_k + PALM_RATE * k
+        k = self._palm_k
+        if self._applied_k is not None and abs(k - self._applied_k) <= RESCALE_TOLERANCE * self._applied_k:
+            return
+        self._applied_k = k
+        tracker = self.tracker
+        assert tracker is not None  # created by _start
+        for source in tracker.noise_px:
+            sigma = self.config.noise_px[source] * k
+            tracker.set_noise(source, sigma)
+            self._var[source] = sigma * sigma
+        tracker.set_process_noise((self.config.process_noise[0] * k, self.config.process_noise[1] * k))
+        if isinstance(tracker, ParticleFilter):
+            tracker.manoeuvre = (self.config.manoeuvre[0], self.config.manoeuvre[1] * k)
+
+    @staticmethod
+    def _restart(tracker: Tracker, m: Measurement) -> None:
+        """Start the filter at measurement ``m``; the PF and KF spread it by the cue's own noise (what one measurement tells)."""
+        if isinstance(tracker, (ParticleFilter, KalmanFilter)):
+            tracker.init_spread_px = tracker.noise_px[m.source]
+        tracker.reset(prior=(m.u, m.v))
+
     def _trust(self, m: Measurement) -> float:
         # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
         return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
@@ -599,18 +683,22 @@ class _FilterStage:
         tracker, states = self.tracker, self.states
         assert tracker is not None and states is not None  # created by _start
         ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
+        if self.config.palm_scale and self.config.scale_noise and not self.config.adapt_noise:
+            self._rescale(row, ms)
         if self.config.adapt_noise:
             self._adapt(ms, self.prediction(row.timestamp_ns) if len(self._history) == 2 else None)
         best = min(ms, key=self._trust) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
-            tracker.reset(prior=(best.u, best.v))  # the palm moved beyond the motion model: restart at the cue
+            self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
         if not tracker.initialised and (ms or self.init is not None):
-            prior = self.init
-            if prior is None:
+            if self.init is None:
                 assert best is not None  # ms is not empty
-                prior = (best.u, best.v)
-            tracker.reset(prior=prior)
+                self._restart(tracker, best)
+            else:
+                if isinstance(tracker, (ParticleFilter, KalmanFilter)):
+                    tracker.init_spread_px = self._init_spread
+                tracker.reset(prior=self.init)
         self.init = None
         estimate = tracker.step(row.timestamp_ns, ms)
         cov = None if estimate is None else estimate.cov

@@ -129,3 +129,45 @@ def test_init_starts_the_filter_at_the_given_point():
         iter(track(frames, TrackConfig(cues=("skin_rgb",), noise_px=EXACT, init=(120.0, 60.0), particles=500)))
     )
     assert math.hypot(first.estimate.u - 120.0, first.estimate.v - 60.0) < 5.0
+
+
+def test_noise_follows_the_palm_size_from_depth():
+    # the same disc scene seen at two distances: the filter's noises scale with fx * 95 mm / z
+    from fusion_pf.pipeline.run import REFERENCE_PALM_PX, _FilterStage, extract_cues
+
+    w, h = SIZE
+    sigmas = {}
+    for z in (600, 1200):
+        wall = np.full((h, w), 3000, np.uint16)
+        path = circle(12)
+        path[:3] = np.nan
+        frames = [dataclasses.replace(f, background=k < 3) for k, f in enumerate(disc_frames(path, depth=(wall, z)))]
+        config = TrackConfig(cues=("depth",), noise_px={"depth": 2.0})
+        stage = _FilterStage(config, None)
+        for row in extract_cues(frames, config):
+            if not row.background:
+                stage(row)
+        assert stage.tracker is not None
+        sigmas[z] = stage.tracker.noise_px["depth"]
+        # sigma = 2 px x (fx 95 mm / z) / reference palm length
+        assert sigmas[z] == pytest.approx(2.0 * 150.0 * 95.0 / z / REFERENCE_PALM_PX, rel=0.03)
+    assert sigmas[600] == pytest.approx(2 * sigmas[1200], rel=0.03)
+    off = _FilterStage(TrackConfig(cues=("depth",), palm_scale=False), None)
+    off._start(SIZE)
+    assert off.tracker is not None and off.tracker.noise_px["depth"] == pytest.approx(
+        4.0 * math.hypot(*SIZE) / math.hypot(320, 200)
+    )
+
+
+def test_no_background_model_without_a_cue_that_subtracts_one():
+    # frames whose size changes would be refused by a background model; a skin-only run needs none
+    from fusion_pf.pipeline.run import _with_background
+
+    frames = disc_frames(circle(4))
+    k = Intrinsics(fx=150.0, fy=150.0, cx=69.5, cy=49.5, width=140, height=100)
+    small = [dataclasses.replace(f, color=np.ascontiguousarray(f.color[:100, :140]), intrinsics=k) for f in frames[2:]]
+    mixed = frames[:2] + small
+    models = [m for *_, m in _with_background(mixed, TrackConfig(cues=("skin_rgb",)), None)]
+    assert all(m is not None and not m.ready for m in models)
+    models = [m for *_, m in _with_background(frames, TrackConfig(cues=("colour",)), None)]
+    assert all(m is not None and m.ready for m in models)
