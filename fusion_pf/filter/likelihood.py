@@ -36,6 +36,7 @@ __all__ = [
     "LIKELIHOODS",
     "MAX_COORD_PX",
     "MIN_OUTLIER_PROB",
+    "MIN_QUALITY",
     "PROBABILITY_QUALITY",
     "UNDERFLOW_LOG",
     "JointLikelihood",
@@ -59,8 +60,10 @@ __all__ = [
 #: The learned hand cue is the most precise source on real frames: its palm error
 #: is about 5 % of the palm's length (wrist to middle-finger base; 6 px RMSE for a
 #: 115 px palm on 256 x 256 crops, 9.9 px for a 210 px palm at 1280 x 720,
-#: hand-graph-cnn dev frames 477-582), i.e. 1 px for the reference scene's 18.7 px
-#: palm; ``track`` scales every noise with the palm's apparent size.
+#: hand-graph-cnn dev frames 477-582), i.e. 3.5 % per axis (RMSE / sqrt 2), 0.7 px for
+#: the reference scene's 18.7 px palm; ``track`` scales every noise with the palm's
+#: apparent size and, with ``--adapt-noise``, learns each source's noise per quality
+#: band from the other cues (:mod:`fusion_pf.filter.calibration`).
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0,
     "depth": 4.0,
@@ -68,7 +71,7 @@ DEFAULT_NOISE_PX: Mapping[str, float] = {
     "skin_rgb": 12.0,
     "skin_rg": 12.0,
     "skin_lab": 12.0,
-    "hand": 1.0,
+    "hand": 0.7,
 }
 
 #: Sources whose quality is a probability that the measurement is right (the hand
@@ -77,6 +80,8 @@ DEFAULT_NOISE_PX: Mapping[str, float] = {
 PROBABILITY_QUALITY = frozenset({"hand"})
 #: Smallest outlier probability of a :data:`PROBABILITY_QUALITY` source.
 MIN_OUTLIER_PROB = 1e-3
+#: Quality floor ``q_min`` of the quality widening (at most sqrt(20) ~ 4.5 x the noise).
+MIN_QUALITY = 0.05
 
 #: Area of the robust likelihood's uniform outlier density: a 1280 x 800 frame.
 DEFAULT_OUTLIER_AREA_PX2 = 1280.0 * 800.0
@@ -235,7 +240,7 @@ class JointLikelihood:
         likelihood: str = "gaussian",
         outlier_prob: float = 0.1,
         use_quality: bool = True,
-        min_quality: float = 0.05,
+        min_quality: float = MIN_QUALITY,
         outlier_area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
     ) -> None:
         if likelihood not in LIKELIHOODS:
@@ -275,11 +280,18 @@ class JointLikelihood:
         return out
 
     def sigma(self, m: Measurement) -> float:
-        """The noise used for ``m``: its source's sigma, quality-widened when robust."""
+        """The noise used for ``m``: its source's sigma, quality-widened when robust (not for a
+        :data:`PROBABILITY_QUALITY` source, whose quality is its outlier probability instead)."""
         s = self.noise_px[m.source]
-        if self.likelihood == "robust" and self.use_quality:
+        if self.likelihood == "robust" and self.use_quality and m.source not in PROBABILITY_QUALITY:
             return effective_sigma(s, m.quality, self.min_quality)
         return s
+
+    def expected_variance(self, m: Measurement) -> float:
+        """``sigma^2 / (1 - eps)``: the measurement's variance over its inlier probability (smaller tells more)."""
+        s = self.sigma(m)
+        # sigma^2 / P(inlier)
+        return s * s / (1.0 - self.outlier(m)) if self.likelihood == "robust" else s * s
 
     def outlier(self, m: Measurement) -> float:
         """The robust mixture's outlier probability for ``m``: ``outlier_prob``, or ``1 - quality``

@@ -41,7 +41,7 @@ from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
 from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
-from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, JointLikelihood
+from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
 from .resample import RESAMPLERS
@@ -147,7 +147,7 @@ class ParticleFilter(Tracker):
         likelihood: str = "gaussian",
         outlier_prob: float = 0.1,
         use_quality: bool = True,
-        min_quality: float = 0.05,
+        min_quality: float = MIN_QUALITY,
         outlier_area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
         resampler: str = "residual",
         ess_threshold: float = 2.0 / 3.0,
@@ -349,7 +349,7 @@ class ParticleFilter(Tracker):
             z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
             sigma, rest, outlier = 1.0 / math.sqrt(prec.sum()), [], None
         else:
-            anchor = min(ms, key=like.sigma)
+            anchor = min(ms, key=like.expected_variance)
             z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
             rest = [m for m in ms if m is not anchor]
             outlier = (like.outlier(anchor), like.outlier_area_px2)

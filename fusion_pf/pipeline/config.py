@@ -316,12 +316,11 @@ class TrackConfig:
         "the sample's)",
     )
     adapt_noise: bool = option(
-        False,
+        True,
         kind="bool",
-        help="learn each cue's noise online (its spread around the most trusted cue, between "
-        "a quarter and four times --noise) and widen the process noise for fast motion; "
-        "off by default: it did not lower the error on the sample, the realistic "
-        "synthetic scenes or the real development frames",
+        help="learn each cue's noise per quality band (quarters of [0, 1]) in this recording, from "
+        "its distance to the other cues of the same frame (fusion_pf/filter/calibration.py), "
+        "starting from --noise widened by 1/sqrt(quality); off: --noise widened by 1/sqrt(quality)",
     )
     jump_sigmas: float = option(
         8.0,

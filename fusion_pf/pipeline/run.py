@@ -79,7 +79,8 @@ from ..cues.registry import CUES, build_cues
 from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
-from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2
+from ..filter.calibration import NoiseCalibration
+from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, PROBABILITY_QUALITY, effective_sigma
 from ..filter.sspf import ScatterSearchPF
 from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
@@ -119,10 +120,6 @@ PALM_RATE = 0.2
 RESCALE_TOLERANCE = 0.02
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
-#: Weight of one frame in the online measurement-noise estimate (a time constant of 20 frames).
-NOISE_RATE = 0.05
-#: Weight of one frame in the online process-noise estimate (a time constant of 5 frames).
-MOTION_RATE = 0.2
 #: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
 #: the hand cue's presence score is 0.9-1.0 on a visible hand.
 JUMP_MIN_QUALITY = 0.8
@@ -480,6 +477,7 @@ def make_tracker(
         process_noise=process,
         noise_px=noise,
         likelihood=config.likelihood or "robust",
+        use_quality=not config.adapt_noise,
         proposal=config.proposal,
         manoeuvre=(config.manoeuvre[0], config.manoeuvre[1] * s),
         resampler="residual",
@@ -518,18 +516,17 @@ class _FilterStage:
         self.losses = 0
         self.jumps = 0
         self._spread: float | None = None
-        self._base: dict[str, float] = {}
         self._var: dict[str, float] = {}
         self._palm_k: float | None = None
         self._applied_k: float | None = None
+        self._scale = 1.0
+        self._calibration = NoiseCalibration(self._prior) if config.adapt_noise else None
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
         self._init_spread = 20.0 * pixel_scale(size, self.config)
-        self._base = dict(self.tracker.noise_px)
-        self._var = {s: v * v for s, v in self._base.items()}
-        self._process = self.tracker.process_noise
-        self._q_scale, self._eps = 1.0, 1.0
+        self._var = {s: v * v for s, v in self.tracker.noise_px.items()}
+        self._scale = pixel_scale(size, self.config)
         diag = math.hypot(*size)
         self.states = StateConfig(
             max_spread_px=self.config.max_spread * diag,
@@ -559,42 +556,21 @@ class _FilterStage:
         k = (timestamp_ns - t1) / (t1 - t0)
         return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
 
-    def _adapt(self, ms: Sequence[Measurement], predicted: tuple[float, float] | None) -> None:
-        """Learn the cues' noise and the motion's process noise online (exponential averages, rate :data:`NOISE_RATE`).
+    def _prior(self, m: Measurement) -> float:
+        """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
+        sigma = self.config.noise_px[m.source]
+        # sigma_eff = sigma / sqrt(max(q, q_min))
+        return sigma if m.source in PROBABILITY_QUALITY else effective_sigma(sigma, m.quality, MIN_QUALITY)
 
-        Measurement noise, relative to the most trusted cue of the frame
-        (smallest default noise): ``var(z_s - z_ref) = sigma_s^2 + sigma_ref^2`` per
-        axis, so ``sigma_s^2 = E|z_s - z_ref|^2 / 2 - sigma_ref^2``, kept in
-        ``[(base / 4)^2, (4 base)^2]``; a biased or wandering cue (a forearm
-        blob, a face) is trusted less in this recording, an exact one more.
-        Process noise: the normalised innovation of the reference cue,
-        ``eps = |z_ref - x_pred|^2 / (2 (sigma_ref^2 + q^2))``; its average scales
-        the configured process noise by ``sqrt(eps)`` in [1, 20], so fast hands
-        widen the motion model and slow ones keep the configured one.
-        """
-        if not ms:
-            return
-        assert self.tracker is not None  # created by the first __call__, before adapting
-        ref = min(ms, key=lambda m: self._base[m.source])
-        var_ref = self._var[ref.source]
-        for m in ms:
-            if m is ref:
-                continue
-            base, var = self._base[m.source], self._var[m.source]
-            # per-axis variance of the difference to the reference, winsorised at 3 sigma
-            sample = min(((m.u - ref.u) ** 2 + (m.v - ref.v) ** 2) / 2.0 - var_ref, 9.0 * var)
-            # sigma_s^2 <- (1 - a) sigma_s^2 + a (|z_s - z_ref|^2 / 2 - sigma_ref^2), bounded
-            var = min(max((1.0 - NOISE_RATE) * var + NOISE_RATE * sample, base * base / 16.0), 16.0 * base * base)
-            self._var[m.source] = var
-            self.tracker.set_noise(m.source, math.sqrt(var))
-        if predicted is None:
-            return
-        q2 = self._process[0] ** 2 * self._q_scale**2
-        eps = ((ref.u - predicted[0]) ** 2 + (ref.v - predicted[1]) ** 2) / (2.0 * (var_ref + q2))
-        # eps_bar <- (1 - a) eps_bar + a eps; process noise x sqrt(eps_bar) in [1, 20]
-        self._eps = (1.0 - MOTION_RATE) * self._eps + MOTION_RATE * min(eps, 400.0)
-        self._q_scale = min(max(math.sqrt(self._eps), 1.0), 20.0)
-        self.tracker.set_process_noise((self._process[0] * self._q_scale, self._process[1] * self._q_scale))
+    def _calibrate(self, ms: Sequence[Measurement]) -> None:
+        """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them."""
+        calibration, tracker = self._calibration, self.tracker
+        assert calibration is not None and tracker is not None  # adapt_noise; created by _start
+        sigmas = {m.source: calibration.sigma(m, self._scale) for m in ms}
+        for source, sigma in sigmas.items():
+            tracker.set_noise(source, sigma)
+            self._var[source] = sigma * sigma
+        calibration.update(ms, sigmas, self._scale)
 
     def _jumped(self, m: Measurement, timestamp_ns: int) -> bool:
         """Whether a confident cue lies beyond the prediction's reach (``config.jump_sigmas`` of its noise plus the spread)."""
@@ -652,7 +628,7 @@ class _FilterStage:
         k = self._palm_k
         if self._applied_k is not None and abs(k - self._applied_k) <= RESCALE_TOLERANCE * self._applied_k:
             return
-        self._applied_k = k
+        self._applied_k = self._scale = k
         tracker = self.tracker
         assert tracker is not None  # created by _start
         for source in tracker.noise_px:
@@ -671,8 +647,8 @@ class _FilterStage:
         tracker.reset(prior=(m.u, m.v))
 
     def _trust(self, m: Measurement) -> float:
-        # sigma_eff = sigma / sqrt(max(q, q_min)): smaller is more trusted
-        return self.config.noise_px[m.source] / math.sqrt(max(m.quality, 0.05))
+        """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
+        return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
 
     def __call__(self, row: CueRow) -> TrackResult:
         """Step the filter with ``row`` (not for background rows), supervise it and build the result."""
@@ -683,10 +659,10 @@ class _FilterStage:
         tracker, states = self.tracker, self.states
         assert tracker is not None and states is not None  # created by _start
         ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
-        if self.config.palm_scale and self.config.scale_noise and not self.config.adapt_noise:
+        if self.config.palm_scale and self.config.scale_noise:
             self._rescale(row, ms)
-        if self.config.adapt_noise:
-            self._adapt(ms, self.prediction(row.timestamp_ns) if len(self._history) == 2 else None)
+        if self._calibration is not None and ms:
+            self._calibrate(ms)
         best = min(ms, key=self._trust) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue

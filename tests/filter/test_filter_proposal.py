@@ -93,17 +93,18 @@ def test_bad_manoeuvre_is_named(bad):
         check_manoeuvre(bad)
 
 
-def test_guided_pf_follows_a_jump_the_prior_pf_lags():
-    # a palm moving 3 px/frame jumps 60 px (1.5 manoeuvre sigmas) and keeps going: the guided PF follows at once
-    def run(proposal):
+def test_guided_pf_follows_a_jump_at_every_seed_the_prior_pf_not():
+    # a palm moving 3 px/frame jumps 60 px (1.5 manoeuvre sigmas) and keeps going: the guided PF follows at
+    # once whatever the seed; the prior PF only when some of its 100 particles happened to manoeuvre
+    def run(proposal, seed):
         pf = ParticleFilter(
-            n_particles=300,
+            n_particles=100,
             noise_px={"hand": 2.0},
             likelihood="robust",
             proposal=proposal,
             manoeuvre=(0.1, 40.0),
             outlier_area_px2=640 * 400,
-            rng=5,
+            rng=seed,
         )
         errors = []
         for k in range(40):
@@ -111,11 +112,12 @@ def test_guided_pf_follows_a_jump_the_prior_pf_lags():
             est = pf.step(k * 33_000_000, [Measurement("hand", u, 200.0, quality=0.99)])
             if k in (20, 21, 22):
                 errors.append(abs(est.u - u))
-        return errors
+        return max(errors)
 
-    guided, prior = run("guided"), run("prior")
-    assert max(guided) < 5.0
-    assert max(prior) > 2 * max(guided)
+    guided = [run("guided", seed) for seed in range(5)]
+    prior = [run("prior", seed) for seed in range(5)]
+    assert max(guided) < 2.0
+    assert max(prior) > 10.0
 
 
 def test_guided_pf_is_deterministic_and_rejects_unknown_proposal():

@@ -132,7 +132,7 @@ def test_init_starts_the_filter_at_the_given_point():
 
 
 def test_noise_follows_the_palm_size_from_depth():
-    # the same disc scene seen at two distances: the filter's noises scale with fx * 95 mm / z
+    # the same disc scene seen at two distances: the configured noises (not learned) scale with fx * 95 mm / z
     from fusion_pf.pipeline.run import REFERENCE_PALM_PX, _FilterStage, extract_cues
 
     w, h = SIZE
@@ -142,7 +142,7 @@ def test_noise_follows_the_palm_size_from_depth():
         path = circle(12)
         path[:3] = np.nan
         frames = [dataclasses.replace(f, background=k < 3) for k, f in enumerate(disc_frames(path, depth=(wall, z)))]
-        config = TrackConfig(cues=("depth",), noise_px={"depth": 2.0})
+        config = TrackConfig(cues=("depth",), noise_px={"depth": 2.0}, adapt_noise=False)
         stage = _FilterStage(config, None)
         for row in extract_cues(frames, config):
             if not row.background:
