@@ -43,6 +43,7 @@ __all__ = [
     "check_noise_px",
     "effective_sigma",
     "gaussian_loglik",
+    "quality_sigma",
     "robust_loglik",
     "squared_distance",
 ]
@@ -175,6 +176,12 @@ def effective_sigma(sigma: float, quality: float, q_min: float) -> float:
     return sigma / math.sqrt(max(quality, q_min))
 
 
+def quality_sigma(sigma: float, m: Measurement, q_min: float = MIN_QUALITY) -> float:
+    """``sigma`` widened by ``m``'s quality (:func:`effective_sigma`), unless ``m``'s source is a
+    :data:`PROBABILITY_QUALITY` source, whose quality is its outlier probability instead."""
+    return sigma if m.source in PROBABILITY_QUALITY else effective_sigma(sigma, m.quality, q_min)
+
+
 def robust_loglik(
     d2: np.ndarray,
     sigma: float,
@@ -283,8 +290,8 @@ class JointLikelihood:
         """The noise used for ``m``: its source's sigma, quality-widened when robust (not for a
         :data:`PROBABILITY_QUALITY` source, whose quality is its outlier probability instead)."""
         s = self.noise_px[m.source]
-        if self.likelihood == "robust" and self.use_quality and m.source not in PROBABILITY_QUALITY:
-            return effective_sigma(s, m.quality, self.min_quality)
+        if self.likelihood == "robust" and self.use_quality:
+            return quality_sigma(s, m, self.min_quality)
         return s
 
     def expected_variance(self, m: Measurement) -> float:

@@ -80,7 +80,7 @@ from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.calibration import NoiseCalibration
-from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, PROBABILITY_QUALITY, effective_sigma
+from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
 from ..filter.sspf import ScatterSearchPF
 from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
@@ -558,9 +558,7 @@ class _FilterStage:
 
     def _prior(self, m: Measurement) -> float:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
-        sigma = self.config.noise_px[m.source]
-        # sigma_eff = sigma / sqrt(max(q, q_min))
-        return sigma if m.source in PROBABILITY_QUALITY else effective_sigma(sigma, m.quality, MIN_QUALITY)
+        return quality_sigma(self.config.noise_px[m.source], m)
 
     def _calibrate(self, ms: Sequence[Measurement]) -> None:
         """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them."""
