@@ -60,7 +60,11 @@ and of every per-source ``<source>_u, <source>_v`` pair the CSV has; frames lost
 ``state`` column, when the tracker writes one) and frames without an estimate; estimates
 outside the image; median per-frame latency (``latency_total_ms``) and wall time per frame
 of the whole command; and two constant guesses (image centre, mean ground-truth palm of the
-recording) for comparison.
+recording) for comparison. The per-source rows of the CSV are the cues as ``track`` ran them
+(inside its window, fed its prediction); the ``<cue> (whole frame)`` rows are each cue alone:
+run on every whole frame with no window, no prior and no memory of the previous frame (the
+hand cue then detects the palm on the whole frame every frame), the "single cue" a fused
+estimate must beat.
 """
 
 from __future__ import annotations
@@ -312,6 +316,7 @@ def track_one(rec: Path, work: Path) -> dict:
             pts = np.c_[_column(rows, f"{s}_u"), _column(rows, f"{s}_v")][scored]
             res["rows"][s] = _stats(_errors(pts, gt))
         centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        res["rows"].update({f"{n} (whole frame)": st for n, st in whole_frame_cues(rec).items()})
         res["rows"]["const: centre"] = _stats(_errors(np.broadcast_to(centre, gt.shape), gt))
         res["rows"]["const: mean palm"] = _stats(_errors(np.broadcast_to(gt.mean(axis=0), gt.shape), gt))
     else:
@@ -325,6 +330,38 @@ def track_one(rec: Path, work: Path) -> dict:
                 "p95": math.nan,
             }
     return res
+
+
+def whole_frame_cues(rec: Path) -> dict[str, dict[str, float]]:
+    """Each cue the recording can feed, alone on every whole frame, against the ground truth.
+
+    No window, no prior, no memory: every cue is reset before each frame, so the hand cue runs
+    whole-frame palm detection then landmarks every frame. The background-subtraction cues get
+    the model ``fusion-pf cues`` uses (the recording's empty-scene frames, else the median of
+    its first ``background_k`` frames). Returns the :func:`_stats` of each cue.
+    """
+    from fusion_pf.cues.background import BackgroundModel
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.registry import CUES, build_cues
+    from fusion_pf.pipeline.config import TrackConfig
+
+    config = TrackConfig()
+    with McapReplay(rec) as src:
+        first = src.frame(0)
+        parts = {"color", "background"} | ({"depth"} if first.depth is not None else set())
+        names = [c for c, info in CUES.items() if info.needs <= parts and c != "skin_lab"]
+        cues = build_cues(names)
+        k = src.info().background_frames or min(config.background_k, len(src))
+        ctx = CueContext(background=BackgroundModel.from_frames(src.frames(0, k)), search=True)
+        err: dict[str, list[float]] = {n: [] for n in names}
+        for f in src:
+            if f.background or f.ground_truth is None:
+                continue
+            for name, cue in cues.items():
+                cue.reset()
+                m = cue.measure(f, ctx).measurement
+                err[name].append(math.nan if m is None else math.hypot(m.u - f.ground_truth.u, m.v - f.ground_truth.v))
+    return {n: _stats(np.array(e)) for n, e in err.items()}
 
 
 def _fmt(x: float, digits: int = 1) -> str:
@@ -343,10 +380,10 @@ def print_table(results: list[dict]) -> None:
         )
         if r["summary"]:
             print(f"  track says: {r['summary']}")
-        print(f"  {'':18s} {'coverage':>9s} {'RMSE':>8s} {'median':>8s} {'p95':>8s}")
+        print(f"  {'':22s} {'coverage':>9s} {'RMSE':>8s} {'median':>8s} {'p95':>8s}")
         for name, s in r["rows"].items():
             print(
-                f"  {name:18s} {100 * s['coverage']:8.1f}% {_fmt(s['rmse']):>8s} {_fmt(s['median']):>8s} {_fmt(s['p95']):>8s}"
+                f"  {name:22s} {100 * s['coverage']:8.1f}% {_fmt(s['rmse']):>8s} {_fmt(s['median']):>8s} {_fmt(s['p95']):>8s}"
             )
 
 

@@ -17,13 +17,14 @@ MCAP read goes through the replay's own reader: frames through
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from fusion_pf.errors import InputError
+from fusion_pf.filter.estimate import largest_std
 from fusion_pf.pipeline import TrackConfig, TrackResult, cues_json, estimate_json
+from fusion_pf.signals import sigint_deferred
 
 from . import mcap_format as fmt
 from .mcap_replay import McapTopics
@@ -130,11 +131,19 @@ class TrackerTopics:
         if result.background:
             return
         t = result.timestamp_ns
-        self.recorder.write_json(fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, estimate_json(result, self.config), t)
-        self.recorder.write_json(fmt.CUES_TOPIC, fmt.CUES_SCHEMA, cues_json(result), t)
-        self.recorder.write_protobuf(fmt.OVERLAY_TOPIC, overlay(result), t)
-        if result.particles is not None:
-            self.recorder.write_protobuf(fmt.PARTICLES_TOPIC, particle_cloud(result), t)
+        messages = [
+            (fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, estimate_json(result, self.config)),
+            (fmt.CUES_TOPIC, fmt.CUES_SCHEMA, cues_json(result)),
+        ]
+        cloud = None if result.particles is None else particle_cloud(result)
+        picture = overlay(result)
+        # one Ctrl-C deferral for the frame's messages (a frame is written whole; per message it cost ~60 us each)
+        with sigint_deferred():
+            for topic, schema, doc in messages:
+                self.recorder.write_json(topic, schema, doc, t)
+            self.recorder.write_protobuf(fmt.OVERLAY_TOPIC, picture, t)
+            if cloud is not None:
+                self.recorder.write_protobuf(fmt.PARTICLES_TOPIC, cloud, t)
 
 
 def overlay(result: TrackResult):
@@ -154,15 +163,11 @@ def overlay(result: TrackResult):
         return Color(r=r, g=g, b=b, a=a)
 
     if result.particles is not None:
-        msg.points.append(
-            PointsAnnotation(
-                timestamp=ts,
-                type=PointsAnnotation.POINTS,
-                outline_color=colour("particles"),
-                thickness=2.0,
-                points=[Point2(x=float(u), y=float(v)) for u, v in result.particles],
-            )
+        cloud = PointsAnnotation(
+            timestamp=ts, type=PointsAnnotation.POINTS, outline_color=colour("particles"), thickness=2.0
         )
+        cloud.MergeFromString(_points_wire(PointsAnnotation, Point2, result.particles))
+        msg.points.append(cloud)
     if result.roi is not None and not result.roi.empty:
         r = result.roi
         corners = [(r.x0, r.y0), (r.x1, r.y0), (r.x1, r.y1), (r.x0, r.y1)]
@@ -200,7 +205,7 @@ def overlay(result: TrackResult):
     e = result.estimate
     if e is not None:
         # diameter of the 2-sigma circle of the posterior position, at least 10 px
-        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(e.cov))), 0.0))
+        sigma = largest_std(e.cov)
         msg.circles.append(
             CircleAnnotation(
                 timestamp=ts,
@@ -211,6 +216,25 @@ def overlay(result: TrackResult):
             )
         )
     return msg
+
+
+def _points_wire(annotation, point, uv: np.ndarray) -> bytes:
+    """Protobuf wire bytes of ``annotation.points`` holding the ``point`` messages ``uv`` ``(N, 2)``, built as one array.
+
+    Each element is ``points`` (length-delimited, 18 bytes) holding ``x`` and
+    ``y`` as fixed64 doubles, the standard encoding of a repeated message, so
+    parsing it equals appending ``point(x=u, y=v)`` per row (no per-particle
+    message objects: 100 of those cost ~0.7 ms a frame).
+    """
+    tag = annotation.DESCRIPTOR.fields_by_name["points"].number << 3 | 2  # wire type 2: length-delimited
+    x_tag = point.DESCRIPTOR.fields_by_name["x"].number << 3 | 1  # wire type 1: 64-bit
+    y_tag = point.DESCRIPTOR.fields_by_name["y"].number << 3 | 1
+    rec = np.empty(
+        len(uv), dtype=[("tag", "u1"), ("len", "u1"), ("xt", "u1"), ("x", "<f8"), ("yt", "u1"), ("y", "<f8")]
+    )
+    rec["tag"], rec["len"], rec["xt"], rec["yt"] = tag, 18, x_tag, y_tag
+    rec["x"], rec["y"] = uv[:, 0], uv[:, 1]
+    return rec.tobytes()
 
 
 def particle_cloud(result: TrackResult):

@@ -29,7 +29,12 @@ def _normalised(uv: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Normalised image coordinates ``(x/z, y/z)`` of pixels ``uv``, shape (N, 2)."""
     coeffs = np.asarray(intrinsics.distortion, dtype=np.float64)
     if intrinsics.distortion_model == "none" or not coeffs.any():
-        return np.column_stack(((uv[:, 0] - intrinsics.cx) / intrinsics.fx, (uv[:, 1] - intrinsics.cy) / intrinsics.fy))
+        out = np.empty((uv.shape[0], 2))
+        # x/z = (u - c_x) / f_x, y/z = (v - c_y) / f_y
+        np.subtract(uv[:, 0], intrinsics.cx, out=out[:, 0])
+        np.subtract(uv[:, 1], intrinsics.cy, out=out[:, 1])
+        out /= (intrinsics.fx, intrinsics.fy)
+        return out
     pts = uv.reshape(-1, 1, 2)
     if intrinsics.distortion_model == "kannala_brandt":
         out = cv2.fisheye.undistortPoints(pts, intrinsics.K, coeffs)
@@ -72,8 +77,11 @@ def backproject(uv: np.ndarray, z_mm: np.ndarray, intrinsics: Intrinsics) -> np.
         raise InputError(f"z_mm must be positive finite millimetres, got min {z.min()!r}")
     if uv.shape[0] == 0:
         return np.zeros((0, 3))
-    xy = _normalised(uv, intrinsics)
-    return np.column_stack((xy * z[:, None], z))
+    xyz = np.empty((uv.shape[0], 3))
+    # (x, y, z) = z (x/z, y/z, 1)
+    np.multiply(_normalised(uv, intrinsics), z[:, None], out=xyz[:, :2])
+    xyz[:, 2] = z
+    return xyz
 
 
 def depth_at(depth: np.ndarray, u: float, v: float, *, radius: int = DEFAULT_DEPTH_RADIUS) -> float | None:
@@ -106,10 +114,12 @@ def depth_at(depth: np.ndarray, u: float, v: float, *, radius: int = DEFAULT_DEP
     if u0 >= u1 or v0 >= v1:
         return None
     window = depth[v0:v1, u0:u1]
-    valid = window[window > 0]
-    if valid.size == 0:
+    valid = np.sort(window[window > 0], axis=None)
+    n = valid.size
+    if n == 0:
         return None
-    return float(np.median(valid))
+    # the median: the middle value, or the mean of the two middle values (as np.median)
+    return (float(valid[(n - 1) // 2]) + float(valid[n // 2])) / 2.0
 
 
 def palm_xyz(

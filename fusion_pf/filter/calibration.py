@@ -29,12 +29,10 @@ Frames with a single cue teach nothing, so a lone cue keeps its prior.
 
 from __future__ import annotations
 
+import bisect
 import math
-import statistics
 from collections import deque
 from collections.abc import Mapping, Sequence
-
-import numpy as np
 
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Measurement
@@ -78,8 +76,8 @@ class NoiseCalibration:
         self.prior = prior
         self.window = window
         self.prior_count = float(prior_count)
-        self._samples: dict[tuple[str, int], deque[float]] = {}
-        self._median: dict[tuple[str, int], float] = {}  # per key, until its next sample
+        self._samples: dict[tuple[str, int], deque[float]] = {}  # per key, oldest first
+        self._sorted: dict[tuple[str, int], list[float]] = {}  # the same samples, sorted (O(1) median)
 
     def samples(self, source: str, quality: float) -> int:
         """Residuals held for ``source`` at ``quality``'s bin."""
@@ -89,13 +87,11 @@ class NoiseCalibration:
         """Noise of ``m`` in px at palm scale ``scale``: the bin's learned noise shrunk towards the prior."""
         s0 = self.prior(m)
         key = (m.source, quality_bin(m.quality))
-        buf = self._samples.get(key)
-        if not buf:
+        ordered = self._sorted.get(key)
+        if not ordered:
             return s0 * scale
-        n = len(buf)
-        var = self._median.get(key)
-        if var is None:
-            var = self._median[key] = statistics.median(buf)
+        n = len(ordered)
+        var = ordered[n // 2] if n % 2 else 0.5 * (ordered[n // 2 - 1] + ordered[n // 2])
         # sigma_hat within [1/B, B] sigma_0 (a negative variance sample median: the others explain the residual)
         learned = min(max(math.sqrt(max(var, 0.0)), s0 / BOUND), s0 * BOUND)
         # log sigma = (n0 log sigma_0 + n log sigma_hat) / (n0 + n)
@@ -116,20 +112,24 @@ class NoiseCalibration:
         """
         if len(ms) < 2:
             return
-        z = np.array([[m.u, m.v] for m in ms])
-        prec = np.array([1.0 / sigmas[m.source] ** 2 for m in ms])
-        total_z = prec @ z
-        total = float(prec.sum())
-        for i, m in enumerate(ms):
-            rest = total - prec[i]
+        prec = [1.0 / sigmas[m.source] ** 2 for m in ms]
+        total = math.fsum(prec)
+        total_u = math.fsum(p * m.u for p, m in zip(prec, ms))
+        total_v = math.fsum(p * m.v for p, m in zip(prec, ms))
+        for p, m in zip(prec, ms):
+            rest = total - p
             # z_-s = sum_(i != s) z_i / sigma_i^2 / sum_(i != s) 1 / sigma_i^2
-            loo = (total_z - prec[i] * z[i]) / rest
+            du = m.u - (total_u - p * m.u) / rest
+            dv = m.v - (total_v - p * m.v) / rest
             # sample of sigma_s^2 = |z_s - z_-s|^2 / (2 ln 2) - V_-s   (median of |r|^2 / 2 = ln 2 (sigma^2 + V))
-            r2 = float(np.sum((z[i] - loo) ** 2))
-            sample = (r2 / (2.0 * math.log(2.0)) - 1.0 / rest) / (scale * scale)
+            sample = ((du * du + dv * dv) / (2.0 * math.log(2.0)) - 1.0 / rest) / (scale * scale)
             key = (m.source, quality_bin(m.quality))
             buf = self._samples.get(key)
             if buf is None:
-                buf = self._samples[key] = deque(maxlen=self.window)
+                buf = self._samples[key] = deque()
+                self._sorted[key] = []
+            ordered = self._sorted[key]
+            if len(buf) == self.window:
+                del ordered[bisect.bisect_left(ordered, buf.popleft())]
             buf.append(sample)
-            self._median.pop(key, None)
+            bisect.insort(ordered, sample)

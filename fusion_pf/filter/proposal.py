@@ -28,6 +28,7 @@ CDF on one uniform draw per particle.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -53,8 +54,9 @@ def check_manoeuvre(manoeuvre) -> tuple[float, float]:
     return prob, std
 
 
+@functools.lru_cache(maxsize=64)
 def _components(q: float, manoeuvre: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position-noise mixture: log prior weights, variances and velocity gains, each ``(J,)``.
+    """Position-noise mixture: log prior weights, variances and velocity gains, each ``(J,)``, read-only (cached).
 
     Component 0 is eq. 4's position noise ``q``; component 1 (with
     probability ``prob``) adds a manoeuvre, a velocity change ``a ~ N(0, m^2)``
@@ -64,9 +66,13 @@ def _components(q: float, manoeuvre: tuple[float, float]) -> tuple[np.ndarray, n
     """
     prob, m = manoeuvre
     if prob == 0.0:
-        return np.zeros(1), np.array([q * q]), np.zeros(1)
-    # pi = (1 - prob, prob); variances (q^2, q^2 + m^2); gains (0, m^2 / (q^2 + m^2))
-    return np.log([1.0 - prob, prob]), np.array([q * q, q * q + m * m]), np.array([0.0, m * m / (q * q + m * m)])
+        out = np.zeros(1), np.array([q * q]), np.zeros(1)
+    else:
+        # pi = (1 - prob, prob); variances (q^2, q^2 + m^2); gains (0, m^2 / (q^2 + m^2))
+        out = np.log([1.0 - prob, prob]), np.array([q * q, q * q + m * m]), np.array([0.0, m * m / (q * q + m * m)])
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def prior_positions(
@@ -152,7 +158,7 @@ def guided_positions(
         Whether, for some particle, the cue is more likely right than an
         outlier (always True for a Gaussian cue unless the evidence underflows).
     """
-    log_pi, var_q, gain = _components(q, manoeuvre)
+    log_pi, var_q, gain = _components(float(q), (float(manoeuvre[0]), float(manoeuvre[1])))
     var_q = var_q * dt
     var_z = sigma * sigma
     total = var_q + var_z
@@ -178,7 +184,8 @@ def guided_positions(
         for k in range(j):
             # log pi_j eps / A: the cue is an outlier, the particle keeps eq. 4's noise
             log_c[j + k] = log_pi[k] + math.log(eps) - math.log(area)
-        inlier = bool((log_c[:j].max(axis=0) >= log_c[j]).any())
+        # some particle explains the cue at least as well as an outlier does (the outlier row is constant)
+        inlier = bool(log_c[:j].max() >= log_c[j, 0])
         pull = np.concatenate([pull, np.zeros(j)])
         spread = np.concatenate([spread, np.sqrt(var_q)])
         gain = np.concatenate([gain, gain])
@@ -194,7 +201,11 @@ def guided_positions(
     # E[x_i] = mu_i + (sum_c r_ic a_c) (z - mu_i), r_ic = w_ic / sum_c w_ic
     mean_pull = pull @ prob
     mean_pull /= norm
-    expected = np.stack([mu[0] + mean_pull * du, mu[1] + mean_pull * dv])
+    expected = np.empty((2, n))
+    np.multiply(mean_pull, du, out=expected[0])
+    expected[0] += mu[0]
+    np.multiply(mean_pull, dv, out=expected[1])
+    expected[1] += mu[1]
     # c_i ~ Categorical(w_c / sum w): inverse CDF on one uniform per particle
     cdf = np.cumsum(prob, axis=0, out=prob)
     pick = (cdf < rng.random(n) * norm).sum(axis=0)

@@ -80,6 +80,7 @@ from ..cues.roi import Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.calibration import NoiseCalibration
+from ..filter.estimate import largest_std
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
 from ..filter.sspf import ScatterSearchPF
 from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
@@ -560,11 +561,14 @@ class _FilterStage:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
         return quality_sigma(self.config.noise_px[m.source], m)
 
-    def _calibrate(self, ms: Sequence[Measurement]) -> None:
-        """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them."""
+    def _calibrate(self, ms: Sequence[Measurement], trust: Mapping[str, float]) -> None:
+        """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
+
+        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`).
+        """
         calibration, tracker = self._calibration, self.tracker
         assert calibration is not None and tracker is not None  # adapt_noise; created by _start
-        sigmas = {m.source: calibration.sigma(m, self._scale) for m in ms}
+        sigmas = {source: sigma * self._scale for source, sigma in trust.items()}
         for source, sigma in sigmas.items():
             tracker.set_noise(source, sigma)
             self._var[source] = sigma * sigma
@@ -587,7 +591,7 @@ class _FilterStage:
             return tracker.n_particles if ms else 0
         return 0
 
-    def _palm_px(self, row: CueRow, ms: Sequence[Measurement]) -> float | None:
+    def _palm_px(self, row: CueRow, ms: Sequence[Measurement], trust: Mapping[str, float]) -> float | None:
         """Apparent palm length in this frame: from the hand landmarks, else depth at the best cue (None without either)."""
         hand = row.cues.get("hand")
         landmarks = None if hand is None else hand.extras.get("landmarks")
@@ -597,7 +601,7 @@ class _FilterStage:
             return float(math.hypot(lm[9, 0] - lm[0, 0], lm[9, 1] - lm[0, 1]))
         if row.depth_patch is None or not ms:
             return None
-        best = min(ms, key=self._trust)
+        best = min(ms, key=lambda m: trust[m.source])
         x0, y0 = row.patch_origin
         h, w = row.depth_patch.shape
         if not (x0 - 0.5 <= best.u < x0 + w - 0.5 and y0 - 0.5 <= best.v < y0 + h - 0.5):
@@ -606,7 +610,7 @@ class _FilterStage:
         # l_px = fx L_mm / z
         return None if z is None else row.intrinsics.fx * PALM_LENGTH_MM / z
 
-    def _rescale(self, row: CueRow, ms: Sequence[Measurement]) -> None:
+    def _rescale(self, row: CueRow, ms: Sequence[Measurement], trust: Mapping[str, float]) -> None:
         """Scale the noises with the palm's apparent size (``config.palm_scale``).
 
         The defaults are px in the reference scene, where the palm is
@@ -617,7 +621,7 @@ class _FilterStage:
         and keeps its value in frames without a palm size; the filter's noises
         are reset when it moved by more than :data:`RESCALE_TOLERANCE`.
         """
-        palm = self._palm_px(row, ms)
+        palm = self._palm_px(row, ms, trust)
         if palm is None or not palm > 0.0:
             return
         k = palm / REFERENCE_PALM_PX
@@ -657,11 +661,12 @@ class _FilterStage:
         tracker, states = self.tracker, self.states
         assert tracker is not None and states is not None  # created by _start
         ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
+        trust = {m.source: self._trust(m) for m in ms}
         if self.config.palm_scale and self.config.scale_noise:
-            self._rescale(row, ms)
+            self._rescale(row, ms, trust)
         if self._calibration is not None and ms:
-            self._calibrate(ms)
-        best = min(ms, key=self._trust) if ms else None
+            self._calibrate(ms, trust)
+        best = min(ms, key=lambda m: trust[m.source]) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
@@ -676,7 +681,7 @@ class _FilterStage:
         self.init = None
         estimate = tracker.step(row.timestamp_ns, ms)
         cov = None if estimate is None else estimate.cov
-        spread = math.nan if cov is None else math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))
+        spread = math.nan if cov is None else largest_std(cov)
         self._spread = None if cov is None else spread
         position = None if estimate is None else (estimate.u, estimate.v)
         before = self.status.state

@@ -325,3 +325,17 @@ def test_weights_stay_finite_and_normalised_for_any_cues(frames, likelihood):
         assert np.isfinite(pf.log_weights).all() and np.isfinite(pf.particles).all()
         assert np.exp(pf.log_weights).sum() == pytest.approx(1.0, abs=1e-9)
         assert 1.0 - 1e-9 <= est.ess <= 64.0 + 1e-9 and np.isfinite([est.u, est.v]).all()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.floats(0.0, 1e6),
+    st.floats(0.0, 1e6),
+    st.floats(-1.0, 1.0),
+)
+def test_largest_std_equals_the_largest_eigenvalue(var_u, var_v, corr):
+    from fusion_pf.filter.estimate import largest_std
+
+    cov = np.array([[var_u, corr * math.sqrt(var_u * var_v)], [corr * math.sqrt(var_u * var_v), var_v]])
+    reference = math.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))
+    assert largest_std(cov) == pytest.approx(reference, rel=1e-9, abs=1e-9)

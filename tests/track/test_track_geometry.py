@@ -96,3 +96,16 @@ def test_roi_point_cloud_ply_round_trip(tmp_path):
     np.testing.assert_allclose(got[:-1], pts, atol=1e-3)
     np.testing.assert_allclose(got[-1], palm, atol=1e-3)
     np.testing.assert_allclose(np.asarray(cloud.colors)[-1], [1, 0, 0])
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_depth_at_is_numpy_median_of_the_valid_window(seed):
+    rng = np.random.default_rng(seed)
+    depth = rng.integers(0, 4000, size=(30, 40)).astype(np.uint16)
+    depth[rng.random(depth.shape) < 0.4] = 0  # holes
+    u, v, radius = rng.uniform(-3, 42), rng.uniform(-3, 32), int(rng.integers(0, 5))
+    cu, cv = int(round(u)), int(round(v))
+    window = depth[max(cv - radius, 0) : max(cv + radius + 1, 0), max(cu - radius, 0) : max(cu + radius + 1, 0)]
+    valid = window[window > 0]
+    expected = float(np.median(valid)) if valid.size else None
+    assert depth_at(depth, u, v, radius=radius) == expected
