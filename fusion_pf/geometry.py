@@ -29,12 +29,12 @@ def _normalised(uv: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Normalised image coordinates ``(x/z, y/z)`` of pixels ``uv``, shape (N, 2)."""
     coeffs = np.asarray(intrinsics.distortion, dtype=np.float64)
     if intrinsics.distortion_model == "none" or not coeffs.any():
-        out = np.empty((uv.shape[0], 2))
+        xy = np.empty((uv.shape[0], 2))
         # x/z = (u - c_x) / f_x, y/z = (v - c_y) / f_y
-        np.subtract(uv[:, 0], intrinsics.cx, out=out[:, 0])
-        np.subtract(uv[:, 1], intrinsics.cy, out=out[:, 1])
-        out /= (intrinsics.fx, intrinsics.fy)
-        return out
+        np.subtract(uv[:, 0], intrinsics.cx, out=xy[:, 0])
+        np.subtract(uv[:, 1], intrinsics.cy, out=xy[:, 1])
+        xy /= (intrinsics.fx, intrinsics.fy)
+        return xy
     pts = uv.reshape(-1, 1, 2)
     if intrinsics.distortion_model == "kannala_brandt":
         out = cv2.fisheye.undistortPoints(pts, intrinsics.K, coeffs)
