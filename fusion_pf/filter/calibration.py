@@ -23,7 +23,12 @@ summarised by their median (robust to the cue's outliers, which the robust
 likelihood handles): ``|r|^2 / 2`` of a 2-D Gaussian residual has median
 ``ln 2 (sigma^2 + V)``. The result is shrunk towards the configured prior with
 :data:`PRIOR_COUNT` pseudo-samples (a weighted geometric mean: noises are scale
-parameters) after bounding it to [1/10, 10] x the prior.
+parameters) after bounding it to [:data:`FLOOR`, 10 x the prior]. The floor is
+the noise of the most precise source measured on real frames (the learned hand
+cue, :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`): for a heavy-tailed
+cue the median measures the core of its error, not its spread (depth at quality
+0.5-0.75 on a realistic synthetic scene: 0.25 from the median, 0.96 RMS, in
+palm units), and without the floor such a cue is trusted alone.
 Frames with a single cue teach nothing, so a lone cue keeps its prior.
 """
 
@@ -37,7 +42,9 @@ from collections.abc import Mapping, Sequence
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Measurement
 
-__all__ = ["PRIOR_COUNT", "QUALITY_BINS", "WINDOW", "NoiseCalibration", "quality_bin"]
+from .likelihood import DEFAULT_NOISE_PX
+
+__all__ = ["FLOOR", "PRIOR_COUNT", "QUALITY_BINS", "WINDOW", "NoiseCalibration", "quality_bin"]
 
 #: Equal-width quality bins of [0, 1] a noise is learned for.
 QUALITY_BINS = 4
@@ -45,8 +52,11 @@ QUALITY_BINS = 4
 WINDOW = 100
 #: Pseudo-samples of the prior noise in the shrunk estimate.
 PRIOR_COUNT = 10
-#: Learned noise stays within [1 / BOUND, BOUND] x the prior.
+#: Learned noise stays below BOUND x the prior.
 BOUND = 10.0
+#: Smallest learned noise per axis at palm scale 1, px: the learned hand cue's
+#: measured noise (5 % of the palm's length, radial), the most precise source seen.
+FLOOR = DEFAULT_NOISE_PX["hand"]
 
 
 def quality_bin(quality: float) -> int:
@@ -66,16 +76,22 @@ class NoiseCalibration:
         Residuals kept per source and bin (>= 1).
     prior_count : float
         Pseudo-samples of the prior (>= 0).
+    floor : float
+        Smallest learned noise at palm scale 1, px (> 0); a source whose prior
+        is smaller keeps its prior as the floor.
     """
 
-    def __init__(self, prior, *, window: int = WINDOW, prior_count: float = PRIOR_COUNT) -> None:
+    def __init__(self, prior, *, window: int = WINDOW, prior_count: float = PRIOR_COUNT, floor: float = FLOOR) -> None:
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise InputError(f"window must be an int >= 1, got {window!r}")
         if not (math.isfinite(float(prior_count)) and float(prior_count) >= 0.0):
             raise InputError(f"prior_count must be a finite number >= 0, got {prior_count!r}")
+        if isinstance(floor, bool) or not isinstance(floor, (int, float)) or not (math.isfinite(floor) and floor > 0):
+            raise InputError(f"floor must be a finite number > 0 px, got {floor!r}")
         self.prior = prior
         self.window = window
         self.prior_count = float(prior_count)
+        self.floor = float(floor)
         self._samples: dict[tuple[str, int], deque[float]] = {}  # per key, oldest first
         self._sorted: dict[tuple[str, int], list[float]] = {}  # the same samples, sorted (O(1) median)
 
@@ -92,8 +108,8 @@ class NoiseCalibration:
             return s0 * scale
         n = len(ordered)
         var = ordered[n // 2] if n % 2 else 0.5 * (ordered[n // 2 - 1] + ordered[n // 2])
-        # sigma_hat within [1/B, B] sigma_0 (a negative variance sample median: the others explain the residual)
-        learned = min(max(math.sqrt(max(var, 0.0)), s0 / BOUND), s0 * BOUND)
+        # sigma_hat within [min(floor, sigma_0), B sigma_0] (a negative median: the others explain the residual)
+        learned = min(max(math.sqrt(max(var, 0.0)), min(self.floor, s0)), s0 * BOUND)
         # log sigma = (n0 log sigma_0 + n log sigma_hat) / (n0 + n)
         w = n / (self.prior_count + n)
         return s0 ** (1.0 - w) * learned**w * scale

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from fusion_pf.errors import InputError
-from fusion_pf.filter.calibration import PRIOR_COUNT, QUALITY_BINS, NoiseCalibration, quality_bin
+from fusion_pf.filter.calibration import FLOOR, PRIOR_COUNT, QUALITY_BINS, WINDOW, NoiseCalibration, quality_bin
 from fusion_pf.frame import Measurement
 
 
-def _run(frames: int, truth: dict, prior: dict, rng: int = 0, scale: float = 1.0) -> NoiseCalibration:
+def _run(frames: int, truth: dict, prior: dict, rng: int = 0, scale: float = 1.0, **kw) -> NoiseCalibration:
     """Feed ``frames`` frames of sources with true per-axis noise ``truth[(source, quality)]``."""
-    cal = NoiseCalibration(lambda m: prior[m.source])
+    cal = NoiseCalibration(lambda m: prior[m.source], **kw)
     gen = np.random.default_rng(rng)
     for _ in range(frames):
         palm = gen.uniform(50, 250, 2)
@@ -88,3 +88,24 @@ def test_quality_bins_cover_zero_to_one():
 def test_bad_options_are_named(kw):
     with pytest.raises(InputError, match=next(iter(kw))):
         NoiseCalibration(lambda m: 1.0, **kw)
+
+
+def test_a_cue_below_the_floor_is_learned_at_the_floor():
+    # three sources 0.02 px off: the residual medians say ~0.02 px, the floor keeps 0.7 px (a heavy-tailed
+    # cue's median sees its core, not its spread: unfloored it would be trusted alone)
+    truth = {("a", 0.9): 0.02, ("b", 0.9): 0.02, ("c", 0.9): 0.02}
+    a = Measurement("a", 0, 0, quality=0.9)
+    w = WINDOW / (PRIOR_COUNT + WINDOW)
+    floored = _run(300, truth, {"a": 3.0, "b": 3.0, "c": 3.0})
+    assert floored.sigma(a) == pytest.approx(3.0 ** (1 - w) * FLOOR**w)
+    bare = _run(300, truth, {"a": 3.0, "b": 3.0, "c": 3.0}, floor=1e-3)
+    assert bare.sigma(a) < 0.1 * floored.sigma(a)
+    # a source configured below the floor keeps its own prior as the floor
+    fine = _run(300, truth, {"a": 0.2, "b": 0.2, "c": 0.2})
+    assert fine.sigma(a) == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize("floor", [0, -1.0, math.inf, math.nan, True, "0.7"])
+def test_bad_floor_is_named(floor):
+    with pytest.raises(InputError, match="floor"):
+        NoiseCalibration(lambda m: 1.0, floor=floor)
