@@ -47,6 +47,12 @@ def _labels(mask: np.ndarray) -> tuple[int, np.ndarray]:
     return n, labels
 
 
+def _paint(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The mask of the labels where the boolean table ``keep`` is True (255) as one look-up-table gather."""
+    lut = np.where(keep, np.uint8(255), np.uint8(0))
+    return lut.take(labels)
+
+
 def _touching_border(labels: np.ndarray, n: int) -> np.ndarray:
     """Boolean table over labels: True for labels with a pixel on the image border."""
     touch = np.zeros(n, dtype=bool)
@@ -64,10 +70,10 @@ def remove_small(mask: np.ndarray, min_area: int) -> np.ndarray:
     """
     if mask.size == 0 or min_area <= 1 or not cv2.countNonZero(mask):
         return mask.copy()
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-    keep = stats[:, cv2.CC_STAT_AREA] >= min_area  # region kept when its area reaches min_area
+    n, labels = _labels(mask)  # (connectedComponentsWithStats costs 3x more; only the areas are needed)
+    keep = np.bincount(labels.ravel(), minlength=n) >= min_area  # region kept when its area reaches min_area
     keep[0] = False  # label 0 is the background
-    return np.where(keep[labels], np.uint8(255), np.uint8(0))
+    return _paint(labels, keep)
 
 
 def open_thin(mask: np.ndarray, radius: int) -> np.ndarray:
@@ -91,7 +97,7 @@ def keep_marked(mask: np.ndarray, marker: np.ndarray) -> np.ndarray:
     keep = np.zeros(n, dtype=bool)
     keep[labels[marker > 0]] = True  # every region the marker touches
     keep[0] = False
-    return np.where(keep[labels], np.uint8(255), np.uint8(0))
+    return _paint(labels, keep)
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -128,7 +134,7 @@ def clear_border(mask: np.ndarray) -> np.ndarray:
     n, labels = _labels(mask)
     drop = _touching_border(labels, n)  # regions with a pixel on the border
     drop[0] = True
-    return np.where(drop[labels], np.uint8(0), np.uint8(255))
+    return _paint(labels, ~drop)
 
 
 @dataclass(frozen=True, slots=True)

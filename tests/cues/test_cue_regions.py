@@ -106,3 +106,27 @@ def test_measure_adds_offset_and_extras():
     assert (meas.u, meas.v) == pytest.approx((122.0, 62.0))
     assert meas.extras["area"] == 25 and meas.extras["bbox"] == [120, 60, 5, 5]
     assert measure(_mask(), (0, 0), "colour", palm_area=25) is None
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_region_filters_equal_scipy_labelling(seed):
+    # an independent labelling (scipy.ndimage, 8-connectivity) as the reference for every region filter
+    from scipy import ndimage
+
+    from fusion_pf.cues.regions import keep_marked
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 90, size=2)
+    m = np.where(rng.random((h, w)) < rng.uniform(0.05, 0.6), np.uint8(255), np.uint8(0))
+    labels, n = ndimage.label(m > 0, structure=np.ones((3, 3)))
+    areas = np.bincount(labels.ravel(), minlength=n + 1)
+    min_area = int(rng.integers(2, 30))
+    expected = (areas >= min_area)[labels] & (labels > 0)
+    np.testing.assert_array_equal(remove_small(m, min_area) == 255, expected)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    np.testing.assert_array_equal(clear_border(m) == 255, (labels > 0) & ~np.isin(labels, border))
+    marker = rng.random((h, w)) < 0.01
+    marked = np.unique(labels[marker & (labels > 0)])
+    np.testing.assert_array_equal(
+        keep_marked(m, marker.astype(np.uint8)) == 255, np.isin(labels, marked) & (labels > 0)
+    )
