@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fusion_pf import geometry
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Joint
 
@@ -197,14 +198,9 @@ def depth_at(depth: np.ndarray | None, u: float, v: float, radius: int = DEPTH_W
     if depth is None:
         return None
     h, w = depth.shape
-    col, row = round(u), round(v)
-    if not (0 <= col < w and 0 <= row < h):
+    if not (0 <= round(u) < w and 0 <= round(v) < h):
         return None
-    window = depth[max(row - radius, 0) : row + radius + 1, max(col - radius, 0) : col + radius + 1]
-    valid = window[window > 0]
-    if valid.size == 0:
-        return None
-    return float(np.median(valid))
+    return geometry.depth_at(depth, u, v, radius=radius)
 
 
 def joints_from_keypoints(keypoints: np.ndarray, depth: np.ndarray | None) -> dict[str, Joint]:
