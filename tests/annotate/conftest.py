@@ -55,7 +55,7 @@ def rec500(tmp_path_factory: pytest.TempPathFactory) -> Path:
 class Server:
     """A ``fusion-pf annotate`` subprocess on a free loopback port."""
 
-    def __init__(self, recording: Path, db: Path, *extra: str) -> None:
+    def __init__(self, recording: Path, db: Path, *extra: str, preexec_fn=None) -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db), "--port", "0", *extra],
             cwd=REPO,
@@ -63,6 +63,7 @@ class Server:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            preexec_fn=preexec_fn,
         )
         self.url = ""
         self._drain: threading.Thread | None = None
@@ -110,11 +111,11 @@ class Server:
 
 @pytest.fixture
 def server_factory():
-    """``start(recording, db, *extra) -> Server``; every server started is stopped at teardown."""
+    """``start(recording, db, *extra, preexec_fn=None) -> Server``; every server started is stopped at teardown."""
     started: list[Server] = []
 
-    def start(recording: Path, db: Path, *extra: str) -> Server:
-        server = Server(recording, db, *extra)
+    def start(recording: Path, db: Path, *extra: str, preexec_fn=None) -> Server:
+        server = Server(recording, db, *extra, preexec_fn=preexec_fn)
         started.append(server)
         return server
 
