@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -107,6 +108,22 @@ class Server:
         for stream in (self.proc.stdout, self.proc.stderr):
             if stream is not None:
                 stream.close()
+
+
+#: Idle connections a flood test holds open.
+FLOOD_IDLE = 2000
+
+
+@pytest.fixture
+def many_descriptors():
+    """Raise this process's soft descriptor limit so it can hold the flood's sockets."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = FLOOD_IDLE + 512
+    if hard != resource.RLIM_INFINITY and hard < want:
+        pytest.skip(f"the hard descriptor limit {hard} cannot hold {FLOOD_IDLE} sockets")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, want), hard))
+    yield
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 @pytest.fixture

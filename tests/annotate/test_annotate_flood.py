@@ -17,21 +17,10 @@ import requests
 
 from fusion_pf.annotate.connections import FD_RESERVE
 
-IDLE = 2000
+from .conftest import FLOOD_IDLE as IDLE
+
 ATTEMPTS = 5000
 SERVE_WITHIN_S = 2.0
-
-
-@pytest.fixture
-def many_descriptors():
-    """Raise this process's soft descriptor limit so it can hold the flood's sockets."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    want = IDLE + 512
-    if hard != resource.RLIM_INFINITY and hard < want:
-        pytest.skip(f"the hard descriptor limit {hard} cannot hold {IDLE} sockets")
-    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, want), hard))
-    yield
-    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 def _fds(pid: int) -> int:
