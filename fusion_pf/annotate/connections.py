@@ -37,8 +37,8 @@ from .options import ServeOptions
 
 __all__ = ["ACCEPT_BATCH", "FD_RESERVE", "GuardedChannel", "GuardedServer", "create_server", "raise_descriptor_limit"]
 
-#: Connections accepted per wake-up of the loop at most. A per-client cap of at least twice this keeps a new
-#: connection from being retired before its request is read (``ServeOptions.max_connections_per_client``'s floor).
+#: Connections accepted per wake-up of the loop at most. Caps of at least twice this keep a new connection from
+#: being retired before its request is read (the floor of ``ServeOptions``' two connection caps).
 ACCEPT_BATCH = 16
 #: Descriptors kept free beside the connections: listener, wake-up pipe, database, recording, retiring sockets.
 FD_RESERVE = 64

@@ -30,10 +30,12 @@ class ServeOptions:
     threads: int = option(8, kind="int", lo=1, hi=256, help="worker threads serving requests")
     image_format: str = option("jpeg", choices=COLOR_FORMATS, help="encoding of the colour frames sent to the browser")
     cache: int = option(256, kind="int", lo=1, hi=1_000_000, help="encoded images kept in memory (LRU)")
+    # The connection caps' floor, 32, is twice connections.ACCEPT_BATCH: a new connection is read before
+    # the newer ones from its address can make it the oldest idle one.
     max_connections: int = option(
         1000,
         kind="int",
-        lo=1,
+        lo=32,
         hi=100_000,
         help="open connections kept at most; a new one beyond it closes the oldest idle connection of "
         "the client address holding the most",
