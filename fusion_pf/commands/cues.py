@@ -122,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.options import from_args
     from fusion_pf.pipeline import cue_window
 
+    from ._paths import check_folder_outputs
+
     options = from_args(CueOptions, args)
     config = from_args(TrackConfig, args, cue_options=options)
     if args.stages is not None:
@@ -160,6 +162,9 @@ def run(args: argparse.Namespace) -> int:
         results = {name: cue.measure(frame, ctx) for name, cue in cues.items()}
 
     truth = frame.ground_truth
+    sheets = {name: f"frame{k:06d}_{name}.png" for name in results}
+    if args.stages is not None:
+        check_folder_outputs(args.stages, sheets.values(), (args.file, config.background), "--stages")
     rows = {}
     for name, res in results.items():
         m = res.measurement
@@ -186,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
                 f"u={m.u:.1f} v={m.v:.1f} q={m.quality:.2f}" if m else "no measurement"
             )
             sheet = contact_sheet(res.stages, title=title, point=point, equalize=("I_d1", "I_d2", "I_d3"))
-            out = args.stages / f"frame{k:06d}_{name}.png"
+            out = args.stages / sheets[name]
             if not cv2.imwrite(str(out), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise InputError(f"cannot write {out}")
             row["sheet"] = str(out)

@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = from_args(ImportOptions, args)
     encoding = from_args(EncodingOptions, args)
-    check_output(args.output, force=args.force, inputs=(args.source,))
+    check_output(args.output, force=args.force, inputs=(args.source, opts.intrinsics))
     intrinsics = IntrinsicsOption(opts.intrinsics, opts.fx, opts.fy, opts.cx, opts.cy, opts.hfov)
     source = open_import(
         args.source,
