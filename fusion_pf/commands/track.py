@@ -22,7 +22,7 @@ DESCRIPTION = (
     "comes from --background, else the recording's own background frames, else the median of its "
     "first --background-k frames. Pixels are colour-image pixels, 3-D points camera-frame "
     "millimetres. The same --seed gives a byte-identical CSV (latency columns are left empty unless "
-    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130) and on errors (exit 2). A damaged "
+    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130), SIGTERM (143), SIGHUP (129) and errors (exit 2). A damaged "
     "recording is tracked as far as it can be read: the frames skipped and why are printed and the "
     "exit status is 3 (partial)."
 )
@@ -228,11 +228,12 @@ def run(args: argparse.Namespace) -> int:
         if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
             options["metadata"]["source_sha256"] = recording_sha256(args.source)
         table = targets_csv = None
-        if args.csv is not None and config.targets is not None:  # opened first: a failing CSV leaves no MCAP
-            targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
-        elif args.csv is not None:
-            table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
-        recorder = stack.enter_context(McapRecorder(args.output, **options))
+        with sigint_deferred():  # each output is closed by the stack once it is open
+            if args.csv is not None and config.targets is not None:  # opened first: a failing CSV leaves no MCAP
+                targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
+            elif args.csv is not None:
+                table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
+            recorder = stack.enter_context(McapRecorder(args.output, **options))
         total = len(src) if isinstance(src, ReplaySource) else None
         bar = stack.enter_context(
             tqdm(
