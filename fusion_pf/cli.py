@@ -85,10 +85,13 @@ def _main(argv: list[str] | None) -> int:
         print(f"fusion-pf: error: {printable(exc)}", file=sys.stderr)
         return exc.exit_code
     except FileNotFoundError as exc:
-        print(f"fusion-pf: error: no such file: {exc.filename}", file=sys.stderr)
+        print(f"fusion-pf: error: no such file: {printable(exc.filename)}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"fusion-pf: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        print(
+            f"fusion-pf: error: {printable(exc.strerror or exc)}: {printable(exc.filename or '')}".rstrip(": "),
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", 2)

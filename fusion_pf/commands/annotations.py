@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fusion_pf.text import printable
+
 NAME = "annotations"
 HELP = "export the operator reference (per-frame mean and spread) of an annotation database"
 DESCRIPTION = (
@@ -78,5 +80,5 @@ def run(args: argparse.Namespace) -> int:
     checkpoint(args.db)
     n_frames = write_reference_csv(args.db, args.csv)
     n_ops = write_operators_csv(args.db, ops)
-    print(f"fusion-pf annotations: {n_frames} frames -> {args.csv}, {n_ops} operators -> {ops}")
+    print(f"fusion-pf annotations: {n_frames} frames -> {printable(args.csv)}, {n_ops} operators -> {printable(ops)}")
     return 0

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.pipeline import TrackConfig
+from fusion_pf.text import printable
 
 NAME = "cues"
 HELP = "run the colour, depth, skin and skeleton cues on one frame; write stage contact sheets"
@@ -208,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"frame {k} of {args.file} ({frame.size[0]}x{frame.size[1]}), background: {bg_note}")
+    print(f"frame {k} of {printable(args.file)} ({frame.size[0]}x{frame.size[1]}), background: {bg_note}")
     print(
         f"roi {doc['roi'] if roi is not None else 'full frame'}"
         + ("" if truth is None else f"; truth u={truth.u:.1f} v={truth.v:.1f}{' (occluded)' if truth.occluded else ''}")

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fusion_pf.options import add_options, from_args, option, validate
+from fusion_pf.text import printable
 
 NAME = "render"
 HELP = "draw a tracked recording (image, cue points, particles, estimate, state) as MP4 and/or PNG sheet"
@@ -96,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
     w, h = done.size
     parts = []
     if args.output is not None:
-        parts.append(f"{args.output} ({done.frames} frames, {w}x{h}, H.264)")
+        parts.append(f"{printable(args.output)} ({done.frames} frames, {w}x{h}, H.264)")
     if args.sheet is not None:
-        parts.append(f"{args.sheet} ({done.sheet_tiles} tiles, every {every}th frame)")
+        parts.append(f"{printable(args.sheet)} ({done.sheet_tiles} tiles, every {every}th frame)")
     print(f"rendered {done.frames} frames ({done.tracked} with tracker output) -> {', '.join(parts)}")
     return 0

@@ -8,6 +8,7 @@ from pathlib import Path
 from drivers import SOURCE_SPECS
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.pipeline import TrackConfig
+from fusion_pf.text import printable
 
 NAME = "track"
 HELP = "track the palm (data-fusion particle filter or Kalman baseline) and write MCAP/CSV outputs"
@@ -182,8 +183,8 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) 
         tracked += not result.background
         bar.update(1)
     print(
-        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
-        + (f", {args.csv}" if args.csv is not None else ""),
+        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
+        + (f", {printable(args.csv)}" if args.csv is not None else ""),
         file=sys.stderr,
     )
     for t, c in counts.items():
@@ -277,8 +278,8 @@ def run(args: argparse.Namespace) -> int:
             states[result.state] += not result.background
             bar.update(1)
     print(
-        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
-        + (f", {args.csv}" if args.csv is not None else ""),
+        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
+        + (f", {printable(args.csv)}" if args.csv is not None else ""),
         file=sys.stderr,
     )
     print(
