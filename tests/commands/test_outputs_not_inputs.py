@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -20,6 +23,7 @@ from fusion_pf.annotate.db import AnnotationDB
 from fusion_pf.cli import main
 
 LINKS = ("hard", "symlink")
+CLI = [sys.executable, "-m", "fusion_pf"]
 
 
 def _link(kind: str, target: Path, name: Path) -> Path:
@@ -173,3 +177,26 @@ def test_an_output_that_does_not_exist_yet_is_no_input(files, tmp_path):
     out = tmp_path / "fresh.mcap"
     assert main(["record", str(files["rec"]), str(out)]) == 0
     assert out.stat().st_ino != files["rec"].stat().st_ino
+
+
+def test_an_output_reached_through_a_bind_mount_is_refused(files, tmp_path):
+    """The input's folder bind-mounted elsewhere (a private mount namespace: needs root or user namespaces)."""
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare(1) to make a private mount namespace")
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    rec = files["rec"]
+    before = _digest(rec)
+    script = 'mount --bind "$1" "$2" || exit 99; shift 2; exec "$@"'
+    argv = [*CLI, "track", str(rec), "-o", str(mount / rec.name), "--force", "--no-progress"]
+    proc = subprocess.run(
+        ["unshare", "-m", "sh", "-c", script, "sh", str(rec.parent), str(mount), *argv],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if proc.returncode == 99 or proc.stderr.startswith("unshare:"):
+        pytest.skip(f"cannot bind-mount here: {proc.stderr.strip()}")
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "is an input file" in proc.stderr
+    assert _digest(rec) == before
