@@ -95,3 +95,26 @@ def test_track_stops_cleanly_on_a_signal_during_start_up(tmp_path, sig, code, wh
     assert stderr == f"fusion-pf: terminated by signal {int(sig)}\n"
     if out.exists():  # stopped after the outputs were opened: they are complete
         check_outputs(out, table)
+
+
+@pytest.mark.parametrize("after", [0.5, 2.0])
+def test_a_stop_during_the_sweep_leaves_no_traceback(tmp_path, after):
+    """``demo``'s Dask cluster is closed, not left half-started for an atexit traceback."""
+    rec = tmp_path / "gt.mcap"
+    subprocess.run(
+        [*CLI, "synth", str(rec), "--frames", "60", "--size", "160x100", "--no-progress"], check=True, timeout=120
+    )
+    proc = subprocess.Popen(
+        [*CLI, "demo", "--recording", str(rec), "--out", str(tmp_path / "demo"), "--workers", "2", "--no-progress"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    assert proc.stderr is not None
+    lines = [proc.stderr.readline() for _ in range(2)]
+    assert lines[1].startswith("demo: tracking again"), lines
+    time.sleep(after)
+    returncode, rest = stop(proc, signal.SIGTERM)
+    assert returncode == 143 and rest.endswith("fusion-pf: terminated by signal 15\n"), rest
+    assert "Traceback" not in rest, rest
