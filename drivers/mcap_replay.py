@@ -79,7 +79,7 @@ _MAX_RECORD = 4 << 30
 _RESYNC_WINDOW = 1 << 20
 _TIME_LIMIT = 1 << 63
 _FOOTER_LEN = 9 + 20
-#: How a scan's reason starts when the summary failed its CRC (its statistics are not trusted either).
+#: How a scan's reason starts when the summary failed its CRC (its schemas and channels then yield to the data section's).
 _DAMAGED_SUMMARY = "damaged summary"
 _MESSAGE_HEADER = struct.Struct("<HIQQ")
 _RECORD_HEADER = struct.Struct("<BQ")
