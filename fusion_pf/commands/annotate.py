@@ -48,7 +48,6 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.annotate.frames import FrameImages, ReplayProvider
     from fusion_pf.annotate.server import create_app, serve
     from fusion_pf.errors import InputError
-    from fusion_pf.signals import stop_on_terminate
 
     from ._paths import SQLITE_SIDECARS, check_not_input
 
@@ -93,8 +92,7 @@ def run(args: argparse.Namespace) -> int:
                     flush=True,
                 )
 
-            with stop_on_terminate():
-                serve(app, opts, on_ready=ready)
+            serve(app, opts, on_ready=ready)
         finally:
             db.close()
     return 0

@@ -116,14 +116,7 @@ def _frames_in(path: Path) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Record until the source ends, a limit is reached, Ctrl-C/SIGTERM/SIGHUP, or the source fails."""
-    from fusion_pf.signals import stop_on_terminate
-
-    with stop_on_terminate():
-        return _record(args)
-
-
-def _record(args: argparse.Namespace) -> int:
+    """Record until the source ends, a limit is reached, Ctrl-C/SIGTERM/SIGHUP (cli.main), or the source fails."""
     import os
     import sys
     import time
