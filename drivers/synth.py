@@ -182,6 +182,25 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   and colour noise are the one-hand scene's.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
+Scene variations
+----------------
+Keyword arguments (:data:`VARIATIONS`) that change one property of the scene
+each, for benchmarks over many scenes (``benchmarks/fusion_matrix.py``); their
+defaults render the scene described above bit for bit, and only non-default
+values are written to the metadata.
+
+* ``depth_noise``: factor on the disparity noise of either depth model (0-50);
+* ``hand_front``: the palm's smallest distance in front of the torso, m
+  (0.03-0.6; it sweeps to ``hand_front + 0.10``): near the body the depth cue
+  cannot tell palm from torso;
+* ``lighting``: factor on the illumination drift, gradient and flicker (0-10);
+* ``skin_tone``: 0 (:data:`drivers.synth_scene.SKIN_RGB`) to 1
+  (:data:`drivers.synth_scene.DARK_SKIN_RGB`), blended linearly; a dark palm
+  differs little from the navy shirt;
+* ``skeleton_bias``: factor on the occlusion weight ``w`` of the skeleton's
+  hand and wrist (bias and jitter; the confidence and depth pull saturate at
+  ``w = 1``), 0-5: 0 is a skeleton that never fails.
+
 Determinism
 -----------
 The scene (background textures, motion parameters) comes from
@@ -196,6 +215,7 @@ delays the same motion; the illumination drift is a function of ``i``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterator, Mapping
 
@@ -279,7 +299,16 @@ _CORR_STD = float((cv2.getGaussianKernel(_CORR_KSIZE, DEPTH_NOISE_CORRELATION_PX
 
 #: fx of the 640-px-wide camera, to which the skeleton's pixel figures refer.
 _REFERENCE_FX = 0.78 * 640.0
-_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands")
+#: Scene variations (``SynthSource`` keyword arguments) with their default and range: the
+#: default renders the documented scene bit for bit.
+VARIATIONS = {
+    "depth_noise": (1.0, 0.0, 50.0),
+    "hand_front": (0.22, 0.03, 0.6),
+    "lighting": (1.0, 0.0, 10.0),
+    "skin_tone": (0.0, 0.0, 1.0),
+    "skeleton_bias": (1.0, 0.0, 5.0),
+}
+_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands", *VARIATIONS)
 #: Ground-truth targets of the two-hand scene, the primary one first.
 TARGETS = ("right_hand", "left_hand", "head")
 #: Most frames a synthetic recording may have.
@@ -300,6 +329,17 @@ def _int_option(name: str, value: object, lo: int, hi: int) -> int:
             raise InputError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}") from None
     if not lo <= number <= hi:
         raise InputError(f"{name} must be an integer in [{lo}, {hi}], got {number}")
+    return number
+
+
+def _variation(name: str, value: object) -> float:
+    _, lo, hi = VARIATIONS[name]
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(f"synth option {name} must be a number in [{lo}, {hi}], got {value!r}") from None
+    if not lo <= number <= hi:
+        raise InputError(f"synth option {name} must be a number in [{lo}, {hi}], got {value!r}")
     return number
 
 
@@ -374,8 +414,19 @@ class SynthSource(ReplaySource):
         start_ns: int = 1_700_000_000_000_000_000,
         depth_model: str = "realistic",
         hands: int = 1,
+        depth_noise: float = VARIATIONS["depth_noise"][0],
+        hand_front: float = VARIATIONS["hand_front"][0],
+        lighting: float = VARIATIONS["lighting"][0],
+        skin_tone: float = VARIATIONS["skin_tone"][0],
+        skeleton_bias: float = VARIATIONS["skeleton_bias"][0],
     ) -> None:
         super().__init__()
+        self.depth_noise = _variation("depth_noise", depth_noise)
+        self.hand_front = _variation("hand_front", hand_front)
+        self.lighting = _variation("lighting", lighting)
+        self.skin_tone = _variation("skin_tone", skin_tone)
+        self.skeleton_bias = _variation("skeleton_bias", skeleton_bias)
+        self._skin = sc.skin_rgb(self.skin_tone)
         self.hands = _int_option("synth option hands", hands, 1, 2)
         self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
@@ -388,10 +439,15 @@ class SynthSource(ReplaySource):
         self.depth_model = depth_model
         self.intrinsics: Intrinsics = sc.default_intrinsics(*self.size)
         scene_rng = self._rng(0)
-        self._motion = sc.motion_parameters(scene_rng)
+        self._motion = dataclasses.replace(sc.motion_parameters(scene_rng), hand_front=self.hand_front)
         self._background = sc.render_background(self.intrinsics, scene_rng)
         self._bg_depth_valid = self._stereo_valid(self._background.depth_m)
-        self._appearance = sc.appearance_parameters(self._rng(3))
+        a = sc.appearance_parameters(self._rng(3))
+        self._appearance = dataclasses.replace(
+            a,
+            drift_amps=tuple(self.lighting * x for x in a.drift_amps),
+            gradient_amp=self.lighting * a.gradient_amp,
+        )
         self._wash = sc.wash_parameters(self._rng(4)) if self.hands == 2 else None
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
@@ -404,7 +460,8 @@ class SynthSource(ReplaySource):
         ----------
         options : mapping of str to str or object
             Any of ``seed``, ``frames``, ``size`` (``"640x400"`` or ``(w, h)``),
-            ``fps``, ``background_frames``, ``start_ns``, ``depth_model``, ``hands`` (1 or 2).
+            ``fps``, ``background_frames``, ``start_ns``, ``depth_model``, ``hands`` (1 or 2),
+            and the scene variations of :data:`VARIATIONS`.
 
         Raises
         ------
@@ -430,9 +487,16 @@ class SynthSource(ReplaySource):
     def describe(self) -> str:
         w, h = self.size
         hands = " hands=2" if self.hands == 2 else ""
-        return f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}" + (
-            "" if self.depth_model == "realistic" else f" depth_model={self.depth_model}"
+        varied = "".join(f" {k}={v:g}" for k, v in self.variations().items())
+        return (
+            f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}"
+            + ("" if self.depth_model == "realistic" else f" depth_model={self.depth_model}")
+            + varied
         )
+
+    def variations(self) -> dict[str, float]:
+        """The scene variations that differ from their default (:data:`VARIATIONS`)."""
+        return {k: getattr(self, k) for k, (default, _, _) in VARIATIONS.items() if getattr(self, k) != default}
 
     def timestamp_ns(self, index: int) -> int:
         """Capture time of frame ``index`` in integer nanoseconds."""
@@ -484,6 +548,7 @@ class SynthSource(ReplaySource):
                 }
             ),
             "occluded_overlap": repr(OCCLUDED_OVERLAP),
+            **{k: repr(v) for k, v in self.variations().items()},
             **extra,
         }
 
@@ -573,13 +638,14 @@ class SynthSource(ReplaySource):
             u, v = sc.project(intr, p)
             z_mm = p[2] * 1000.0
             ww = w if name == "right_hand" else 0.5 * w if name == "right_wrist" else 0.0
+            ww *= self.skeleton_bias
             sigma_px = (2.0 + 10.0 * ww) * k
             u += (ww * bias_px * toward[0]) * k + sigma_px * noise[j, 0]
             v += (ww * bias_px * toward[1]) * k + sigma_px * noise[j, 1]
-            pull = 0.8 * ww if name == "right_hand" else 0.0
+            pull = 0.8 * min(ww, 1.0) if name == "right_hand" else 0.0
             z_mm += pull * (pose.torso[2] * 1000.0 - z_mm) + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
             drop = 0.6 if name == "right_hand" else 0.3 if name == "right_wrist" else 0.0
-            conf = 0.9 - drop * ww + conf_noise[j]
+            conf = 0.9 - drop * min(ww, 1.0) + conf_noise[j]
             out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
         return out
 
@@ -675,7 +741,7 @@ class SynthSource(ReplaySource):
         flat[flying] = (1.0 - a) * near.reshape(-1)[flying] + a * far.reshape(-1)[flying]
         noise = self._gaussian(rng, depth_m.shape)
         field = cv2.GaussianBlur(noise, (_CORR_KSIZE, _CORR_KSIZE), DEPTH_NOISE_CORRELATION_PX)
-        disparity += np.float32(DISPARITY_NOISE_PX / _CORR_STD) * field
+        disparity += np.float32(self.depth_noise * DISPARITY_NOISE_PX / _CORR_STD) * field
         disparity = np.rint(disparity * SUBPIXEL_STEPS) / np.float32(SUBPIXEL_STEPS)
         with np.errstate(divide="ignore"):
             z = np.rint(fb / disparity)
@@ -694,7 +760,7 @@ class SynthSource(ReplaySource):
         disparity = np.float32(fb * 1e-3) / depth_m
         noise = self._gaussian(rng, depth_m.shape)
         field = cv2.GaussianBlur(noise, (_CORR_KSIZE, _CORR_KSIZE), DEPTH_NOISE_CORRELATION_PX)
-        disparity += np.float32(DEPTH_NOISE_C * fb / _CORR_STD) * field
+        disparity += np.float32(self.depth_noise * DEPTH_NOISE_C * fb / _CORR_STD) * field
         disparity = np.rint(disparity * SUBPIXEL_STEPS) / np.float32(SUBPIXEL_STEPS)
         with np.errstate(divide="ignore"):
             z = np.rint(np.float32(fb) / disparity)
@@ -728,7 +794,7 @@ class SynthSource(ReplaySource):
         return sc.illumination(self._appearance, self._check_index(index), self._xn)
 
     def _color_image(self, color: np.ndarray, index: int, rng: np.random.Generator) -> np.ndarray:
-        gain = np.float32(1.0 + rng.uniform(-FLICKER, FLICKER))
+        gain = np.float32(1.0 + self.lighting * rng.uniform(-FLICKER, FLICKER))
         blurred = cv2.GaussianBlur(color, (3, 3), 0.0)
         blurred *= (gain * self.illumination(index))[..., None]
         noise = self._gaussian(rng, color.shape)
@@ -764,7 +830,7 @@ class SynthSource(ReplaySource):
             color_f, depth_m, labels = sc.composite(bg, parts)
             valid = self._stereo_valid(depth_m)
         else:
-            parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
+            parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin)
             color_f, depth_m, labels = sc.composite(bg, parts, self.blur_kernel(index))
             valid = self._stereo_valid(depth_m)
         color = self._color_image(color_f, index, rng)

@@ -39,6 +39,8 @@ SHIRT_RGB = (30.0, 38.0, 70.0)
 TROUSERS_RGB = (46.0, 46.0, 52.0)
 HAIR_RGB = (46.0, 34.0, 28.0)
 SKIN_RGB = (218.0, 168.0, 142.0)
+#: The darkest skin tone of the ``skin_tone`` scene option (1.0); 0.0 is :data:`SKIN_RGB`.
+DARK_SKIN_RGB = (92.0, 60.0, 44.0)
 #: Pale box colours on the shelves (kept away from skin tones on purpose).
 BOX_PALETTE = (
     (226.0, 226.0, 222.0),
@@ -107,6 +109,7 @@ class Motion:
     left_arm_phase: float
     bias_period: float
     bias_phase: float
+    hand_front: float = 0.22
 
 
 @dataclass(frozen=True)
@@ -339,8 +342,9 @@ def pose_at(m: Motion, t: float) -> Pose:
     normalised image units, ``x_edge`` being the image position of the torso's
     outline at chest height (the person's right side, image left), with a
     frequency-modulated phase ``theta``; its vertical position is a second
-    sinusoid between shoulder and hip height and its depth is 0.22-0.32 m in
-    front of the torso (closest when furthest across the body). The arm follows
+    sinusoid between shoulder and hip height and its depth is ``hand_front``
+    to ``hand_front + 0.10`` m (0.22-0.32 by default) in front of the torso
+    (closest when furthest across the body). The arm follows
     by two-link inverse kinematics; the left arm hangs and swings slightly.
     """
     two_pi = 2.0 * math.pi
@@ -357,7 +361,7 @@ def pose_at(m: Motion, t: float) -> Pose:
         + m.palm_mod_depth * math.sin(two_pi * t / m.palm_mod_period + m.palm_mod_phase)
     )
     s = math.sin(theta)
-    pz = tz - 0.22 - 0.10 * (s + 1.0) / 2.0
+    pz = tz - m.hand_front - 0.10 * (s + 1.0) / 2.0
     x_edge = (tx - CHEST_HALF_WIDTH) / tz
     px = x_edge + m.palm_amp_x * (s - m.palm_offset) + 0.02 * math.sin(2.0 * theta)
     py = m.palm_y_mid + m.palm_amp_y * math.sin(two_pi * t / m.palm_y_period + m.palm_y_phase)
@@ -572,12 +576,20 @@ def palm_overlap(intr: Intrinsics, pose: Pose) -> float:
     return float((mask & body_region(intr, pose, rows, cols)).sum()) / area
 
 
-def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Part]:
+def skin_rgb(tone: float) -> tuple[float, float, float]:
+    """Skin colour of ``tone`` in [0, 1]: :data:`SKIN_RGB` (0) blended linearly into :data:`DARK_SKIN_RGB` (1)."""
+    return tuple(float(a + tone * (b - a)) for a, b in zip(SKIN_RGB, DARK_SKIN_RGB))  # type: ignore[return-value]
+
+
+def person_parts(
+    intr: Intrinsics, pose: Pose, sleeve_fraction: float, skin: tuple[float, float, float] = SKIN_RGB
+) -> list[Part]:
     """Every body part of ``pose``, rasterised (parts outside the image omitted).
 
     The right sleeve is pushed up: the forearm is bare skin from the wrist to
     ``sleeve_fraction`` of its length toward the elbow. The right forearm
     (sleeve and skin) and palm are the ``moving`` parts, last in the list.
+    Skin (face, neck, hands, bare forearm) has colour ``skin``.
     """
     x, z = pose.torso[0], pose.torso[2]
     parts = []
@@ -588,13 +600,11 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
         ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
     parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
+    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, skin, LABEL_SKIN))
     parts.append(
         _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
     )
-    parts.append(
-        _ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2, 0.07, SKIN_RGB, LABEL_SKIN)
-    )
+    parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2, 0.07, skin, LABEL_SKIN))
     parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
     parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
     parts.append(
@@ -605,7 +615,7 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
             0.06,
             _hand_angle(intr, pose.left_wrist, pose.left_hand),
             PALM_THICKNESS,
-            SKIN_RGB,
+            skin,
             LABEL_SKIN,
         )
     )
@@ -613,9 +623,7 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
     sleeve_edge = pose.right_wrist + sleeve_fraction * (pose.right_elbow - pose.right_wrist)
     arm = [
         _capsule_part(intr, pose.right_elbow, sleeve_edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-        _capsule_part(
-            intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False
-        ),
+        _capsule_part(intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, skin, LABEL_SKIN, round_start=False),
         _ellipse_part(
             intr,
             pose.right_hand,
@@ -623,7 +631,7 @@ def person_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[P
             PALM_HALF_LENGTH,
             _hand_angle(intr, pose.right_wrist, pose.right_hand),
             PALM_THICKNESS,
-            SKIN_RGB,
+            skin,
             LABEL_PALM,
             on_top=True,
         ),

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.encoding import EncodingOptions
-from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, SynthSource
+from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, VARIATIONS, SynthSource
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.text import printable
@@ -79,6 +79,44 @@ class SynthOptions:
         metavar="H",
         help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
         "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)",
+    )
+
+    depth_noise: float = option(
+        _SCENE["depth_noise"],
+        kind="float",
+        lo=VARIATIONS["depth_noise"][1],
+        hi=VARIATIONS["depth_noise"][2],
+        help="factor on the depth sensor's disparity noise",
+    )
+    hand_front: float = option(
+        _SCENE["hand_front"],
+        kind="float",
+        lo=VARIATIONS["hand_front"][1],
+        hi=VARIATIONS["hand_front"][2],
+        unit="m",
+        help="the palm's smallest distance in front of the torso (it sweeps 0.1 m farther)",
+    )
+    lighting: float = option(
+        _SCENE["lighting"],
+        kind="float",
+        lo=VARIATIONS["lighting"][1],
+        hi=VARIATIONS["lighting"][2],
+        help="factor on the illumination drift, gradient and flicker",
+    )
+    skin_tone: float = option(
+        _SCENE["skin_tone"],
+        kind="float",
+        lo=VARIATIONS["skin_tone"][1],
+        hi=VARIATIONS["skin_tone"][2],
+        help="skin colour from light (0) to dark (1)",
+    )
+    skeleton_bias: float = option(
+        _SCENE["skeleton_bias"],
+        kind="float",
+        lo=VARIATIONS["skeleton_bias"][1],
+        hi=VARIATIONS["skeleton_bias"][2],
+        help="factor on the skeleton hand's failure (bias toward the torso and jitter) while the palm "
+        "is over the body; 0: a skeleton that never fails",
     )
 
     def __post_init__(self) -> None:

@@ -16,7 +16,7 @@ import pytest
 from drivers import open_source
 from drivers import synth_scene as sc
 from drivers.mcap_replay import McapReplay
-from drivers.synth import DEPTH_NOISE_C, SPECKLE_FRACTION, SynthSource
+from drivers.synth import DEPTH_NOISE_C, SPECKLE_FRACTION, VARIATIONS, SynthSource
 from fusion_pf.cli import main
 from fusion_pf.errors import InputError
 
@@ -446,3 +446,47 @@ def test_shipped_sample_matches_its_readme_command():
             assert np.array_equal(a.depth, b.depth) and a.ground_truth == b.ground_truth
             assert dict(a.joints) == dict(b.joints)
             assert np.abs(a.color.astype(int) - b.color).mean() < 3  # jpeg
+
+
+def test_scene_variations_change_what_they_name():
+    """Each variation of drivers.synth.VARIATIONS moves its own property; defaults are the plain scene."""
+    size, idx = (320, 200), 40
+
+    def scene(**kw):
+        return SynthSource(frames=60, seed=1, size=size, **kw)
+
+    plain = scene()
+    assert scene(**{k: v[0] for k, v in VARIATIONS.items()}).render(idx)[0].color.tobytes() == (
+        plain.render(idx)[0].color.tobytes()
+    )
+    assert "depth_noise" not in plain.metadata() and scene(lighting=2.0).metadata()["lighting"] == "2.0"
+    # hand_front: the palm's distance in front of the torso (it sweeps 0.1 m farther, the same for both)
+    gap = {h: scene(hand_front=h).pose(idx) for h in (0.05, 0.4)}
+    gap = {h: p.torso[2] - p.right_hand[2] for h, p in gap.items()}
+    assert 0.05 <= gap[0.05] <= 0.15 and gap[0.4] - gap[0.05] == pytest.approx(0.35)
+    # skin_tone: the palm gets darker
+    frame, masks = plain.render(idx)
+    dark, dmasks = scene(skin_tone=1.0).render(idx)
+    assert dark.color[dmasks["palm"]].mean() < frame.color[masks["palm"]].mean() - 60
+
+    # depth_noise: the empty scene's depth varies more between two frames
+    def wall_std(noise):
+        empty = SynthSource(frames=2, seed=1, size=size, background_frames=2, depth_noise=noise)
+        a, b = (empty.render(i)[0].depth.astype(float) for i in (0, 1))
+        ok = (a > 0) & (b > 0)
+        return float(np.std(a[ok] - b[ok]))
+
+    assert wall_std(5.0) > 3 * wall_std(1.0)
+    # lighting: 0 removes the drift and flicker
+    assert np.allclose(scene(lighting=0.0).illumination(idx), 1.0)
+    # skeleton_bias: 0 is a skeleton that never fails, even while the palm is over the body
+    occluded = max(range(60), key=plain.palm_overlap)
+    g = plain.ground_truth(occluded)
+    joints = {b: scene(skeleton_bias=b).joints(occluded)["right_hand"] for b in (0.0, 1.0)}
+    errs = {b: np.hypot(j.u - g.u, j.v - g.v) for b, j in joints.items()}
+    assert errs[0.0] < 4.0 and errs[1.0] > 10.0  # 1 px noise at 320 px width; bias 12-28 px
+
+
+def test_scene_variation_out_of_range_is_one_line():
+    with pytest.raises(InputError, match=r"synth option hand_front must be a number in \[0.03, 0.6\], got 2"):
+        SynthSource(hand_front=2)

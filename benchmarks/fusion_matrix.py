@@ -1,0 +1,186 @@
+"""Fusion over a matrix of synthetic scenes: is the fused estimate at least as good as its best cue on each?
+
+Usage (from the repository root)::
+
+    python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...] [-- TRACK OPTIONS]
+
+Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
+variations: depth noise, the palm's distance in front of the body, lighting, skin tone, skeleton
+failure; ``drivers/synth.py``, "Scene variations"), tracked with default ``fusion-pf track`` (plus
+any TRACK OPTIONS after ``--``) and scored with ``fusion-pf score --ground-truth --json``. The
+scenes are chosen so that, in turn, each cue is the best by a wide margin, or all are close.
+
+Printed per scene: the RMSE (px) of each cue alone (its own coverage in brackets when below
+100 %), of the fused estimate, ``ratio`` = fused / best cue, the fused estimate's BestMax share
+(paper 003 §4.4: frames where it is the closest of all sources), its coverage, and ``2sd`` = the
+share of tracked frames whose error is below twice the reported ``sigma_px``. Then, separately for
+the ``tune`` scenes (used while changing the fusion) and the ``held`` ones (never looked at while
+tuning: other seeds and other combinations): the mean and worst ratio, the scenes where fused
+is not above the best cue, and the mean BestMax share.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+CUES = ("colour", "depth", "skeleton")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One synthetic scene of the matrix."""
+
+    name: str
+    split: str  # "tune" or "held"
+    seed: int
+    size: str
+    options: dict[str, float] = field(default_factory=dict)
+
+
+#: The matrix. ``tune``: seeds 1-2, looked at while changing the fusion; ``held``: seeds 5-8 and
+#: other combinations, only run to report.
+SCENES = (
+    Scene("default-640", "tune", 1, "640x400"),
+    Scene("skeleton-best", "tune", 2, "640x400", {"skeleton_bias": 0.0, "depth_noise": 8.0, "hand_front": 0.05}),
+    Scene("colour-best", "tune", 1, "640x400", {"skeleton_bias": 2.5, "depth_noise": 8.0, "hand_front": 0.04}),
+    Scene("dark-skin-320", "tune", 2, "320x200", {"skin_tone": 1.0}),
+    Scene("all-close-960", "tune", 1, "960x540", {"depth_noise": 5.0, "skeleton_bias": 0.3, "hand_front": 0.1}),
+    Scene("big-1280", "tune", 2, "1280x720"),
+    Scene("lighting-320", "tune", 1, "320x200", {"lighting": 4.0}),
+    Scene("default-320", "held", 5, "320x200"),
+    Scene("skeleton-best-1280", "held", 6, "1280x720", {"skeleton_bias": 0.0, "depth_noise": 6.0, "hand_front": 0.06}),
+    Scene("near-body-640", "held", 7, "640x400", {"hand_front": 0.05, "skin_tone": 0.5}),
+    Scene("lighting-bias-960", "held", 8, "960x540", {"lighting": 3.0, "skeleton_bias": 2.0}),
+    Scene("far-hand-noisy-640", "held", 5, "640x400", {"depth_noise": 3.0, "hand_front": 0.4}),
+    Scene("colour-best-320", "held", 6, "320x200", {"skeleton_bias": 3.0, "depth_noise": 10.0, "hand_front": 0.04}),
+)
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fusion_pf", *args]
+
+
+def _run(cmd: list[str]) -> str:
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited {done.returncode}: {done.stderr.strip()[-500:]}")
+    return done.stdout
+
+
+def coverage_2sd(table: Path, scene: Scene, frames: int) -> float:
+    """Share of tracked rows whose error is below ``2 sigma_px`` (ground truth from the synthetic source itself)."""
+    from drivers.synth import SynthSource
+
+    w, h = (int(x) for x in scene.size.split("x"))
+    src = SynthSource(frames=frames, seed=scene.seed, size=(w, h), background_frames=10, **scene.options)
+    hits = []
+    with open(table, newline="") as f:
+        for row in csv.DictReader(f):
+            if not row["u"] or not row["sigma_px"]:
+                continue
+            g = src.ground_truth(int(row["frame"]))
+            if g is None:
+                continue
+            err = float(np.hypot(float(row["u"]) - g.u, float(row["v"]) - g.v))
+            hits.append(err <= 2.0 * float(row["sigma_px"]))
+    return float(np.mean(hits)) if hits else float("nan")
+
+
+def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str]) -> dict:
+    """Render, track and score ``scene``; its row of the table."""
+    rec, tracked, table = out / f"{scene.name}.mcap", out / f"{scene.name}.tracked.mcap", out / f"{scene.name}.csv"
+    variations = [a for k, v in scene.options.items() for a in (f"--{k.replace('_', '-')}", repr(v))]
+    synth = ["synth", str(rec), "--frames", str(frames), "--seed", str(scene.seed), "--size", scene.size]
+    _run(_cli(*synth, "--background-frames", "10", "--force", "--no-progress", *variations))
+    track = ["track", str(rec), "-o", str(tracked), "--csv", str(table), "--force", "--no-progress", *track_args]
+    _run(_cli(*track))
+    score = json.loads(_run(_cli("score", str(table), "--ground-truth", str(rec), "--json", "--no-progress")))
+    src = score["sources"]
+    fused_name = next(k for k in src if k not in CUES)
+    cues = {c: (src[c]["rmse_px"], src[c]["coverage"]) for c in CUES if c in src}
+    best = min(cues, key=lambda c: cues[c][0])
+    fused = src[fused_name]
+    return {
+        "scene": scene,
+        "cues": cues,
+        "best": best,
+        "fused": fused["rmse_px"],
+        "ratio": fused["rmse_px"] / cues[best][0],
+        "bestmax": fused["bestmax"] / score["bestmax"]["n_frames"],
+        "coverage": fused["coverage"],
+        "cover2sd": coverage_2sd(table, scene, frames),
+    }
+
+
+def print_table(rows: list[dict]) -> None:
+    print(
+        f"{'scene':<20} {'split':<5} {'size':>9} "
+        + " ".join(f"{c:>13}" for c in CUES)
+        + f" {'fused':>7} {'ratio':>6} {'BestMax':>7} {'cover':>6} {'2sd':>6}"
+    )
+    for r in rows:
+        s = r["scene"]
+        cells = []
+        for c in CUES:
+            rmse, cov = r["cues"].get(c, (float("nan"), 0.0))
+            mark = "*" if c == r["best"] else " "
+            cells.append(f"{rmse:7.2f}{mark}" + (f"({cov:3.0%})" if cov < 0.995 else "     "))
+        print(
+            f"{s.name:<20} {s.split:<5} {s.size:>9} "
+            + " ".join(f"{c:>13}" for c in cells)
+            + f" {r['fused']:7.2f} {r['ratio']:6.2f} {r['bestmax']:7.0%} {r['coverage']:6.0%} {r['cover2sd']:6.1%}"
+        )
+    for split in ("tune", "held"):
+        part = [r for r in rows if r["scene"].split == split]
+        if not part:
+            continue
+        ratios = np.array([r["ratio"] for r in part])
+        losing = [r["scene"].name for r in part if r["ratio"] > 1.0]
+        print(
+            f"{split}: {len(part)} scenes, ratio mean {ratios.mean():.2f} worst {ratios.max():.2f}; "
+            f"fused above the best cue on {', '.join(losing) or 'none'}; "
+            f"BestMax mean {np.mean([r['bestmax'] for r in part]):.0%}; "
+            f"2sd coverage mean {np.nanmean([r['cover2sd'] for r in part]):.1%}"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    track_args: list[str] = []
+    if "--" in argv:
+        cut = argv.index("--")
+        argv, track_args = argv[:cut], argv[cut + 1 :]
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=Path("fusion_matrix_runs"), help="work directory")
+    p.add_argument("--jobs", type=int, default=2, help="scenes run at the same time")
+    p.add_argument("--frames", type=int, default=160, help="frames per scene (10 of them empty-scene)")
+    p.add_argument("--only", default=None, help="comma-separated scene names or splits (tune, held)")
+    args = p.parse_args(argv)
+    scenes = SCENES
+    if args.only:
+        wanted = set(args.only.split(","))
+        scenes = tuple(s for s in SCENES if s.name in wanted or s.split in wanted)
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; track options: {track_args or 'defaults'}")
+    try:
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            rows = list(pool.map(lambda s: run_scene(s, args.out, args.frames, track_args), scenes))
+    except RuntimeError as exc:
+        print(f"fusion_matrix: error: {exc}", file=sys.stderr)
+        return 2
+    print_table(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
