@@ -137,15 +137,15 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
-def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) -> int:
-    """``--targets``: the multi-target tracker over SOURCE, its CSV rows and ``/tracker/estimate`` messages."""
+def _track_targets(src, config, args: argparse.Namespace, recorder, table, background, bar) -> int:
+    """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages."""
     import csv
     import sys
 
     from drivers import mcap_format as fmt
     from fusion_pf.errors import PARTIAL_EXIT_CODE
+    from fusion_pf.pipeline import track
     from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row, targets_json
-    from fusion_pf.pipeline.targets import track_targets
     from fusion_pf.signals import sigint_deferred
 
     writer = None if table is None else csv.writer(table, lineterminator="\n")
@@ -153,7 +153,7 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) 
         writer.writerow(targets_csv_columns(config.targets))
     counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
     tracked = n_background = 0
-    for result in track_targets(src, config):
+    for result in track(src, config, background=background):
         with sigint_deferred():
             assert result.source_frame is not None
             if args.copy_input:
@@ -165,8 +165,9 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) 
                 if writer is not None:
                     writer.writerow(targets_csv_row(result))
                     table.flush()
-                for t, (_u, _v, state) in result.targets.items():
-                    counts[t][state] = counts[t].get(state, 0) + 1
+                for t, r in result.targets.items():
+                    counts[t][r.state] = counts[t].get(r.state, 0) + 1
+        result.source_frame = None
         n_background += result.background
         tracked += not result.background
         bar.update(1)
@@ -233,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         if config.targets is not None:
-            return _track_targets(src, config, args, recorder, targets_csv, bar)
+            return _track_targets(src, config, args, recorder, targets_csv, background, bar)
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()
         for result in track(src, config, background=background, stats=track_stats):

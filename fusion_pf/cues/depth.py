@@ -78,6 +78,7 @@ from .regions import (
     keep_marked,
     measure,
     open_thin,
+    region_detections,
     remove_small,
 )
 from .roi import Roi, full_roi
@@ -189,7 +190,9 @@ class DepthCue:
         background = None if ctx.background is None else ctx.background.depth
         if frame.depth is None:
             return CueResult(None)
-        return self(frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search)
+        return self(
+            frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search, candidates=ctx.candidates
+        )
 
     def __call__(
         self,
@@ -199,6 +202,7 @@ class DepthCue:
         roi: Roi | None = None,
         stages: bool = False,
         keep_border: bool = False,
+        candidates: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -211,6 +215,9 @@ class DepthCue:
         keep_border : bool
             Keep regions touching the window border (a whole-frame search, where
             the arm enters from the image border).
+        candidates : bool
+            Also return every region as a candidate (``CueResult.candidates``,
+            several targets: the association picks).
         stages : bool
             Also return the stage images I_d1 ... I_d10.
 
@@ -269,6 +276,18 @@ class DepthCue:
             min_area=self.min_area,
             extras={"roi": roi.as_list(), "moved": moved},
         )
+        found = (
+            region_detections(
+                d10,
+                roi.offset,
+                self.source,
+                palm_area=roi.palm_area,
+                min_area=self.min_area,
+                extras={"roi": roi.as_list(), "moved": moved},
+            )
+            if candidates
+            else ()
+        )
         if stages:
             out = {
                 "I_d1": d1.copy(),
@@ -283,4 +302,4 @@ class DepthCue:
                 "I_d9": d9,
                 "I_d10": d10,
             }
-        return CueResult(m, out, time.perf_counter_ns() - t0)
+        return CueResult(m, out, time.perf_counter_ns() - t0, found)
