@@ -182,26 +182,15 @@ class ColourCue:
         c7 = fill_holes(c6)  # I_C7 = holes filled
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
-        m = measure(
-            c9,
-            roi.offset,
-            self.source,
-            palm_area=roi.palm_area,
-            min_area=self.min_area,
-            extras={"roi": roi.as_list()},
-        )
-        found = (
-            region_detections(
-                c9,
-                roi.offset,
-                self.source,
-                palm_area=roi.palm_area,
-                min_area=self.min_area,
-                extras={"roi": roi.as_list()},
+        extras = {"roi": roi.as_list()}
+        if candidates:  # every region; the largest first, as measure() takes it
+            found = region_detections(
+                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
             )
-            if candidates
-            else ()
-        )
+            m = found[0].measurement if found else None
+        else:
+            found = ()
+            m = measure(c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
         if stages:
             out = {
                 "I_C1": c1.copy(),

@@ -268,26 +268,15 @@ class DepthCue:
         moved = bool(d6.any())
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
-        m = measure(
-            d10,
-            roi.offset,
-            self.source,
-            palm_area=roi.palm_area,
-            min_area=self.min_area,
-            extras={"roi": roi.as_list(), "moved": moved},
-        )
-        found = (
-            region_detections(
-                d10,
-                roi.offset,
-                self.source,
-                palm_area=roi.palm_area,
-                min_area=self.min_area,
-                extras={"roi": roi.as_list(), "moved": moved},
+        extras = {"roi": roi.as_list(), "moved": moved}
+        if candidates:  # every region; the largest first, as measure() takes it
+            found = region_detections(
+                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
             )
-            if candidates
-            else ()
-        )
+            m = found[0].measurement if found else None
+        else:
+            found = ()
+            m = measure(d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
         if stages:
             out = {
                 "I_d1": d1.copy(),

@@ -377,6 +377,32 @@ def targets_of(config: TrackConfig) -> tuple[str, ...]:
     return config.targets if config.targets is not None else (config.joint,)
 
 
+def window_groups(targets: Sequence[str], rois: Mapping[str, Roi | None]) -> list[tuple[str, Roi | None]]:
+    """The windows the region cues process: overlapping target windows merged into one.
+
+    A target's window joins a group when the bounding box of the group and the
+    window is no larger than their areas together (two hands side by side,
+    joined hands, two whole-frame searches), so no pixel is processed twice
+    for little extra area. Returns ``(first target, window)`` per group: the
+    first target's cue instance (and its per-stream state) processes the group.
+    """
+    groups: list[tuple[str, Roi | None, float]] = []
+    for t in targets:
+        roi = rois[t]
+        area = 0.0 if roi is None else float(max(roi.x1 - roi.x0, 0) * max(roi.y1 - roi.y0, 0))
+        for k, (first, g, g_area) in enumerate(groups):
+            if roi is None or g is None or roi.empty or g.empty:
+                continue
+            x0, y0 = min(g.x0, roi.x0), min(g.y0, roi.y0)
+            x1, y1 = max(g.x1, roi.x1), max(g.y1, roi.y1)
+            if (x1 - x0) * (y1 - y0) <= g_area + area:
+                groups[k] = (first, Roi(x0, y0, x1, y1, g.palm_area), g_area + area)
+                break
+        else:
+            groups.append((t, roi, area))
+    return [(t, roi) for t, roi, _ in groups]
+
+
 class _CueStage:
     """Per-stream cue extraction: the configured cues, their state and the ROI prior of every target.
 
@@ -463,12 +489,19 @@ class _CueStage:
                 rois[t] = self.roi(frame, p)
         hands = max(1, sum(t in HANDS for t in targets)) if several else 1
         detections: list[Detection] = []
+        groups = window_groups(targets, rois)
         for name in self.names:
             t0 = time.perf_counter_ns()
-            for t in targets if name != "hand" else targets[:1]:
-                cue = self.cues[t][name]
+            needs = self.cues[targets[0]][name].needs
+            if name == "hand":
+                calls = [(targets[0], rois[targets[0]])]
+            elif "skeleton" in needs:
+                calls = [(t, rois[t]) for t in targets]
+            else:
+                calls = groups
+            for t, roi in calls:
                 ctx = CueContext(
-                    roi=rois[t],
+                    roi=roi,
                     background=model,
                     joint=t,
                     prior=priors[t],
@@ -476,8 +509,8 @@ class _CueStage:
                     hands=hands,
                     candidates=several,
                 )
-                found = cue.measure(frame, ctx).detections
-                if "skeleton" in cue.needs:  # the joint of target t: a certain label
+                found = self.cues[t][name].measure(frame, ctx).detections
+                if "skeleton" in needs:  # the joint of target t: a certain label
                     found = tuple(Detection(d.measurement, label=t) for d in found)
                 detections.extend(found)
             lat[name] = time.perf_counter_ns() - t0
