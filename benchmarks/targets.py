@@ -12,7 +12,7 @@ per-frame time (cues + filter, decode excluded) of one target
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/targets.py [--seeds 0,1,2] [--frames 330] [--size 640x400]
+    PYTHONPATH=. python benchmarks/targets.py [--seeds 0,1,2] [--frames 330] [--size 640x400] [--filters pf,kf,sspf]
 
 Seed 0 is the one the pipeline was developed on; report the others as held out.
 """
@@ -38,12 +38,13 @@ def _frames(seed: int, frames: int, size: tuple[int, int]) -> list:
         return list(src)
 
 
-def accuracy(frames: list, targets: tuple[str, ...] = HANDS) -> dict:
-    """Per target RMSE, joined RMSE, coverage; swaps between the hands; per-frame cost (ms)."""
+def accuracy(frames: list, targets: tuple[str, ...] = HANDS, filt: str = "pf") -> dict:
+    """Per target RMSE, joined RMSE, coverage; swaps between the hands; per-frame cost (ms), with filter ``filt``."""
     est = {t: [] for t in targets}
     truth = {t: [] for t in HANDS}
     cost = []
-    for r in track(frames, TrackConfig(targets=targets if len(targets) > 1 else None, joint=targets[0])):
+    config = TrackConfig(targets=targets if len(targets) > 1 else None, joint=targets[0], filter=filt)
+    for r in track(frames, config):
         if r.background:
             continue
         per = r.targets or {targets[0]: r}
@@ -81,21 +82,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", default="0,1,2", help="comma-separated scene seeds (default 0,1,2)")
     p.add_argument("--frames", type=int, default=330, help="frames per scene, 30 background frames included")
     p.add_argument("--size", default="640x400", help="image size WxH")
+    p.add_argument("--filters", default="pf", help="comma-separated per-target filters among pf, kf, sspf (default pf)")
     args = p.parse_args(argv)
     size = tuple(int(x) for x in args.size.split("x"))
     seeds = [int(s) for s in args.seeds.split(",")]
-    print("| seed | hand | RMSE (px) | joined RMSE (px) | coverage | swaps |")
-    print("|---:|---|---:|---:|---:|---:|")
+    print("| seed | filter | hand | RMSE (px) | joined RMSE (px) | coverage | swaps |")
+    print("|---:|---|---|---:|---:|---:|---:|")
     first = None
     for seed in seeds:
         frames = _frames(seed, args.frames, size)
         first = first or frames
-        res = accuracy(frames)
-        for t, r in res["targets"].items():
-            print(
-                f"| {seed} | {t} | {r['rmse_px']:.2f} | {r['joined_rmse_px']:.2f} | "
-                f"{100 * r['coverage']:.1f} % | {res['swaps']} |"
-            )
+        for filt in args.filters.split(","):
+            res = accuracy(frames, HANDS, filt)
+            for t, r in res["targets"].items():
+                print(
+                    f"| {seed} | {filt} | {t} | {r['rmse_px']:.2f} | {r['joined_rmse_px']:.2f} | "
+                    f"{100 * r['coverage']:.1f} % | {res['swaps']} |"
+                )
     assert first is not None
     one = accuracy(first, ("right_hand",))["cost_ms"]
     two = accuracy(first, HANDS)["cost_ms"]
