@@ -142,15 +142,16 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, backg
     import csv
     import sys
 
-    from drivers import mcap_format as fmt
+    from drivers.tracker_topics import TrackerTopics
     from fusion_pf.errors import PARTIAL_EXIT_CODE
     from fusion_pf.pipeline import track
-    from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row, targets_json
+    from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row
     from fusion_pf.signals import sigint_deferred
 
     writer = None if table is None else csv.writer(table, lineterminator="\n")
     if writer is not None:
         writer.writerow(targets_csv_columns(config.targets))
+    topics = TrackerTopics(recorder, config)
     counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
     tracked = n_background = 0
     for result in track(src, config, background=background):
@@ -158,10 +159,8 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, backg
             assert result.source_frame is not None
             if args.copy_input:
                 recorder.write(result.source_frame)
+            topics.write(result)
             if not result.background:
-                recorder.write_json(
-                    fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, targets_json(result, config), result.timestamp_ns
-                )
                 if writer is not None:
                     writer.writerow(targets_csv_row(result))
                     table.flush()

@@ -29,6 +29,7 @@ __all__ = [
     "estimate_json",
     "targets_csv_columns",
     "targets_csv_row",
+    "targets_cues_json",
     "targets_json",
 ]
 
@@ -214,4 +215,16 @@ def targets_json(result: TrackResult, config: TrackConfig) -> dict:
         },
         "filter": config.filter,
         "likelihood_evaluations": sum(r.evaluations for r in result.targets.values()),
+    }
+
+
+def targets_cues_json(result: TrackResult) -> dict:
+    """The ``/tracker/cues`` message of a multi-target frame: per target its :func:`cues_json` fields."""
+    return {
+        "frame": result.frame,
+        "timestamp_ns": result.timestamp_ns,
+        "targets": {
+            t: {k: v for k, v in cues_json(r).items() if k not in ("frame", "timestamp_ns")}
+            for t, r in result.targets.items()
+        },
     }

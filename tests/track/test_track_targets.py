@@ -76,6 +76,15 @@ def test_every_target_is_tracked_scored_and_keeps_its_identity(scene, tmp_path, 
     assert from_mcap["swaps"] == 0
     for t in TARGETS.split(","):
         assert from_mcap["targets"][t]["rmse_px"] == pytest.approx(rep["targets"][t]["rmse_px"], abs=2e-3)
+    from drivers.mcap_replay import McapTopics
+    from drivers.tracker_topics import read_json_topic
+
+    cues = read_json_topic(out, "/tracker/cues")
+    assert len(cues) == 120 and all(set(m["targets"]) == set(TARGETS.split(",")) for _, m in cues)
+    with McapTopics(out) as rec:
+        overlays = rec.messages("/tracker/overlay")
+        particles = rec.messages("/tracker/particles")
+    assert len(overlays) == 120 and len(particles) == (0 if filt == "kf" else 120)
     if filt == "pf":
         assert main(["render", str(out), "--sheet", str(tmp_path / "s.png"), "--every", "40"]) == 0  # a ring per target
         assert main(["score", str(table), "--ground-truth", str(scene), "--plots", str(tmp_path / "p")]) == 0
