@@ -7,7 +7,8 @@ from the input recording), the tracker topics ``/tracker/estimate``, ``/tracker/
 
 ``/tracker/cues`` is read as a mapping ``source -> {"u", "v", "quality"} or null`` for
 whatever sources it holds (besides ``frame``, ``timestamp_ns`` and the optional ``roi``
-``[x0, y0, x1, y1]``); an estimate with a ``state`` field has the state written under it.
+``[x0, y0, x1, y1]``); an estimate with a ``state`` field has the state written under it, one
+with ``sigma_px`` a thin circle of radius ``2 sigma_px`` (its uncertainty) and the value in the header.
 
 Drawing is done on the image scaled by an integer factor (so small images stay legible),
 with OpenCV; the particles are drawn in one vectorised assignment.
@@ -271,6 +272,10 @@ def draw(frame: Frame, out: TrackerFrame | None, sources: list[str], scale: int)
             cv2.circle(img, c, 9, (0, 0, 0), 4, cv2.LINE_AA)
             cv2.circle(img, c, 9, ESTIMATE_COLOUR, 2, cv2.LINE_AA)
             cv2.drawMarker(img, c, ESTIMATE_COLOUR, cv2.MARKER_CROSS, 6, 1)
+            sigma = _number(e.get("sigma_px"))
+            if sigma is not None:  # the 2-sigma circle of the estimate's uncertainty
+                cv2.circle(img, c, max(1, int(round(2.0 * sigma * scale))), ESTIMATE_COLOUR, 1, cv2.LINE_AA)
+                header += f"  2 sigma {2.0 * sigma:.1f} px"
         else:
             header += "  no estimate"
         state = e.get("state")

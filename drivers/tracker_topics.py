@@ -212,8 +212,8 @@ def overlay(result: TrackResult):
         )
     e = result.estimate
     if e is not None:
-        # diameter of the 2-sigma circle of the posterior position, at least 10 px
-        sigma = largest_std(e.cov)
+        # diameter of the 2-sigma circle of the estimate's uncertainty, at least 10 px
+        sigma = largest_std(e.cov) if result.sigma_px is None else result.sigma_px
         msg.circles.append(
             CircleAnnotation(
                 timestamp=ts,

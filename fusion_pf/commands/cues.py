@@ -25,7 +25,7 @@ DESCRIPTION = (
 #: The config classes whose flags the command registers (of TrackConfig only WINDOW_OPTIONS).
 CONFIGS = (TrackConfig, CueOptions)
 #: TrackConfig fields that place the window and build the background (shared with ``track``).
-WINDOW_OPTIONS = ("joint", "roi_half_size", "roi_extent_mm", "depth_radius", "background", "background_k")
+WINDOW_OPTIONS = ("joint", "roi_half_size", "roi_palms", "depth_radius", "background", "background_k")
 
 
 def _pair(text: str):

@@ -271,7 +271,8 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
-        f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses",
+        f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses; "
+        + track_stats.cue_summary(tracked),
         file=sys.stderr,
     )
     stats = getattr(src, "stats", None)

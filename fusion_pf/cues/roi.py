@@ -2,11 +2,13 @@
 
 The paper processes 141 x 141 windows around the hand. Here the window is
 centred on a prior (the skeleton hand joint or the filter's prediction) and,
-when the depth of the prior is known, sized so it always covers the same
-physical extent: ``half = extent_mm * fx / z`` pixels. Without depth a fixed
-half-size is used (70 px = the paper's 141 x 141). The window is clipped to the
-frame; a prior outside the frame or not finite gives an empty window, on which
-every cue returns None.
+when the palm's apparent length ``l`` is known (measured by the hand cue, or
+``fx * 95 mm / z`` at the prior's depth), sized in palm lengths: ``half =
+palms * l`` pixels, at most half the image's shorter side (a hand close to the
+camera does not get the whole frame). Without either a fixed half-size is used
+(70 px = the paper's 141 x 141). The window is clipped to the frame; a prior
+outside the frame or not finite gives an empty window, on which every cue
+returns None.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from .regions import DEFAULT_PALM_AREA, check_float, check_int
 
 #: Half-size in pixels of the paper's 141 x 141 window.
 PAPER_HALF_SIZE = 70
+#: Palm length (wrist to middle-finger base) of an adult hand, mm: turns depth into an apparent palm size.
+PALM_LENGTH_MM = 95.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,15 +80,21 @@ def full_roi(width: int, height: int, *, palm_area: float = DEFAULT_PALM_AREA) -
     return Roi(0, 0, int(width), int(height), palm_area)
 
 
+def _positive(x: float | None) -> float | None:
+    """``x`` as a float when it is a finite number > 0, else None."""
+    return None if x is None or not (math.isfinite(float(x)) and float(x) > 0) else float(x)
+
+
 def make_roi(
     u: float,
     v: float,
     size: tuple[int, int],
     *,
+    palm_px: float | None = None,
     depth_mm: float | None = None,
     fx: float | None = None,
     half_size: int | None = None,
-    extent_mm: float = 250.0,
+    palms: float = 2.6,
     palm_radius_mm: float = 55.0,
     min_half: int = 8,
     pixel_scale: float = 1.0,
@@ -97,25 +107,30 @@ def make_roi(
         Prior palm position, full-frame pixels.
     size : (int, int)
         Frame ``(width, height)``.
+    palm_px : float, optional
+        Apparent palm length (wrist to middle-finger base) in pixels, e.g.
+        measured by the hand cue; else derived from ``depth_mm`` and ``fx``:
+        ``fx * PALM_LENGTH_MM / depth_mm``.
     depth_mm, fx : float, optional
-        Depth of the prior and focal length (px); when both are given and
-        ``half_size`` is None, ``half = extent_mm * fx / depth_mm`` so the window
-        spans ``2 * extent_mm`` at the hand, and the expected palm area is
-        ``pi * (palm_radius_mm * fx / depth_mm) ** 2``.
+        Depth of the prior and focal length (px), for the palm length when
+        ``palm_px`` is not given.
     half_size : int, optional
-        Fixed half-size in pixels (window ``2 * half + 1``); overrides depth.
-    extent_mm : float
-        Physical half-size of the window (10-2000 mm). The default 250 mm
-        (~100 px at 1.25 m with fx = 499) keeps the palm inside the window
-        while the synthetic skeleton's occlusion bias (24-56 px) lasts.
+        Fixed half-size in pixels (window ``2 * half + 1``); overrides the palm.
+    palms : float
+        Half-size in palm lengths when the palm length is known (0.5-20):
+        ``half = palms * palm_px``, at most half the image's shorter side. The
+        default 2.6 (247 mm at the hand, ~100 px at 1.25 m with fx = 499) keeps
+        the palm inside the window while the synthetic skeleton's occlusion
+        bias (24-56 px) lasts.
     palm_radius_mm : float
         Radius of the disc with the area of a palm seen face-on (5-200 mm;
-        55 mm ~ a 100 x 120 mm palm ellipse), for the expected palm area.
+        55 mm ~ a 100 x 120 mm palm ellipse), for the expected palm area
+        ``pi * (palm_radius_mm / PALM_LENGTH_MM * palm_px) ** 2``.
     min_half : int
         Smallest half-size in pixels (1-1000).
     pixel_scale : float
-        Without depth: the fixed half-size and the expected palm area scale
-        with it (``PAPER_HALF_SIZE * s``, ``DEFAULT_PALM_AREA * s^2``): the
+        Without a palm length: the fixed half-size and the expected palm area
+        scale with it (``PAPER_HALF_SIZE * s``, ``DEFAULT_PALM_AREA * s^2``): the
         pipeline passes the image diagonal over that of 320 x 200, so a hand
         filling the same fraction of the frame gets the same window.
 
@@ -127,7 +142,7 @@ def make_roi(
     """
     w = check_int("frame width", size[0], 1, 1 << 20)
     h = check_int("frame height", size[1], 1, 1 << 20)
-    extent_mm = check_float("extent_mm", extent_mm, 10.0, 2000.0)
+    palms = check_float("palms", palms, 0.5, 20.0)
     palm_radius_mm = check_float("palm_radius_mm", palm_radius_mm, 5.0, 200.0)
     min_half = check_int("min_half", min_half, 1, 1000)
     if half_size is not None:
@@ -138,16 +153,16 @@ def make_roi(
         raise InputError(f"ROI prior must be numbers, got ({u!r}, {v!r})") from None
     pixel_scale = check_float("pixel_scale", pixel_scale, 0.01, 100.0)
     palm_area = DEFAULT_PALM_AREA * pixel_scale**2
-    scale = None
-    if depth_mm is not None and fx is not None:
-        z, f = float(depth_mm), float(fx)
-        if math.isfinite(z) and math.isfinite(f) and z > 0 and f > 0:
-            scale = f / z  # pixels per millimetre at the prior's depth
-            palm_area = math.pi * (palm_radius_mm * scale) ** 2  # expected palm disc in px
+    length = _positive(palm_px)
+    z, f = _positive(depth_mm), _positive(fx)
+    if length is None and z is not None and f is not None:
+        length = f * PALM_LENGTH_MM / z  # l_px = fx L_mm / z
+    if length is not None:
+        palm_area = math.pi * (palm_radius_mm / PALM_LENGTH_MM * length) ** 2  # expected palm disc in px
     if half_size is not None:
         half = half_size
-    elif scale is not None:
-        half = max(min_half, int(round(extent_mm * scale)))  # fixed physical size: k * fx / z
+    elif length is not None:
+        half = max(min_half, min(int(round(palms * length)), min(w, h) // 2))  # palm lengths, inside the image
     else:
         half = max(min_half, int(round(PAPER_HALF_SIZE * pixel_scale)))
     if not (math.isfinite(uf) and math.isfinite(vf)) or not (-0.5 <= uf < w - 0.5 and -0.5 <= vf < h - 0.5):

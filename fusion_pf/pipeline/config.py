@@ -254,17 +254,18 @@ class TrackConfig:
         hi=2000,
         optional=True,
         unit="px",
-        show=lambda v: "from depth",
+        show=lambda v: "from the palm",
         help="fixed ROI half-size",
     )
-    roi_extent_mm: float = option(
-        250.0,
+    roi_palms: float = option(
+        2.6,
         kind="float",
-        lo=10.0,
-        hi=2000.0,
-        unit="mm",
-        help="ROI half-size at the hand when sized from depth (keeps a palm 24-56 px "
-        "off a biased skeleton joint inside the window)",
+        lo=0.5,
+        hi=20.0,
+        unit="palm lengths",
+        help="ROI half-size in apparent palm lengths (the hand cue's wrist-to-middle-finger-base length, "
+        "else fx x 95 mm over the depth at the prior), at most half the image's shorter side; 2.6 keeps "
+        "a palm 24-56 px off a biased skeleton joint inside the window",
     )
     background: Path | None = option(
         None,
@@ -339,7 +340,8 @@ class TrackConfig:
         lo=1,
         hi=100_000,
         metavar="K",
-        help="the track is lost after K frames in which no fused cue measured anything",
+        help="the track is lost after K frames in which no fused cue supported the estimate (none "
+        "within 3 sigma of its fused noise plus the posterior spread: the cues fell silent or disagree)",
     )
     max_spread: float = option(
         0.2,

@@ -45,6 +45,8 @@ def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
         "x_mm",
         "y_mm",
         "z_mm",
+        "sigma_px",
+        "sigma_mm",
         "ess",
         "resampled",
         "n_particles",
@@ -130,6 +132,7 @@ def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str
         cells += [_f(None if m is None else m.u, 3), _f(None if m is None else m.v, 3)]
     xyz = result.xyz_mm
     cells += [_f(float(c), 1) for c in xyz] if xyz is not None else [_f(None, 1)] * 3
+    cells += [_f(result.sigma_px, 3), _f(result.sigma_mm, 1)]
     cells += [
         _f(None if e is None else e.ess, 3),
         "" if e is None else str(int(e.resampled)),
@@ -158,6 +161,8 @@ def estimate_json(result: TrackResult, config: TrackConfig) -> dict:
         "u": None if e is None else e.u,
         "v": None if e is None else e.v,
         "xyz_mm": None if result.xyz_mm is None else [float(c) for c in result.xyz_mm],
+        "sigma_px": result.sigma_px,
+        "sigma_mm": result.sigma_mm,
         "ess": None if e is None else _finite_or_none(e.ess),
         "resampled": None if e is None else e.resampled,
         "n_particles": 0 if e is None else e.n_particles,

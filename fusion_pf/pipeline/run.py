@@ -30,9 +30,18 @@ ROI prior (``TrackConfig.roi_prior``)
     With ``"filter"`` or ``"auto"``, :func:`extract_cues` runs the configured
     filter (seeded with ``config.seed``) to place the windows, exactly as
     :func:`track` does; particle-count sweeps therefore re-run :func:`track`
-    itself for every job. The window is sized
-    from the depth at the prior (``roi_extent_mm`` either side at the hand,
-    see :func:`fusion_pf.cues.make_roi`) or fixed by ``roi_half_size``.
+    itself for every job. The prediction is clamped to the image (a palm
+    leaving the frame is looked for at its border). The window is sized from the
+    palm's apparent length (``roi_palms`` of it either side, at most half the
+    image's shorter side, see :func:`fusion_pf.cues.make_roi`): the filter's
+    smoothed palm length (hand landmarks, else depth at the best cue) once it
+    has one and places the windows (not with ``"skeleton"``), else the depth at
+    the prior; or fixed by ``roi_half_size``.
+
+Cue faults
+    A cue that raises while measuring a frame gives no measurement for that
+    frame; the run goes on. :class:`TrackStats` counts per cue the frames
+    without a measurement and those it failed on (with the first message).
 
 Background model (colour and depth cues)
     1. the ``background`` argument: a model the caller built, e.g. the command
@@ -50,6 +59,16 @@ Background model (colour and depth cues)
     Background frames of the source are never tracked: they give a
     :class:`TrackResult` with ``background=True``, no cues and no estimate (the
     filter is not stepped), and the outputs skip them.
+
+Uncertainty
+    ``sigma_px`` of a tracking frame is ``sqrt(lambda_max + mean_i max(0, r_i^2 - s_i^2))``:
+    the posterior position variance along its widest axis plus the fused
+    cues' disagreement that their noise does not explain (``r_i`` the
+    distance of cue ``i`` from the estimate, ``s_i`` its fused noise per
+    axis); the error is below ``2 sigma_px`` in ~95 % of frames (measured on
+    synthetic scenes, docs/architecture.md). ``sigma_mm`` is its lateral
+    counterpart at the palm's depth, ``sigma_px * z / fx`` (depth error not
+    included).
 
 3-D palm
     ``xyz_mm`` is the estimate back-projected with the median of the non-zero
@@ -77,7 +96,7 @@ from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.base import SOURCES, Cue, CueContext
 from ..cues.regions import DEFAULT_PALM_AREA
 from ..cues.registry import CUES, build_cues
-from ..cues.roi import Roi, full_roi, make_roi
+from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.calibration import NoiseCalibration
@@ -119,8 +138,6 @@ PATCH_MARGIN = 32
 REFERENCE_SIZE = (320, 200)
 #: Track states of the single target (paper 004 §5.2), as written to the outputs.
 STATES = (TrackState.UNINITIALISED.value, TrackState.TRACKING.value, TrackState.LOST.value)
-#: Palm length (wrist to middle-finger base) of an adult hand, mm: turns depth into an apparent palm size.
-PALM_LENGTH_MM = 95.0
 #: Apparent palm length in the reference scene, px: the synthetic person's palm at its median
 #: distance in ``recordings/sample.mcap`` (1269 mm, fx 249.6 px at 320 x 200).
 REFERENCE_PALM_PX = PALM_LENGTH_MM * 249.6 / 1269.0
@@ -130,12 +147,17 @@ PALM_RATE = 0.2
 RESCALE_TOLERANCE = 0.02
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
+#: States in which a target holds a track (an estimate): alone or joined (paper 004's ``combined``), or just separated.
+HOLDING = (TrackState.TRACKING, TrackState.COMBINED, TrackState.UNLABELLED)
 #: Detections of one source closer than this (px at the reference size) are one (two windows saw the same region).
 MERGE_PX = 1.0
 #: Two targets' estimates closer than this (px at the reference size) are ``combined`` (paper 004) ...
 COMBINE_PX = 20.0
 #: ... and combined ones farther apart than this separate.
 SEPARATE_PX = 35.0
+#: A cue supports the estimate within this many of its noise plus the posterior spread
+#: (a 2-D Gaussian lies farther in 1.1 % of frames).
+SUPPORT_SIGMAS = 3.0
 #: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
 #: the hand cue's presence score is 0.9-1.0 on a visible hand.
 JUMP_MIN_QUALITY = 0.8
@@ -250,6 +272,10 @@ class TrackResult:
     targets : dict of str to TrackResult
         With several targets (``config.targets``): every target's result, this
         one's first; empty for one target.
+    sigma_px : float or None
+        Uncertainty of the estimate, px (module docstring, "Uncertainty"); None without an estimate.
+    sigma_mm : float or None
+        Its lateral counterpart at the palm's depth, mm; None without ``xyz_mm``.
     """
 
     frame: int
@@ -268,6 +294,8 @@ class TrackResult:
     evaluations: int = 0
     target: str = "right_hand"
     targets: dict[str, "TrackResult"] = field(default_factory=dict)
+    sigma_px: float | None = None
+    sigma_mm: float | None = None
 
 
 # ---------------------------------------------------------------------- background
@@ -355,19 +383,28 @@ def _check_size(model: BackgroundModel, index: int, frame: Frame) -> None:
 # ---------------------------------------------------------------------- cues
 
 
-def cue_window(frame: Frame, prior: tuple[float, float] | None, config: TrackConfig) -> Roi | None:
-    """The cue window around ``prior`` in ``frame``: sized from the depth there, or fixed (None without a prior)."""
+def cue_window(
+    frame: Frame, prior: tuple[float, float] | None, config: TrackConfig, palm_px: float | None = None
+) -> Roi | None:
+    """The cue window around ``prior`` in ``frame`` (None without a prior).
+
+    Sized from the palm's apparent length ``palm_px`` when given, else from
+    the depth at the prior, else fixed (:func:`~fusion_pf.cues.make_roi`).
+    """
     if prior is None:
         return None
-    z = depth_at(frame.depth, *prior, radius=config.depth_radius) if frame.depth is not None else None
+    z = None
+    if palm_px is None and frame.depth is not None:
+        z = depth_at(frame.depth, *prior, radius=config.depth_radius)
     return make_roi(
         prior[0],
         prior[1],
         frame.size,
+        palm_px=palm_px,
         depth_mm=z,
         fx=frame.intrinsics.fx,
         half_size=config.roi_half_size,
-        extent_mm=config.roi_extent_mm,
+        palms=config.roi_palms,
         pixel_scale=pixel_scale(frame.size, config),
     )
 
@@ -421,6 +458,9 @@ class _CueStage:
         self.names: tuple[str, ...] = config.cues or ()
         self.cues: dict[str, dict[str, Cue]] | None = None if config.cues is None else self._build()
         self.last_joint: dict[str, tuple[float, float]] = {}
+        self.missing: dict[str, int] = {}
+        self.failed: dict[str, int] = {}
+        self.first_error: dict[str, str] = {}
         self.noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1,)))
 
     def _build(self) -> dict[str, dict[str, Cue]]:
@@ -442,9 +482,22 @@ class _CueStage:
             return joint.u, joint.v
         return prediction
 
-    def roi(self, frame: Frame, prior: tuple[float, float] | None) -> Roi | None:
+    def roi(self, frame: Frame, prior: tuple[float, float] | None, palm_px: float | None) -> Roi | None:
         """Window around ``prior`` (:func:`cue_window`)."""
-        return cue_window(frame, prior, self.config)
+        return cue_window(frame, prior, self.config, palm_px)
+
+    def detect(self, name: str, cue: Cue, index: int, frame: Frame, ctx: CueContext) -> tuple[Detection, ...]:
+        """``cue``'s detections in ``frame``; none (the failure counted) when it fails on this frame."""
+        try:
+            found = cue.measure(frame, ctx).detections
+            for d in found:
+                if not (math.isfinite(d.u) and math.isfinite(d.v)):
+                    raise ValueError(f"non-finite position ({d.u}, {d.v})")
+        except Exception as exc:  # one frame's fault never ends the run: no measurement, counted
+            found = ()
+            self.failed[name] = self.failed.get(name, 0) + 1
+            self.first_error.setdefault(name, f"frame {index}: {exc}".splitlines()[0])
+        return found
 
     def add_noise(self, cues: dict[str, Measurement | None]) -> dict[str, Measurement | None]:
         """``cues`` with ``config.cue_noise_px`` Gaussian noise added (paper 003 §4.2-4.3)."""
@@ -459,10 +512,17 @@ class _CueStage:
         return out
 
     def __call__(
-        self, index: int, frame: Frame, decode_ns: int, model: BackgroundModel | None, prior: tuple[float, float] | None
+        self,
+        index: int,
+        frame: Frame,
+        decode_ns: int,
+        model: BackgroundModel | None,
+        prior: tuple[float, float] | None,
+        palm_px: float | None = None,
     ) -> CueRow:
-        """All cues of one frame for the first target: in the window around ``prior``, or over the whole frame without one."""
-        return self.rows(index, frame, decode_ns, model, {self.targets[0]: prior})[self.targets[0]]
+        """All cues of one frame for the first target: in the window around ``prior`` (sized by ``palm_px``, :func:`cue_window`), or over the whole frame without one (acquisition)."""
+        t = self.targets[0]
+        return self.rows(index, frame, decode_ns, model, {t: prior}, {t: palm_px})[t]
 
     def rows(
         self,
@@ -471,9 +531,10 @@ class _CueStage:
         decode_ns: int,
         model: BackgroundModel | None,
         priors: Mapping[str, tuple[float, float] | None],
+        palms: Mapping[str, float | None] | None = None,
         partners: Mapping[str, str] | None = None,
     ) -> dict[str, CueRow]:
-        """Every target's cue row of one frame: detections in the targets' windows, associated to the targets."""
+        """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets."""
         if self.cues is None:
             self.names = cue_names(self.config, frame)
             self.cues = self._build()
@@ -486,7 +547,7 @@ class _CueStage:
                 s = pixel_scale(frame.size, self.config)
                 rois[t] = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
             else:
-                rois[t] = self.roi(frame, p)
+                rois[t] = self.roi(frame, p, (palms or {}).get(t))
         hands = max(1, sum(t in HANDS for t in targets)) if several else 1
         detections: list[Detection] = []
         groups = window_groups(targets, rois)
@@ -509,7 +570,7 @@ class _CueStage:
                     hands=hands,
                     candidates=several,
                 )
-                found = self.cues[t][name].measure(frame, ctx).detections
+                found = self.detect(name, self.cues[t][name], index, frame, ctx)
                 if "skeleton" in needs:  # the joint of target t: a certain label
                     found = tuple(Detection(d.measurement, label=t) for d in found)
                 detections.extend(found)
@@ -527,6 +588,9 @@ class _CueStage:
             cues: dict[str, Measurement | None] = dict.fromkeys(self.names)
             for d in assigned[t]:
                 cues[d.source] = d.measurement
+            if t == targets[0]:
+                for name in self.names:
+                    self.missing[name] = self.missing.get(name, 0) + (cues[name] is None)
             if self.config.cue_noise_px:
                 cues = self.add_noise(cues)
             out[t] = self._row(index, frame, cues, dict(lat), rois[t], t if several else None)
@@ -635,12 +699,15 @@ class _FilterStage:
     Initialisation and re-acquisition start the filter at the most trusted
     measurement (smallest quality-widened noise; ``config.init`` in the first
     tracked frame when given). Supervision (:func:`fusion_pf.filter.states.step_state`):
-    the track is lost when the estimate leaves the image, when no fused cue
-    measured anything for ``config.silent_frames`` frames, or when the posterior
-    position std stays above ``config.max_spread`` of the image diagonal for
-    :data:`DEGRADED_FRAMES` frames; the filter is then reset, the frame has no
-    estimate, and the next frames search the whole image until a cue finds the
-    palm again (a re-acquisition).
+    a cue *supports* the estimate when it lies within :data:`SUPPORT_SIGMAS` of
+    its fused noise plus the posterior spread of it; the track is lost when the
+    estimate leaves the image, when no fused cue supported it for
+    ``config.silent_frames`` frames (the cues fell silent or disagree with it),
+    or when the posterior position std stays above ``config.max_spread`` of the
+    image diagonal for :data:`DEGRADED_FRAMES` frames; the filter is then reset,
+    and the next frames search the whole image until a cue finds the palm again
+    (a re-acquisition). Only ``tracking`` frames have an estimate: an
+    ``uninitialised`` filter that is not yet supported is reset like a lost one.
     """
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
@@ -656,6 +723,7 @@ class _FilterStage:
         self.losses = 0
         self.jumps = 0
         self._spread: float | None = None
+        self._size: tuple[int, int] | None = None
         self._var: dict[str, float] = {}
         self._palm_k: float | None = None
         self._applied_k: float | None = None
@@ -664,6 +732,7 @@ class _FilterStage:
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
+        self._size = size
         self._init_spread = 20.0 * pixel_scale(size, self.config)
         self._var = {s: v * v for s, v in self.tracker.noise_px.items()}
         self._scale = pixel_scale(size, self.config)
@@ -680,11 +749,11 @@ class _FilterStage:
 
     @property
     def tracking(self) -> bool:
-        """Whether the track holds (a prediction exists to place the window): tracking, combined or unlabelled."""
-        return self.status.state in (TrackState.TRACKING, TrackState.COMBINED, TrackState.UNLABELLED)
+        """Whether the track holds (:data:`HOLDING`: an estimate, and a prediction to place the window)."""
+        return self.status.state in HOLDING
 
     def prediction(self, timestamp_ns: int) -> tuple[float, float] | None:
-        """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns`` (None when lost)."""
+        """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns``, clamped to the image (None when lost)."""
         if self.init is not None:
             return self.init
         if not self._history or not self.tracking:
@@ -694,7 +763,14 @@ class _FilterStage:
             return u1, v1
         t0, u0, v0 = self._history[-2]
         k = (timestamp_ns - t1) / (t1 - t0)
-        return u1 + k * (u1 - u0), v1 + k * (v1 - v0)
+        u, v = u1 + k * (u1 - u0), v1 + k * (v1 - v0)
+        assert self._size is not None  # set by _start with the first estimate
+        return min(max(u, 0.0), self._size[0] - 1.0), min(max(v, 0.0), self._size[1] - 1.0)
+
+    @property
+    def palm_px(self) -> float | None:
+        """The palm's smoothed apparent length, px (None until a frame measured it)."""
+        return None if self._palm_k is None else self._palm_k * REFERENCE_PALM_PX
 
     def _prior(self, m: Measurement) -> float:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
@@ -749,24 +825,33 @@ class _FilterStage:
         # l_px = fx L_mm / z
         return None if z is None else row.intrinsics.fx * PALM_LENGTH_MM / z
 
-    def _rescale(self, row: CueRow, ms: Sequence[Measurement], trust: Mapping[str, float]) -> None:
-        """Scale the noises with the palm's apparent size (``config.palm_scale``).
+    def _observe_palm(self, row: CueRow, ms: Sequence[Measurement], trust: Mapping[str, float]) -> bool:
+        """Update the smoothed palm scale with this frame's palm length; whether there was one.
 
-        The defaults are px in the reference scene, where the palm is
-        :data:`REFERENCE_PALM_PX` long; a palm ``k`` times longer gets ``k``
-        times the measurement, process and manoeuvre noise (a cue's error and a
-        hand's motion in pixels both grow with its image size). The scale is an
-        exponential average (rate :data:`PALM_RATE`) of ``palm_px / REFERENCE_PALM_PX``
-        and keeps its value in frames without a palm size; the filter's noises
-        are reset when it moved by more than :data:`RESCALE_TOLERANCE`.
+        The scale is an exponential average (rate :data:`PALM_RATE`) of
+        ``palm_px / REFERENCE_PALM_PX`` and keeps its value in frames without a
+        palm size.
         """
         palm = self._palm_px(row, ms, trust)
         if palm is None or not palm > 0.0:
-            return
+            return False
         k = palm / REFERENCE_PALM_PX
         # k_bar <- k the first time, then (1 - a) k_bar + a k
         self._palm_k = k if self._palm_k is None else (1.0 - PALM_RATE) * self._palm_k + PALM_RATE * k
+        return True
+
+    def _rescale(self) -> None:
+        """Scale the noises with the palm's apparent size (``config.palm_scale``).
+
+        The defaults are px in the reference scene, where the palm is
+        :data:`REFERENCE_PALM_PX` long; a palm ``k`` times longer (the smoothed
+        scale of :meth:`_observe_palm`) gets ``k`` times the measurement,
+        process and manoeuvre noise (a cue's error and a hand's motion in
+        pixels both grow with its image size); the filter's noises are reset
+        when ``k`` moved by more than :data:`RESCALE_TOLERANCE`.
+        """
         k = self._palm_k
+        assert k is not None  # _observe_palm saw a palm
         if self._applied_k is not None and abs(k - self._applied_k) <= RESCALE_TOLERANCE * self._applied_k:
             return
         self._applied_k = self._scale = k
@@ -779,6 +864,21 @@ class _FilterStage:
         tracker.set_process_noise((self.config.process_noise[0] * k, self.config.process_noise[1] * k))
         if isinstance(tracker, ParticleFilter):
             tracker.manoeuvre = (self.config.manoeuvre[0], self.config.manoeuvre[1] * k)
+
+    def _support(self, ms: Sequence[Measurement], estimate: Estimate | None) -> int:
+        """How many of ``ms`` lie within :data:`SUPPORT_SIGMAS` of their fused noise plus the posterior spread of ``estimate``."""
+        if estimate is None:
+            return 0
+        spread2 = (self._spread or 0.0) ** 2
+        return sum(
+            (m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 <= SUPPORT_SIGMAS**2 * (self._var[m.source] + spread2)
+            for m in ms
+        )
+
+    def _uncertainty(self, ms: Sequence[Measurement], estimate: Estimate, spread: float) -> float:
+        """``sigma_px`` (module docstring): posterior spread plus the cues' unexplained disagreement, px."""
+        excess = [max(0.0, (m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 - self._var[m.source]) for m in ms]
+        return math.sqrt((spread if math.isfinite(spread) else 0.0) ** 2 + (sum(excess) / len(excess) if ms else 0.0))
 
     @staticmethod
     def _restart(tracker: Tracker, m: Measurement) -> None:
@@ -801,8 +901,8 @@ class _FilterStage:
         assert tracker is not None and states is not None  # created by _start
         ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
         trust = {m.source: self._trust(m) for m in ms}
-        if self.config.palm_scale and self.config.scale_noise:
-            self._rescale(row, ms, trust)
+        if self._observe_palm(row, ms, trust) and self.config.palm_scale and self.config.scale_noise:
+            self._rescale()
         if self._calibration is not None and ms:
             self._calibrate(ms, trust)
         best = min(ms, key=lambda m: trust[m.source]) if ms else None
@@ -824,18 +924,21 @@ class _FilterStage:
         self._spread = None if cov is None else spread
         position = None if estimate is None else (estimate.u, estimate.v)
         before = self.status.state
-        self.status = step_state(self.status, Evidence(position, spread_px=spread, cues=len(ms)), states)
-        if self.status.state == TrackState.LOST and estimate is not None:
-            self.losses += before == TrackState.TRACKING
+        evidence = Evidence(position, spread_px=spread, cues=self._support(ms, estimate))
+        self.status = step_state(self.status, evidence, states)
+        if not self.tracking and estimate is not None:
+            self.losses += before in HOLDING
             tracker.reset()
             self._history = []
             estimate = None
         elif self.tracking and before == TrackState.LOST:
             self.reacquisitions += 1
-        particles = weights = xyz = None
+        particles = weights = xyz = sigma = sigma_mm = None
         if estimate is not None:
             self._history = [*self._history[-1:], (row.timestamp_ns, estimate.u, estimate.v)]
             xyz = _xyz(row, estimate.u, estimate.v, self.config.depth_radius)
+            sigma = self._uncertainty(ms, estimate, spread)
+            sigma_mm = None if xyz is None else sigma * float(xyz[2]) / row.intrinsics.fx
             if isinstance(tracker, ParticleFilter):
                 particles = tracker.particles[:, :2].copy()
                 weights = np.exp(tracker.log_weights)
@@ -858,6 +961,8 @@ class _FilterStage:
             ground_truth=row.ground_truth,
             state=self.status.state.value,
             evaluations=self._evaluations(tracker, ms),
+            sigma_px=sigma,
+            sigma_mm=sigma_mm,
         )
 
 
@@ -998,10 +1103,29 @@ class TrackStats:
         Times the track was lost (supervision, see ``_FilterStage``).
     reacquisitions : int
         Times a lost track was found again by the whole-frame search.
+    missing : dict of str to int
+        Per computed cue, tracked frames in which it gave no measurement.
+    failed : dict of str to int
+        Per cue, the frames among those in which it raised (its fault, not the run's).
+    first_error : dict of str to str
+        Per failed cue, the first failure: ``"frame K: message"``.
     """
 
     losses: int = 0
     reacquisitions: int = 0
+    missing: dict[str, int] = field(default_factory=dict)
+    failed: dict[str, int] = field(default_factory=dict)
+    first_error: dict[str, str] = field(default_factory=dict)
+
+    def cue_summary(self, tracked: int) -> str:
+        """One line: per cue the frames it measured of ``tracked``, and its failures (first message)."""
+        parts = []
+        for name, missing in self.missing.items():
+            part = f"{name} {tracked - missing}/{tracked}"
+            if self.failed.get(name):
+                part += f" (failed on {self.failed[name]}, first {self.first_error[name]})"
+            parts.append(part)
+        return "cues measured in: " + ", ".join(parts)
 
 
 def track(
@@ -1042,17 +1166,18 @@ def track(
             result = _background_result(_background_row(index, frame, dec, cues.names))
             result.target = cues.targets[0]
         else:
-            priors = {
-                t: cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
-                for t, f in targets.stages.items()
-            }
-            result = targets(cues.rows(index, frame, dec, model, priors, targets.partners()), frame.size)
+            priors, palms = {}, {}
+            for t, f in targets.stages.items():
+                priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
+                palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
+            result = targets(cues.rows(index, frame, dec, model, priors, palms, targets.partners()), frame.size)
             result.latency_ns["total"] = time.perf_counter_ns() - t0
             for r in result.targets.values():
                 r.latency_ns["total"] = result.latency_ns["total"]
             if stats is not None:
                 stats.losses = sum(f.losses for f in targets.stages.values())
                 stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
+                stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
         result.source_frame = frame
         yield result
 
@@ -1087,7 +1212,8 @@ def extract_cues(
             rows.append(_background_row(index, frame, dec, cues.names))
             continue
         prediction = None if filt is None else filt.prediction(frame.timestamp_ns)
-        row = cues(index, frame, dec, model, cues.prior(frame, mode, prediction))
+        palm = None if filt is None else filt.palm_px
+        row = cues(index, frame, dec, model, cues.prior(frame, mode, prediction), palm)
         if filt is not None:
             filt(row)
         rows.append(row)

@@ -12,12 +12,24 @@ def test_default_window_is_the_papers_141():
     assert r.shape == (141, 141) and r.offset == (320 - PAPER_HALF_SIZE, 200 - PAPER_HALF_SIZE)
 
 
-def test_depth_scaled_window_covers_fixed_physical_size():
-    near = make_roi(320, 200, (640, 400), depth_mm=1000, fx=500, extent_mm=100)
-    far = make_roi(320, 200, (640, 400), depth_mm=2000, fx=500, extent_mm=100)
-    assert near.shape == (101, 101) and far.shape == (51, 51)
-    assert near.palm_area == pytest.approx(math.pi * (55 * 0.5) ** 2)
+def test_window_is_sized_in_palm_lengths_from_depth():
+    near = make_roi(320, 200, (640, 400), depth_mm=950, fx=500, palms=2.0)  # palm 50 px long
+    far = make_roi(320, 200, (640, 400), depth_mm=1900, fx=500, palms=2.0)  # 25 px
+    assert near.shape == (201, 201) and far.shape == (101, 101)
+    assert near.palm_area == pytest.approx(math.pi * (55 * 500 / 950) ** 2)
     assert far.palm_area == pytest.approx(near.palm_area / 4)
+
+
+def test_a_measured_palm_length_wins_over_depth():
+    r = make_roi(320, 200, (640, 400), palm_px=30.0, depth_mm=950, fx=500, palms=2.0)
+    assert r.shape == (121, 121)
+
+
+def test_a_close_palm_gets_at_most_half_the_shorter_side():
+    """A palm 190 px long (350 mm, fx 700) in 960 x 540: 2.6 palms would be the whole frame."""
+    r = make_roi(480, 270, (960, 540), depth_mm=350, fx=700)
+    assert r.shape == (540, 541)  # half 270, clipped at the bottom edge
+    assert make_roi(480, 270, (960, 540), palm_px=40.0).shape == (209, 209)
 
 
 def test_window_is_clipped_at_the_frame_edge():
@@ -34,7 +46,7 @@ def test_prior_outside_or_not_finite_gives_empty_window(u, v):
 
 @pytest.mark.parametrize(
     "kwargs,needle",
-    [({"half_size": 0}, "half_size"), ({"extent_mm": 1}, "extent_mm"), ({"min_half": -1}, "min_half")],
+    [({"half_size": 0}, "half_size"), ({"palms": 0.1}, "palms"), ({"min_half": -1}, "min_half")],
 )
 def test_bad_options_raise_one_line_input_error(kwargs, needle):
     with pytest.raises(InputError, match=needle) as e:

@@ -139,7 +139,8 @@ def test_outputs_of_a_recording(recording, tmp_path, fusion_pf):
         assert row[:4] == [str(e["frame"]), str(e["timestamp_ns"]), f"{e['u']:.3f}", f"{e['v']:.3f}"]
         for i, s in enumerate(("colour", "depth", "skeleton")):
             assert row[4 + 2 * i] == ("" if c[s] is None else f"{c[s]['u']:.3f}")
-        assert all(cell == "" for cell in row[16:23])  # latency columns need --csv-latency
+        assert row[13] == ("" if e["sigma_px"] is None else f"{e['sigma_px']:.3f}")  # sigma_px
+        assert all(cell == "" for cell in row[18:25])  # latency columns need --csv-latency
 
     files = sorted(ply.glob("frame_*.ply"))
     assert len(files) == 40 and files[0].name == "frame_000010.ply"
