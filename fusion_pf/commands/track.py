@@ -217,7 +217,9 @@ def run(args: argparse.Namespace) -> int:
         if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
             options["metadata"]["source_sha256"] = recording_sha256(args.source)
         table = targets_csv = None
-        if args.csv is not None and config.targets is not None:  # opened first: a failing CSV leaves no MCAP
+        if (
+            args.csv is not None and config.targets is not None and len(config.targets) > 1
+        ):  # opened first: a failing CSV leaves no MCAP
             targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
         elif args.csv is not None:
             table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
@@ -232,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         )
-        if config.targets is not None:
+        if config.targets is not None and len(config.targets) > 1:
             return _track_targets(src, config, args, recorder, targets_csv, background, bar)
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()

@@ -113,3 +113,20 @@ def test_count_swaps_sees_an_exchange_only_where_the_hands_are_apart():
     assert count_swaps(ea, eb, ta, tb, 25.0) == 1
     ea[2], eb[2] = tb[2], ta[2]  # an exchange while joined does not count
     assert count_swaps(ea, eb, ta, tb, 25.0) == 1
+
+
+def test_one_named_target_writes_the_single_palm_outputs(scene, tmp_path, capsys):
+    """``--targets right_hand`` is the single palm: the same CSV, byte for byte, as no ``--targets``."""
+    for name, extra in (("default", []), ("named", ["--targets", "right_hand"])):
+        args = ["track", str(scene), "-o", str(tmp_path / f"{name}.mcap"), "--csv", str(tmp_path / f"{name}.csv")]
+        assert main([*args, "--no-progress", *extra]) == 0
+    assert (tmp_path / "named.csv").read_bytes() == (tmp_path / "default.csv").read_bytes()
+
+
+def test_a_sweep_of_several_targets_is_a_one_line_error(scene, tmp_path, capsys):
+    out = tmp_path / "t.mcap"
+    assert main(["track", str(scene), "-o", str(out), "--targets", "right_hand,left_hand", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["score", str(out), "--ground-truth", str(scene), "--sweep", "10,20"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--sweep scores one target" in err and "right_hand, left_hand" in err
