@@ -1,4 +1,15 @@
-"""The tracking pipeline: frames -> cues -> filter -> :class:`TrackResult` rows.
+"""The tracking pipeline: frames -> cues -> detections -> association -> filter -> :class:`TrackResult` rows.
+
+Targets
+    One pipeline for the single palm (one target, named by ``config.joint``)
+    and for several (``config.targets``, e.g. both hands and the head). Each
+    target has its prior, cue window and filter; the cues' detections (every
+    region of a window, each target's skeleton joint, up to one hand per hand
+    target with its handedness) are assigned to the targets by
+    :func:`fusion_pf.association.associate`; joined targets are ``combined``
+    and share detections, and a separating pair gets its identities back
+    (:class:`_Targets`). With several targets the first target's
+    :class:`TrackResult` carries every target's in ``targets``.
 
 One frame goes through these stages (each timed with ``time.perf_counter_ns``;
 the names are the keys of ``latency_ns``):
@@ -9,7 +20,8 @@ the names are the keys of ``latency_ns``):
 one stage per cue (``config.cues``, built by :mod:`fusion_pf.cues.registry`)
     in the configured order, e.g. ``colour`` and ``depth`` (paper 003 §3.5.1 /
     §3.5.2 on a region of interest (ROI) around a prior) and ``skeleton`` (the
-    joint ``config.joint``);
+    joint ``config.joint``, or each target's); with several targets the sum
+    over the targets' windows;
 ``filter``
     one :meth:`~fusion_pf.filter.base.Tracker.step` over the fused sources,
     then the palm in 3-D (:func:`fusion_pf.geometry.palm_xyz`);
@@ -973,9 +985,9 @@ class _Targets:
     :data:`COMBINE_PX` become ``combined`` (they share detections in the next
     frame's association); a combined pair farther apart than
     :data:`SEPARATE_PX` separates (``unlabelled`` for a frame) and its
-    identities are given back: by the targets' labelled detections of this
-    frame (skeleton joints, handedness) when both have one, else by the side
-    each entered the combination from
+    identities are given back: by the targets' own skeleton joints of this
+    frame when both have one (handedness already decides in the association),
+    else by the side each entered the combination from
     (:func:`~fusion_pf.filter.states.reassign_identities`). A single target is
     the single palm: no supervision between targets, no ``targets`` in its result.
     """
