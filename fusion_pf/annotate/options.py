@@ -30,6 +30,33 @@ class ServeOptions:
     threads: int = option(8, kind="int", lo=1, hi=256, help="worker threads serving requests")
     image_format: str = option("jpeg", choices=COLOR_FORMATS, help="encoding of the colour frames sent to the browser")
     cache: int = option(256, kind="int", lo=1, hi=1_000_000, help="encoded images kept in memory (LRU)")
+    # The connection caps' floor, 32, is twice connections.ACCEPT_BATCH: a new connection is read before
+    # the newer ones from its address can make it the oldest idle one.
+    max_connections: int = option(
+        1000,
+        kind="int",
+        lo=32,
+        hi=100_000,
+        help="open connections kept at most; a new one beyond it closes the oldest idle connection of "
+        "the client address holding the most",
+    )
+    max_connections_per_client: int = option(
+        64,
+        kind="int",
+        lo=32,
+        hi=100_000,
+        help="open connections kept per client address; a new one beyond it closes that address's oldest "
+        "idle connection (every local process shares 127.0.0.1)",
+    )
+    idle_timeout: int = option(
+        30,
+        kind="int",
+        lo=1,
+        hi=3600,
+        unit="s",
+        help="a connection that has not handed in a complete request for this long (since it opened or "
+        "since its last request) is closed; bytes trickled in do not extend it",
+    )
 
     def __post_init__(self) -> None:
         validate(self)

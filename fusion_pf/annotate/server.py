@@ -41,9 +41,17 @@ name an attacker's DNS points at 127.0.0.1) gets 421 and no data. Writes
 
 Connections
 -----------
-waitress accepts up to :data:`CONNECTION_LIMIT` connections and closes one
-idle for :data:`CHANNEL_TIMEOUT_S` seconds, so a crowd of idle connections
-does not lock operators out.
+Any local process can open connections, so none may lock operators out or
+crash the server (:mod:`.connections`): waitress waits with ``poll()``
+(``select()`` dies on a descriptor >= 1024); a client address keeps at most
+``max_connections_per_client`` connections and the server ``max_connections``:
+a new connection beyond either closes the oldest idle one (of that address,
+or of the address holding the most), so a new one is always let in while any
+is idle. A connection must hand in a complete request within ``idle_timeout``
+of opening or of its previous request, however slowly it trickles bytes.
+:func:`serve` raises the soft descriptor limit toward the hard one so the
+connections fit; out of descriptors, the server closes an idle connection or
+pauses accepting, and never stops.
 """
 
 from __future__ import annotations
@@ -69,10 +77,6 @@ from .options import ServeOptions
 #: Largest request body accepted, in bytes (a click is ~100 bytes).
 MAX_BODY_BYTES = 4096
 
-#: Simultaneous connections waitress accepts (its default, 100, let idle sockets lock everyone out).
-CONNECTION_LIMIT = 1000
-#: Seconds after which waitress closes an idle connection.
-CHANNEL_TIMEOUT_S = 30
 #: Config key of the ``(host names, port)`` the Host header may name (set by :func:`serve`).
 HOSTS_KEY = "FUSION_PF_HOSTS"
 
@@ -336,46 +340,26 @@ def create_app(images: FrameImages, db: AnnotationDB, *, recording: str) -> Flas
     return app
 
 
-def serve(
-    app: Flask,
-    host: str = ServeOptions.host,
-    port: int = ServeOptions.port,
-    *,
-    threads: int = ServeOptions.threads,
-    on_ready: Callable[[str], None] | None = None,
-) -> None:
-    """Serve ``app`` with waitress until interrupted.
+def serve(app: Flask, opts: ServeOptions | None = None, *, on_ready: Callable[[str], None] | None = None) -> None:
+    """Serve ``app`` with waitress, guarded against connection floods (:mod:`.connections`), until interrupted.
 
     Parameters
     ----------
     app : Flask
         From :func:`create_app`.
-    host : str
-        Interface to bind; ``127.0.0.1`` (the default) keeps the tool local.
-    port : int
-        TCP port; 0 picks a free one.
-    threads : int
-        Worker threads (concurrent requests).
+    opts : ServeOptions, optional
+        Interface, port, worker threads and connection caps (defaults: ``ServeOptions()``, bound to 127.0.0.1).
     on_ready : callable, optional
         Called with the URL once the socket is bound, before serving.
     """
-    from waitress import create_server
+    from .connections import create_server
 
-    server = create_server(
-        app,
-        host=host,
-        port=port,
-        threads=threads,
-        max_request_body_size=1 << 20,
-        ident="fusion-pf",
-        connection_limit=CONNECTION_LIMIT,
-        channel_timeout=CHANNEL_TIMEOUT_S,
-        cleanup_interval=min(5, CHANNEL_TIMEOUT_S),
-    )
+    opts = opts or ServeOptions()
+    server = create_server(app, opts)
     bound_host = server.effective_host
-    names = {host.lower().strip("[]")}
+    names = {opts.host.lower().strip("[]")}
     try:
-        wildcard = ipaddress.ip_address(host.strip("[]")).is_unspecified
+        wildcard = ipaddress.ip_address(opts.host.strip("[]")).is_unspecified
     except ValueError:
         wildcard = False
     if wildcard:

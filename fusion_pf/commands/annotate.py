@@ -18,7 +18,10 @@ DESCRIPTION = (
     "database (WAL, synchronous=FULL) before they are acknowledged; one row per operator "
     "and frame, a re-click replaces it. The database is tied to the recording's content (SHA-256): "
     "it refuses any other recording. Binds 127.0.0.1 unless --host says otherwise; requests must "
-    "name this server in their Host header (DNS-rebinding protection). On Ctrl-C/SIGTERM the WAL "
+    "name this server in their Host header (DNS-rebinding protection). Connections are capped per "
+    "client address and in all (a new one closes the oldest idle one) and must hand in a complete request "
+    "within --idle-timeout, so a flood of idle or trickling connections neither locks operators out nor "
+    "crashes the server. On Ctrl-C/SIGTERM the WAL "
     "is checkpointed into the database file. "
     "Keys in the page: left/right = previous/next frame, n = next frame you have not done, "
     "x = not visible, d = depth overlay, +/- = zoom."
@@ -87,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                 )
 
             with stop_on_terminate():
-                serve(app, opts.host, opts.port, threads=opts.threads, on_ready=ready)
+                serve(app, opts, on_ready=ready)
         finally:
             db.close()
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -55,7 +56,7 @@ def rec500(tmp_path_factory: pytest.TempPathFactory) -> Path:
 class Server:
     """A ``fusion-pf annotate`` subprocess on a free loopback port."""
 
-    def __init__(self, recording: Path, db: Path, *extra: str) -> None:
+    def __init__(self, recording: Path, db: Path, *extra: str, preexec_fn=None) -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "fusion_pf", "annotate", str(recording), "--db", str(db), "--port", "0", *extra],
             cwd=REPO,
@@ -63,6 +64,7 @@ class Server:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            preexec_fn=preexec_fn,
         )
         self.url = ""
         self._drain: threading.Thread | None = None
@@ -108,13 +110,29 @@ class Server:
                 stream.close()
 
 
+#: Idle connections a flood test holds open.
+FLOOD_IDLE = 2000
+
+
+@pytest.fixture
+def many_descriptors():
+    """Raise this process's soft descriptor limit so it can hold the flood's sockets."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = FLOOD_IDLE + 512
+    if hard != resource.RLIM_INFINITY and hard < want:
+        pytest.skip(f"the hard descriptor limit {hard} cannot hold {FLOOD_IDLE} sockets")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, want), hard))
+    yield
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
 @pytest.fixture
 def server_factory():
-    """``start(recording, db, *extra) -> Server``; every server started is stopped at teardown."""
+    """``start(recording, db, *extra, preexec_fn=None) -> Server``; every server started is stopped at teardown."""
     started: list[Server] = []
 
-    def start(recording: Path, db: Path, *extra: str) -> Server:
-        server = Server(recording, db, *extra)
+    def start(recording: Path, db: Path, *extra: str, preexec_fn=None) -> Server:
+        server = Server(recording, db, *extra, preexec_fn=preexec_fn)
         started.append(server)
         return server
 

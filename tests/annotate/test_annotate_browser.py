@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import socket
 import sqlite3
+import threading
+import time
 
 import pytest
 from playwright.sync_api import expect
 
 from drivers.mcap_replay import McapReplay
+
+from .conftest import FLOOD_IDLE
 
 pytestmark = pytest.mark.browser
 
@@ -148,3 +153,57 @@ def test_two_operators_at_once(browser, server_factory, rec20, tmp_path):
     assert [(r[0], r[1], r[5]) for r in _rows(db)] == [("alice", 4, 1), ("bob", 4, 0)]
     ctx_a.close()
     ctx_b.close()
+
+
+@pytest.mark.slow
+def test_the_page_keeps_working_through_a_connection_flood(browser, many_descriptors, server_factory, rec20, tmp_path):
+    """Default caps: the flood shares 127.0.0.1 with the browser, whose idle keep-alive connections it closes too."""
+    db = tmp_path / "f.sqlite"
+    server = server_factory(rec20, db)
+    page = browser.new_page(viewport={"width": 1100, "height": 650})
+    errors = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    _login(page, server.url + "/", "flooded")
+    _wait_frame(page, 0)
+    stop = threading.Event()
+    held: list[socket.socket] = []
+    attempts = [0]
+
+    def flood() -> None:  # hold FLOOD_IDLE idle connections, then open and close until stopped (bounded)
+        end = time.monotonic() + 60
+        while not stop.is_set() and attempts[0] < 50_000 and time.monotonic() < end:
+            try:
+                conn = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+                if len(held) < FLOOD_IDLE:
+                    held.append(conn)
+                else:
+                    conn.close()
+            except OSError:
+                pass
+            attempts[0] += 1
+
+    flooder = threading.Thread(target=flood)
+    flooder.start()
+    slowest = 0.0
+    try:
+        while attempts[0] < 1000 and flooder.is_alive():  # the flood is under way
+            time.sleep(0.05)
+        for index in range(1, 6):
+            t0 = time.monotonic()
+            page.keyboard.press("ArrowRight")
+            _wait_frame(page, index)
+            _click_palm(page, 96.0, 60.0)
+            expect(page.locator("#progress-label")).to_have_text(f"{index} of 20 done")
+            slowest = max(slowest, time.monotonic() - t0)
+        during = attempts[0]
+        flooding = flooder.is_alive()
+    finally:
+        stop.set()
+        flooder.join(timeout=70)
+        for conn in held:
+            conn.close()
+    print(f"\nflood: frame shown and click acknowledged in <= {slowest:.3f} s, {during} connection attempts meanwhile")
+    assert flooding and during > 1000 and not flooder.is_alive()  # every step ran during the flood
+    assert slowest < 2.0 * 2  # two round trips (frame, click), each within the 2 s an operator may wait
+    assert server.proc.poll() is None and errors == []
+    assert [(r[0], r[1]) for r in _rows(db)] == [("flooded", i) for i in range(1, 6)]
