@@ -45,8 +45,9 @@ def _run(frames, config):
     )
 
 
-def test_joined_hands_combine_separate_and_cross_without_a_swap(washing):
-    est, states, truth = _run(washing, TrackConfig(targets=HANDS))
+@pytest.mark.parametrize("cues", [None, ("skin_rgb", "skeleton")])  # the default colour, depth, skeleton; skin
+def test_joined_hands_combine_separate_and_cross_without_a_swap(washing, cues):
+    est, states, truth = _run(washing, TrackConfig(targets=HANDS, cues=cues))
     gap = np.hypot(*(truth["right_hand"] - truth["left_hand"]).T)
     apart = gap >= JOINED_FRACTION * math.hypot(320, 200)
     for t in HANDS:
