@@ -118,7 +118,8 @@ class SourceStats:
         --------
         ``"skipped 12 frames: chunk at byte 361 is corrupt (chunk CRC mismatch ...) (8 frames); ...
         (4 frames); 3 skeleton messages unreadable (frames kept without skeleton)"``; a count that
-        cannot be known (a truncated tail) makes it ``"skipped 12+ frames"``.
+        cannot be known (a truncated tail) makes it ``"skipped 12 frames and an unknown number more"``
+        (``"skipped an unknown number of frames"`` when it is the only loss).
         """
         parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
         rest = self.losses[_LISTED_LOSSES:]
@@ -131,7 +132,9 @@ class SourceStats:
         if not parts and not self.dropped:
             return ""
         unknown = any(loss.frames is None for loss in self.losses)
-        head = f"skipped {self.dropped}{'+' if unknown else ''} frame{'s' if self.dropped != 1 or unknown else ''}"
+        head = f"skipped {self.dropped} frame{'s' if self.dropped != 1 else ''}"
+        if unknown:
+            head = f"{head} and an unknown number more" if self.dropped else "skipped an unknown number of frames"
         return f"{head}: " + "; ".join(parts) if parts else head
 
     def count(self, frame: Frame) -> Frame:

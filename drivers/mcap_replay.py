@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import struct
 import threading
 import zlib
@@ -78,6 +79,8 @@ _MAX_RECORD = 4 << 30
 _RESYNC_WINDOW = 1 << 20
 _TIME_LIMIT = 1 << 63
 _FOOTER_LEN = 9 + 20
+#: How a scan's reason starts when the summary failed its CRC (its schemas and channels then yield to the data section's).
+_DAMAGED_SUMMARY = "damaged summary"
 _MESSAGE_HEADER = struct.Struct("<HIQQ")
 _RECORD_HEADER = struct.Struct("<BQ")
 
@@ -105,6 +108,12 @@ def _put(parts: dict, kind: str, record: tuple[int, memoryview, int]) -> None:
         parts.setdefault(kind, []).append(record)
     else:
         parts[kind] = record
+
+
+def _file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` that is not a regular file is: ``"a FIFO"``, ``"a character device"``, ..."""
+    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+    return next((name for test, name in kinds if test(mode)), "a socket" if stat.S_ISSOCK(mode) else "not a file")
 
 
 class _Corrupt(Exception):
@@ -331,6 +340,9 @@ class RecordingInfo:
         The merged ``fusion_pf.recording`` metadata record(s).
     notes : tuple of str
         Truncation, corruption and other remarks.
+    trailing_bytes : int
+        Bytes after the end of a complete MCAP file (after its footer and
+        closing magic), ignored; 0 for a file that ends where MCAP ends.
     """
 
     path: str
@@ -357,6 +369,7 @@ class RecordingInfo:
     ground_truth_frames: int
     metadata: dict[str, str] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    trailing_bytes: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-dict form (JSON-serialisable)."""
@@ -368,6 +381,42 @@ class RecordingInfo:
     def to_json(self, indent: int | None = 2) -> str:
         """The info as a JSON document."""
         return json.dumps(self.to_dict(), indent=indent)
+
+
+@dataclass(frozen=True)
+class TopicsInfo:
+    """What :meth:`McapTopics.topics_info` reports: a file described by its topics, e.g. a tracker output.
+
+    Attributes
+    ----------
+    path, size_bytes, library, profile, indexed, truncated, trailing_bytes, topics, metadata, notes
+        As in :class:`RecordingInfo`.
+    frames : int
+        ``/tracker/estimate`` messages at distinct times (the tracked frames).
+    start_ns, end_ns : int or None
+        Time of the first and last of them.
+    """
+
+    path: str
+    size_bytes: int
+    library: str
+    profile: str
+    indexed: bool
+    truncated: bool
+    trailing_bytes: int
+    topics: tuple[TopicInfo, ...]
+    frames: int
+    start_ns: int | None
+    end_ns: int | None
+    metadata: dict[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-dict form (JSON-serialisable)."""
+        out = asdict(self)
+        out["topics"] = [asdict(t) for t in self.topics]
+        out["notes"] = list(self.notes)
+        return out
 
 
 class McapReplay(ReplaySource):
@@ -407,6 +456,7 @@ class McapReplay(ReplaySource):
         self._size = 0
         self._indexed = False
         self._truncated = False
+        self._trailing = 0
         self._library = self._profile = ""
         self._channels: dict[int, _Channel] = {}
         self._kind: dict[int, str] = {}
@@ -460,7 +510,12 @@ class McapReplay(ReplaySource):
         if self.path.is_dir():
             raise RecordingError(f"{self.path} is a directory; expected an .mcap file")
         self.stats = SourceStats()
-        self._fd = os.open(self.path, os.O_RDONLY)
+        fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block the open
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):  # a FIFO or a device has no size to index and may never end
+            os.close(fd)
+            raise RecordingError(f"{self.path} is not a regular file ({_file_kind(mode)}); expected an .mcap file")
+        self._fd = fd
         try:
             self._open()
         except BaseException:
@@ -513,6 +568,9 @@ class McapReplay(ReplaySource):
         size = self._size
         if size < 8 + _FOOTER_LEN + 8 or os.pread(self._fd, 8, size - 8) != MAGIC:  # type: ignore[arg-type]
             return "no footer"
+        damaged = self._summary_crc_problem()
+        if damaged is not None:
+            return f"{_DAMAGED_SUMMARY}: {damaged}"
         from mcap.reader import SeekingReader
 
         try:
@@ -585,6 +643,23 @@ class McapReplay(ReplaySource):
             self._counts = {cid: len(t) for cid, t in self._times.items()}
         self._indexed = True
         return None
+
+    def _summary_crc_problem(self) -> str | None:
+        """Why the summary fails its CRC (the footer's ``summary_crc``), or None when it passes or has none.
+
+        The CRC covers the summary section up to the footer's
+        ``summary_offset_start`` field; zero means the writer did not compute one.
+        """
+        footer = self._size - 8 - _FOOTER_LEN
+        opcode, length, start, _offsets, crc = struct.unpack("<BQQQI", os.pread(self._fd, _FOOTER_LEN, footer))  # type: ignore[arg-type]
+        if opcode != _OP_FOOTER or length != _FOOTER_LEN - 9 or crc == 0 or start == 0:
+            return None
+        if not 8 <= start <= footer:
+            return f"the footer puts the summary at byte {start}, outside the file"
+        got = 0
+        for at in range(start, footer + _FOOTER_LEN - 4, _RESYNC_WINDOW):
+            got = zlib.crc32(os.pread(self._fd, min(_RESYNC_WINDOW, footer + _FOOTER_LEN - 4 - at), at), got)  # type: ignore[arg-type]
+        return None if got == crc else f"summary CRC mismatch (expected {crc:#010x}, got {got:#010x})"
 
     def _add_channel(self, channel: _Channel) -> None:
         self._channels[channel.id] = channel
@@ -661,6 +736,7 @@ class McapReplay(ReplaySource):
         last_color: list[int] = []
         pos, end_seen, in_summary, stop, stop_at = 8, False, False, "", size
         cut_hint: tuple[int, int] | None = None
+        distrust_summary = reason.startswith(_DAMAGED_SUMMARY)  # its statistics still count frames: lost ones show
 
         def channel(cur: _Cursor) -> None:
             cid, sid = cur.uint(2), cur.uint(2)
@@ -712,11 +788,18 @@ class McapReplay(ReplaySource):
             end = pos + 9 + length
             if opcode == _OP_FOOTER:
                 end_seen = True
+                if end + 8 < size and os.pread(self._fd, 8, end) == MAGIC:  # type: ignore[arg-type]
+                    self._trailing = size - end - 8
                 break
             if opcode == _OP_DATA_END:
                 end_seen = in_summary = True
                 pos = end
                 continue
+            if in_summary and distrust_summary and opcode in (_OP_SCHEMA, _OP_CHANNEL) and length >= 2:
+                (known,) = struct.unpack("<H", os.pread(self._fd, 2, pos + 9))  # type: ignore[arg-type]
+                if known in (schemas if opcode == _OP_SCHEMA else pending):  # the data section's own stands
+                    pos = end
+                    continue
             body = memoryview(os.pread(self._fd, length, pos + 9))  # type: ignore[arg-type]
             try:
                 if opcode == _OP_HEADER:
@@ -807,7 +890,7 @@ class McapReplay(ReplaySource):
                 )
         self._times = {cid: np.sort(np.asarray(t, np.int64)) for cid, t in times.items()}
         self._counts = {cid: len(t) for cid, t in times.items()}
-        self._truncated = not end_seen or reason == "no footer"
+        self._truncated = not end_seen or (reason == "no footer" and not self._trailing)
         self._scan_damage = damage
         self._stop = (stop_at, max(last_color) if last_color else None, cut_hint) if not end_seen else None
         for d in damage:
@@ -818,6 +901,12 @@ class McapReplay(ReplaySource):
             where = stop or f"the file ends at byte {size} without a footer"
             self._notes.insert(
                 0, f"file truncated (the writer did not finish it): {where}; replaying every complete message"
+            )
+        elif self._trailing:
+            self._notes.insert(
+                0,
+                f"{self._trailing} bytes follow the end of the MCAP data (its footer and closing magic end at "
+                f"byte {size - self._trailing}): they are not part of the recording and were ignored; scanned it",
             )
         else:
             self._notes.insert(0, f"file has no usable index ({reason}); scanned it")
@@ -1341,13 +1430,11 @@ class McapReplay(ReplaySource):
                 continue
             yield frame
 
-    def info(self) -> RecordingInfo:
-        """Describe the whole recording (topics, counts, timing, calibration, truncation)."""
-        self._require_open()
+    def _topic_infos(self) -> tuple[TopicInfo, ...]:
         by_topic: dict[str, list[_Channel]] = {}
         for ch in self._channels.values():
             by_topic.setdefault(ch.topic, []).append(ch)
-        topics = tuple(
+        return tuple(
             TopicInfo(
                 topic,
                 " | ".join(sorted({c.schema_name for c in chans})),
@@ -1357,6 +1444,11 @@ class McapReplay(ReplaySource):
             )
             for topic, chans in sorted(by_topic.items())
         )
+
+    def info(self) -> RecordingInfo:
+        """Describe the whole recording (topics, counts, timing, calibration, truncation)."""
+        self._require_open()
+        topics = self._topic_infos()
         n = len(self._all)
         start, end = int(self._all[0]), int(self._all[-1])
         duration = end - start
@@ -1407,6 +1499,7 @@ class McapReplay(ReplaySource):
             ground_truth_frames=n - missing("truth"),
             metadata=dict(self._metadata),
             notes=tuple(self._notes + [note for note in self.stats.notes if note not in self._notes]),
+            trailing_bytes=self._trailing,
         )
 
 
@@ -1434,6 +1527,35 @@ class McapTopics(McapReplay):
         """The topics of the file's channels."""
         self._require_open()
         return {c.topic for c in self._channels.values()}
+
+    def topics_info(self) -> TopicsInfo:
+        """Describe the file by its topics (a tracker output: its frames are its ``/tracker/estimate`` messages)."""
+        self._require_open()
+        times = np.unique(
+            np.concatenate(
+                [np.zeros(0, np.int64)]
+                + [
+                    self._times[c.id]
+                    for c in self._channels.values()
+                    if c.topic == fmt.ESTIMATE_TOPIC and c.id in self._times
+                ]
+            )
+        )
+        return TopicsInfo(
+            path=str(self.path),
+            size_bytes=self._size,
+            library=self._library,
+            profile=self._profile,
+            indexed=self._indexed,
+            truncated=self._truncated,
+            trailing_bytes=self._trailing,
+            topics=self._topic_infos(),
+            frames=len(times),
+            start_ns=int(times[0]) if len(times) else None,
+            end_ns=int(times[-1]) if len(times) else None,
+            metadata=dict(self._metadata),
+            notes=tuple(self._notes + [note for note in self.stats.notes if note not in self._notes]),
+        )
 
     def messages(self, topic: str) -> list[tuple[int, str, bytes]]:
         """``(log_time, message encoding, data)`` of every message on ``topic``, in time order."""

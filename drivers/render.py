@@ -29,6 +29,7 @@ from fusion_pf.frame import Frame
 
 from . import mcap_format as fmt
 from .mcap_replay import McapReplay, McapTopics
+from .tracker_topics import find_source
 
 #: Colours (RGB) of the known sources; other sources take :data:`EXTRA_COLOURS` in sorted order.
 SOURCE_COLOURS = {
@@ -163,7 +164,8 @@ def read_tracker_topics(path: Path) -> dict[int, TrackerFrame]:
 
 def image_recording(tracked: Path, input_path: Path | None) -> Path:
     """The recording that holds the colour images: ``input_path``, else ``tracked`` when it
-    has ``/camera/color`` messages, else the recording named by its metadata ``source``.
+    has ``/camera/color`` messages, else the recording named by its metadata ``source``
+    (:func:`~drivers.tracker_topics.find_source`: as stored, else from the output's folder).
 
     Raises
     ------
@@ -177,13 +179,14 @@ def image_recording(tracked: Path, input_path: Path | None) -> Path:
     with McapTopics(tracked) as rec:
         if fmt.COLOR_TOPIC in rec.topics:
             return tracked
-        source = rec.metadata().get("source")
-    if source is None or not Path(source).is_file():
+        metadata = rec.metadata()
+    source = find_source(tracked, metadata)
+    if source is None or not source.is_file():
         raise InputError(
-            f"{tracked} has no {fmt.COLOR_TOPIC} images and its metadata source {source!r} is not a file; "
-            "pass --input REC.mcap (the recording that was tracked)"
+            f"{tracked} has no {fmt.COLOR_TOPIC} images and its metadata source {metadata.get('source')!r} is "
+            "not a file (nor next to it); pass --input REC.mcap (the recording that was tracked)"
         )
-    return Path(source)
+    return source
 
 
 def _colour_of(name: str, order: list[str]) -> tuple[int, int, int]:

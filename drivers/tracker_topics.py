@@ -17,6 +17,7 @@ MCAP read goes through the replay's own reader: frames through
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,8 @@ __all__ = [
     "read_json_topic",
     "read_topic",
     "recording_metadata",
+    "find_source",
+    "source_metadata",
 ]
 
 
@@ -84,6 +87,42 @@ def recording_metadata(path: str | Path) -> dict[str, str]:
     """The ``fusion_pf.recording`` metadata of an MCAP file (later records override earlier keys; {} if none)."""
     with McapTopics(path) as rec:
         return rec.metadata()
+
+
+def source_metadata(source: str | Path, output: str | Path) -> dict[str, str]:
+    """The metadata naming the tracked input in the output ``output``: where :func:`find_source` looks.
+
+    ``source`` is stored absolute when it is a file or folder, with
+    ``source_relative``, its path from the output's folder, so the pair still
+    resolves when both are moved together or opened from another directory;
+    a spec that names no file (``synth:...``, ``oak``) is stored as given.
+    """
+    path = Path(source)
+    if not path.exists():
+        return {"source": str(source)}
+    absolute = os.path.abspath(path)
+    try:
+        relative = os.path.relpath(absolute, os.path.abspath(Path(output).parent))
+    except ValueError:  # another drive (Windows): no relative path
+        return {"source": absolute}
+    return {"source": absolute, "source_relative": relative}
+
+
+def find_source(tracked: str | Path, metadata: dict[str, str]) -> Path | None:
+    """The input a tracker output names (:func:`source_metadata`), or None when it cannot be found.
+
+    Tried in order: ``source`` as stored (absolute, or relative to the current
+    directory), ``source_relative`` from the output's folder, and ``source``
+    from the output's folder (outputs written before ``source_relative``).
+    """
+    base = Path(tracked).parent
+    source, relative = metadata.get("source"), metadata.get("source_relative")
+    candidates = [Path(source)] if source else []
+    if relative:
+        candidates.append(base / relative)
+    if source and not Path(source).is_absolute():
+        candidates.append(base / source)
+    return next((c for c in candidates if c.exists()), None)
 
 
 def _timestamp(ns: int):

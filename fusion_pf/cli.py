@@ -6,8 +6,8 @@ inside ``run`` so ``fusion-pf --help`` stays fast.
 
 User errors (:class:`~fusion_pf.errors.FusionPFError`, a missing file) print one
 line ``fusion-pf: error: ...`` and exit non-zero, without a traceback. Ctrl-C
-exits 130 after the running command has finalised its outputs (SIGTERM 143 and
-SIGHUP 129 where a command handles them, see :mod:`fusion_pf.signals`). A
+exits 130 after the running command has finalised its outputs, SIGTERM 143 and
+SIGHUP 129 likewise (see :mod:`fusion_pf.signals`), at any moment of the run. A
 closed pipe (``fusion-pf info x.mcap | head``) ends the command quietly with
 141, the status of a process killed by SIGPIPE.
 """
@@ -54,7 +54,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``fusion-pf`` console script; returns the exit status."""
+    """Entry point of the ``fusion-pf`` console script; returns the exit status.
+
+    SIGTERM and SIGHUP stop every command like Ctrl-C from the first statement
+    on, before the commands are imported: the running command finalises its
+    outputs and the process exits 143 / 129 with one line.
+    """
+    from .signals import stop_on_terminate
+
+    with stop_on_terminate():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:  # a second stop request while the first or an error was reported
+            return 128 + getattr(exc, "signum", 2)
+
+
+def _main(argv: list[str] | None) -> int:
     from .signals import sigint_deferred
 
     try:
@@ -70,10 +85,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fusion-pf: error: {printable(exc)}", file=sys.stderr)
         return exc.exit_code
     except FileNotFoundError as exc:
-        print(f"fusion-pf: error: no such file: {exc.filename}", file=sys.stderr)
+        print(f"fusion-pf: error: no such file: {printable(exc.filename)}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"fusion-pf: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        print(
+            f"fusion-pf: error: {printable(exc.strerror or exc)}: {printable(exc.filename or '')}".rstrip(": "),
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", 2)

@@ -50,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.errors import InputError
     from fusion_pf.signals import stop_on_terminate
 
+    from ._paths import SQLITE_SIDECARS, check_not_input
+
     opts = from_args(ServeOptions, args)
     if not args.recording.is_file():
         raise FileNotFoundError(2, "no such file", str(args.recording))
@@ -57,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--db {args.db} is a directory; expected an SQLite file name")
     if not args.db.parent.is_dir():
         raise InputError(f"--db {args.db}: the folder {args.db.parent} does not exist")
+    for suffix in ("", *SQLITE_SIDECARS):
+        check_not_input(args.db.with_name(args.db.name + suffix), (args.recording,), "--db")
     try:
         loopback = ipaddress.ip_address(opts.host).is_loopback
     except ValueError:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fusion_pf.text import printable
+
 NAME = "annotations"
 HELP = "export the operator reference (per-frame mean and spread) of an annotation database"
 DESCRIPTION = (
@@ -57,18 +59,17 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.annotate.db import checkpoint, write_operators_csv, write_reference_csv
     from fusion_pf.errors import InputError
 
-    from ._paths import check_output
+    from ._paths import SQLITE_SIDECARS, check_distinct, check_output, input_holding
 
     if not args.db.is_file():
         raise FileNotFoundError(2, "no such file", str(args.db))
     ops = args.operators_csv or operators_path(args.csv)
-    if ops.resolve() == args.csv.resolve():
-        raise InputError(f"--operators-csv must differ from --csv, both are {args.csv}")
-    inputs = [args.db] + [args.db.with_name(args.db.name + suffix) for suffix in ("-wal", "-shm", "-journal")]
+    check_distinct([("--csv", args.csv), ("--operators-csv", ops)])
+    inputs = [args.db] + [args.db.with_name(args.db.name + suffix) for suffix in SQLITE_SIDECARS]
     for out, what in ((args.csv, "--csv"), (ops, "--operators-csv")):
-        for other in inputs:
-            if out.resolve() == other.resolve():
-                raise InputError(f"{what} {out} is the annotation database (or its {other.name}); choose a CSV file")
+        other = input_holding(out, inputs) or next((i for i in inputs if out.resolve() == i.resolve()), None)
+        if other is not None:
+            raise InputError(f"{what} {out} is the annotation database (or its {other.name}); choose a CSV file")
         if out.is_file():
             with open(out, "rb") as fh:
                 head = fh.read(16)
@@ -79,5 +80,5 @@ def run(args: argparse.Namespace) -> int:
     checkpoint(args.db)
     n_frames = write_reference_csv(args.db, args.csv)
     n_ops = write_operators_csv(args.db, ops)
-    print(f"fusion-pf annotations: {n_frames} frames -> {args.csv}, {n_ops} operators -> {ops}")
+    print(f"fusion-pf annotations: {n_frames} frames -> {printable(args.csv)}, {n_ops} operators -> {printable(ops)}")
     return 0

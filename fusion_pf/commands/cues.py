@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.pipeline import TrackConfig
+from fusion_pf.text import printable
 
 NAME = "cues"
 HELP = "run the colour, depth, skin and skeleton cues on one frame; write stage contact sheets"
@@ -122,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.options import from_args
     from fusion_pf.pipeline import cue_window
 
+    from ._paths import check_folder_outputs
+
     options = from_args(CueOptions, args)
     config = from_args(TrackConfig, args, cue_options=options)
     if args.stages is not None:
@@ -160,6 +163,9 @@ def run(args: argparse.Namespace) -> int:
         results = {name: cue.measure(frame, ctx) for name, cue in cues.items()}
 
     truth = frame.ground_truth
+    sheets = {name: f"frame{k:06d}_{name}.png" for name in results}
+    if args.stages is not None:
+        check_folder_outputs(args.stages, sheets.values(), (args.file, config.background), "--stages")
     rows = {}
     for name, res in results.items():
         m = res.measurement
@@ -186,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
                 f"u={m.u:.1f} v={m.v:.1f} q={m.quality:.2f}" if m else "no measurement"
             )
             sheet = contact_sheet(res.stages, title=title, point=point, equalize=("I_d1", "I_d2", "I_d3"))
-            out = args.stages / f"frame{k:06d}_{name}.png"
+            out = args.stages / sheets[name]
             if not cv2.imwrite(str(out), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise InputError(f"cannot write {out}")
             row["sheet"] = str(out)
@@ -203,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"frame {k} of {args.file} ({frame.size[0]}x{frame.size[1]}), background: {bg_note}")
+    print(f"frame {k} of {printable(args.file)} ({frame.size[0]}x{frame.size[1]}), background: {bg_note}")
     print(
         f"roi {doc['roi'] if roi is not None else 'full frame'}"
         + ("" if truth is None else f"; truth u={truth.u:.1f} v={truth.v:.1f}{' (occluded)' if truth.occluded else ''}")

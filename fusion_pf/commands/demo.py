@@ -27,6 +27,8 @@ DESCRIPTION = (
     "score.md and score.json; prints the Markdown report and where the files are."
 )
 
+#: The tracked output in OUT.
+TRACKED_CSV = "tracked.csv"
 #: Where the sample recording lives, relative to the repository root.
 SAMPLE = Path("recordings") / "sample.mcap"
 
@@ -99,8 +101,10 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.experiments import run_sweep
     from fusion_pf.frame import SOURCES
     from fusion_pf.pipeline import TrackCsv, track
-    from fusion_pf.score.evaluate import evaluate, markdown, write_report
+    from fusion_pf.score.evaluate import REPORT_FILES, evaluate, markdown, write_report
     from fusion_pf.score.inputs import align, read_ground_truth
+
+    from ._paths import check_folder_outputs
 
     t_start = time.perf_counter()
     opts = from_args(DemoOptions, args)
@@ -109,12 +113,13 @@ def run(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out} is a file; expected a directory")
     recording = find_sample(args.recording)
+    check_folder_outputs(args.out, (TRACKED_CSV, *REPORT_FILES), (recording,), "--out")
     reference = read_ground_truth(recording, read_topic)
     args.out.mkdir(parents=True, exist_ok=True)
 
     log = sys.stderr
     bar = {"unit": "frame", "disable": True if args.no_progress else None, "file": log}
-    tracked = args.out / "tracked.csv"
+    tracked = args.out / TRACKED_CSV
     print(f"demo: tracking {recording} -> {tracked}", file=log)
     with open_source(str(recording)) as src:
         n_frames = len(src) if isinstance(src, ReplaySource) else None

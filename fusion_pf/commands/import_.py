@@ -12,6 +12,7 @@ from drivers.encoding import EncodingOptions
 from drivers.importers.base import DEFAULT_HFOV_DEG, DEPTH_UNIT_EXAMPLES, HFOV_RANGE_DEG, parse_depth_unit
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
+from fusion_pf.text import printable
 
 from ._options import fps_option
 
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = from_args(ImportOptions, args)
     encoding = from_args(EncodingOptions, args)
-    check_output(args.output, force=args.force, inputs=(args.source,))
+    check_output(args.output, force=args.force, inputs=(args.source, opts.intrinsics))
     intrinsics = IntrinsicsOption(opts.intrinsics, opts.fx, opts.fy, opts.cx, opts.cy, opts.hfov)
     source = open_import(
         args.source,
@@ -171,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     for line in summary.report:
         print(f"  {line}")
     print(
-        f"imported {summary.frames} frames ({summary.with_depth} with depth) from {args.source} to {args.output} "
+        f"imported {summary.frames} frames ({summary.with_depth} with depth) from {printable(args.source)} to {printable(args.output)} "
         f"in {summary.seconds:.1f} s ({summary.fps:.1f} frames/s); {summary.bytes} bytes"
     )
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
@@ -37,10 +38,8 @@ def _text(info: dict, verified: dict | None) -> str:
     k = info["intrinsics"]
     fps = f"{info['fps']:.2f} fps" if info["fps"] is not None else "fps n/a"
     dist = f"{k['distortion_model']} {k['distortion']}" if k["distortion"] else k["distortion_model"]
-    state = "TRUNCATED (writer did not finish)" if info["truncated"] else "complete"
     lines = [
-        f"file          {p(info['path'])} ({info['size_bytes']} bytes, {state}, "
-        f"{'indexed' if info['indexed'] else 'scanned'})",
+        f"file          {p(info['path'])} ({info['size_bytes']} bytes, {_state(info)})",
         f"writer        {p(info['library']) or 'unknown'}",
         f"frames        {info['frames']} over {format_ns(info['duration_ns'])} ({fps}), start {info['start_ns']} ns",
         f"resolution    {info['width']}x{info['height']}  colour {info['color_format']}  "
@@ -53,19 +52,78 @@ def _text(info: dict, verified: dict | None) -> str:
     ]
     if info["metadata"]:
         lines.append("metadata      " + " ".join(f"{p(key)}={p(value)}" for key, value in info["metadata"].items()))
-    width = max(len(p(t["topic"])) for t in info["topics"])
-    lines.append("topics")
-    for t in info["topics"]:
-        lines.append(
-            f"  {p(t['topic']):<{width}}  {t['message_count']:>8}  {p(t['schema_name'])} "
-            f"({p(t['message_encoding'])}, schema {p(t['schema_encoding'])})"
-        )
+    lines += _topics_text(info)
     if verified is not None:
         lines.append(
             f"verified      {verified['frames']} frames decoded, {verified['dropped']} lost"
             + (f"; {p(verified['summary'])}" if verified["summary"] else "")
         )
     return "\n".join(lines)
+
+
+def _topics_text(info: dict) -> list[str]:
+    from fusion_pf.text import printable as p
+
+    width = max(len(p(t["topic"])) for t in info["topics"])
+    lines = ["topics"]
+    for t in info["topics"]:
+        lines.append(
+            f"  {p(t['topic']):<{width}}  {t['message_count']:>8}  {p(t['schema_name'])} "
+            f"({p(t['message_encoding'])}, schema {p(t['schema_encoding'])})"
+        )
+    return lines
+
+
+def _state(info: dict) -> str:
+    state = "TRUNCATED (writer did not finish)" if info["truncated"] else "complete"
+    if info["trailing_bytes"]:
+        state += f" + {info['trailing_bytes']} trailing bytes after the end, ignored"
+    return f"{state}, {'indexed' if info['indexed'] else 'scanned'}"
+
+
+def _tracker_output(path: Path) -> dict | None:
+    """The description of a ``fusion-pf track`` output (tracker topics, no images), or None for any other file."""
+    from drivers import mcap_format as fmt
+    from drivers.mcap_replay import McapTopics
+    from drivers.tracker_topics import find_source
+    from fusion_pf.errors import RecordingError
+
+    try:
+        with McapTopics(path) as rec:
+            if fmt.COLOR_TOPIC in rec.topics or not any(t.startswith("/tracker/") for t in rec.topics):
+                return None
+            out = rec.topics_info().to_dict()
+    except RecordingError:
+        return None
+    found = find_source(path, out["metadata"])
+    out["kind"] = "tracker output"
+    out["source"] = out["metadata"].get("source")
+    out["source_found"] = None if found is None else str(found)
+    return out
+
+
+def _tracker_text(info: dict) -> str:
+    from drivers.mcap_format import format_ns
+    from fusion_pf.text import printable as p
+
+    span = (
+        f" over {format_ns(info['end_ns'] - info['start_ns'])}, start {info['start_ns']} ns"
+        if info["start_ns"] is not None
+        else ""
+    )
+    found = info["source_found"]
+    where = "not found" if found is None else ("found" if found == info["source"] else f"found as {p(found)}")
+    lines = [
+        f"file          {p(info['path'])} ({info['size_bytes']} bytes, {_state(info)})",
+        "kind          tracker output (fusion-pf track -o): tracker topics, no images",
+        f"writer        {p(info['library']) or 'unknown'}",
+        f"frames        {info['frames']} tracked ({'/tracker/estimate'} messages){span}",
+        f"source        {p(info['source'] or 'not named')}" + (f" ({where})" if info["source"] else ""),
+    ]
+    meta = {k: v for k, v in info["metadata"].items() if k not in ("source", "tracker")}
+    if meta:
+        lines.append("metadata      " + " ".join(f"{p(key)}={p(value)}" for key, value in meta.items()))
+    return "\n".join(lines + _topics_text(info))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,28 +134,36 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.errors import RecordingError
     from fusion_pf.text import printable
 
-    with McapReplay(args.file) as replay:
-        info = replay.info()
-        verified: dict[str, Any] | None = None
-        if args.verify:
-            decoded = sum(1 for _ in replay)
-            stats = replay.stats
-            verified = {
-                "frames": decoded,
-                "dropped": stats.dropped,
-                "losses": [
-                    {"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail} for x in stats.losses
-                ],
-                "skipped_parts": dict(stats.skipped_parts),
-                "summary": stats.loss_summary(),
-            }
+    try:
+        with McapReplay(args.file) as replay:
             info = replay.info()
+            verified: dict[str, Any] | None = None
+            if args.verify:
+                decoded = sum(1 for _ in replay)
+                stats = replay.stats
+                verified = {
+                    "frames": decoded,
+                    "dropped": stats.dropped,
+                    "losses": [
+                        {"frames": x.frames, "reason": x.reason, "offset": x.offset, "tail": x.tail}
+                        for x in stats.losses
+                    ],
+                    "skipped_parts": dict(stats.skipped_parts),
+                    "summary": stats.loss_summary(),
+                }
+                info = replay.info()
+    except RecordingError:  # not a recording of frames: maybe a tracker output
+        tracker = _tracker_output(args.file)
+        if tracker is None:
+            raise
+        print(json.dumps(tracker, indent=2) if args.json else _tracker_text(tracker))
+        for note in tracker["notes"]:
+            print(f"fusion-pf: warning: {printable(note)}", file=sys.stderr)
+        return 0
     out = info.to_dict()
     if verified is not None:
         out["verified"] = verified
     if args.json:
-        import json
-
         print(json.dumps(out, indent=2))
     else:
         print(_text(out, verified))

@@ -200,7 +200,7 @@ def _record(args: argparse.Namespace) -> int:
                     else ""
                 )
                 print(
-                    f"recorded {n} frames{status}{unwritten} to {args.output} in {time.monotonic() - started:.1f} s: "
+                    f"recorded {n} frames{status}{unwritten} to {printable(args.output)} in {time.monotonic() - started:.1f} s: "
                     f"{stats.dropped} dropped, {stats.missing_depth} without depth, "
                     f"{stats.missing_skeleton} without skeleton; {size} bytes{per_frame}",
                     flush=True,

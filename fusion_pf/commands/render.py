@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fusion_pf.options import add_options, from_args, option, validate
+from fusion_pf.text import printable
 
 NAME = "render"
 HELP = "draw a tracked recording (image, cue points, particles, estimate, state) as MP4 and/or PNG sheet"
@@ -64,10 +65,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render TRACKED.mcap; returns the exit status."""
-    from drivers.render import render
+    from drivers.render import image_recording, render
     from fusion_pf.errors import InputError
 
-    from ._paths import check_output
+    from ._paths import check_distinct, check_output
 
     if args.output is None and args.sheet is None:
         raise InputError("nothing to write: pass -o OUT.mp4 and/or --sheet OUT.png")
@@ -75,14 +76,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.tracked} does not exist; expected the output of fusion-pf track -o")
     opts = from_args(RenderOptions, args)
     every = opts.every
+    images = image_recording(args.tracked, args.input)
     for what, out, suffix in (("output", args.output, ".mp4"), ("--sheet", args.sheet, ".png")):
         if out is None:
             continue
         if out.suffix.lower() != suffix:
             raise InputError(f"{what} {out} must end in {suffix}")
-        check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input))
-    if args.output is not None and args.sheet is not None and args.output.resolve() == args.sheet.resolve():
-        raise InputError(f"-o and --sheet are the same file {args.output}")
+        check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input, images))
+    check_distinct([("-o", args.output), ("--sheet", args.sheet)])
     done = render(
         args.tracked,
         video=args.output,
@@ -91,13 +92,13 @@ def run(args: argparse.Namespace) -> int:
         columns=opts.columns,
         tile_width=opts.tile_width,
         fps=opts.fps,
-        input_path=args.input,
+        input_path=images,
     )
     w, h = done.size
     parts = []
     if args.output is not None:
-        parts.append(f"{args.output} ({done.frames} frames, {w}x{h}, H.264)")
+        parts.append(f"{printable(args.output)} ({done.frames} frames, {w}x{h}, H.264)")
     if args.sheet is not None:
-        parts.append(f"{args.sheet} ({done.sheet_tiles} tiles, every {every}th frame)")
+        parts.append(f"{printable(args.sheet)} ({done.sheet_tiles} tiles, every {every}th frame)")
     print(f"rendered {done.frames} frames ({done.tracked} with tracker output) -> {', '.join(parts)}")
     return 0

@@ -104,6 +104,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
+#: The figure of a multi-target score in --plots DIR.
+TARGETS_FIGURE = "targets.png"
+
+
 def sweep_recording(recording: str, reference, config, counts, args, opts: ScoreOptions):
     """Decode ``recording``, align the reference to its tracked frames and run the sweep."""
     import numpy as np
@@ -153,7 +157,7 @@ def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
     if args.plots is not None:
         from fusion_pf.score.plots import plot_targets
 
-        figure = plot_targets(errors, table.states, Path(args.plots) / "targets.png")
+        figure = plot_targets(errors, table.states, Path(args.plots) / TARGETS_FIGURE)
         print(f"fusion-pf score: wrote {figure}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=1, default=lambda x: None))
@@ -164,13 +168,22 @@ def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Score, optionally sweep, write and print the report; returns the exit status."""
-    from drivers.tracker_topics import read_topic, recording_metadata
+    from drivers.tracker_topics import find_source, read_topic, recording_metadata
     from fusion_pf.pipeline import TrackConfig
-    from fusion_pf.score.evaluate import as_json, evaluate, markdown, read_reference, write_report
+    from fusion_pf.score.evaluate import REPORT_FILES, as_json, evaluate, markdown, read_reference, write_report
     from fusion_pf.score.inputs import file_kind
+
+    from ._paths import SQLITE_SIDECARS, check_folder_outputs
 
     opts = from_args(ScoreOptions, args)
     counts = opts.sweep
+    needs_meta = args.plots is not None or args.reference is not None or counts is not None
+    meta = recording_metadata(args.tracked) if needs_meta and file_kind(args.tracked) == "mcap" else {}
+    source = find_source(args.tracked, meta)
+    if args.plots is not None:
+        db_files = [] if args.reference is None else [args.reference + s for s in ("", *SQLITE_SIDECARS)]
+        inputs = (args.tracked, args.ground_truth, args.recording, source, *db_files)
+        check_folder_outputs(Path(args.plots), (*REPORT_FILES, TARGETS_FIGURE), inputs, "--plots")
     if args.ground_truth is not None:
         from fusion_pf.score.targets import read_targets_csv, read_targets_topic
 
@@ -188,7 +201,6 @@ def run(args: argparse.Namespace) -> int:
     if args.reference is not None:
         from fusion_pf.annotate.db import check_reference_matches
 
-        meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}
         check_reference_matches(
             args.reference,
             ev.table.frame.tolist(),
@@ -198,8 +210,7 @@ def run(args: argparse.Namespace) -> int:
         )
     sweep = None
     if counts is not None:
-        meta = recording_metadata(args.tracked) if file_kind(args.tracked) == "mcap" else {}
-        recording = args.recording or meta.get("source") or args.ground_truth
+        recording = args.recording or (str(source) if source else meta.get("source")) or args.ground_truth
         if recording is None:
             raise InputError("--sweep with a tracker CSV and --reference needs --recording SOURCE to re-track")
         try:

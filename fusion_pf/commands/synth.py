@@ -12,6 +12,7 @@ from drivers.encoding import EncodingOptions
 from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, SynthSource
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
+from fusion_pf.text import printable
 
 from ._options import parse_size, show_size, size_check
 
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
             recorder.write(frame)
             bar.update()
     print(
-        f"wrote {recorder.frames_written} frames ({source.background_frames} background) to {out} "
+        f"wrote {recorder.frames_written} frames ({source.background_frames} background) to {printable(out)} "
         f"in {time.monotonic() - started:.1f} s: {recorder.bytes_written} bytes"
     )
     return 0

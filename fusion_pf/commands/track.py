@@ -8,6 +8,7 @@ from pathlib import Path
 from drivers import SOURCE_SPECS
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.pipeline import TrackConfig
+from fusion_pf.text import printable
 
 NAME = "track"
 HELP = "track the palm (data-fusion particle filter or Kalman baseline) and write MCAP/CSV outputs"
@@ -22,7 +23,7 @@ DESCRIPTION = (
     "comes from --background, else the recording's own background frames, else the median of its "
     "first --background-k frames. Pixels are colour-image pixels, 3-D points camera-frame "
     "millimetres. The same --seed gives a byte-identical CSV (latency columns are left empty unless "
-    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130) and on errors (exit 2). A damaged "
+    "--csv-latency). Outputs are finalised on Ctrl-C (exit 130), SIGTERM (143), SIGHUP (129) and errors (exit 2). A damaged "
     "recording is tracked as far as it can be read: the frames skipped and why are printed and the "
     "exit status is 3 (partial)."
 )
@@ -31,6 +32,8 @@ DESCRIPTION = (
 #: The config classes whose flags the command registers.
 CONFIGS = (TrackConfig, CueOptions)
 
+#: File name of each ``--export-ply`` point cloud.
+PLY_NAME = "frame_{frame}.ply"
 #: ``--color-format`` values.
 COLOR_FORMATS = ("auto", "raw", "jpeg", "png")
 
@@ -100,32 +103,41 @@ def load_background(path: Path):
 def _check_outputs(args: argparse.Namespace, config) -> None:
     from fusion_pf.errors import InputError
 
-    from ._paths import check_output
+    from ._paths import check_distinct, check_folder_outputs, check_output
 
+    inputs = (args.source, config.background)
     outputs = [("output", args.output)] + ([("--csv", args.csv)] if args.csv is not None else [])
     for what, out in outputs:
-        check_output(out, force=args.force, what=what, inputs=(args.source, config.background))
-    if args.csv is not None and args.csv.resolve() == args.output.resolve():
-        raise InputError(f"--csv {args.csv} is the same file as the output MCAP")
+        check_output(out, force=args.force, what=what, inputs=inputs)
+    check_distinct(outputs)
     if args.export_ply is not None:
         if args.export_ply.exists() and not args.export_ply.is_dir():
             raise InputError(f"--export-ply {args.export_ply} is a file; expected a directory")
         if not args.export_ply.parent.is_dir():
             raise InputError(f"--export-ply parent directory {args.export_ply.parent} does not exist")
+        check_folder_outputs(
+            args.export_ply, [PLY_NAME.format(frame="*")], inputs + (args.output, args.csv), "--export-ply"
+        )
     if config.background is not None and not config.background.is_file():
         raise InputError(f"--background {config.background} does not exist; expected an empty-scene .mcap recording")
 
 
 def _recorder_options(src, args: argparse.Namespace) -> dict:
     """Colour/depth encodings and metadata of the output, following the input recording."""
+    from drivers.tracker_topics import source_metadata
     from fusion_pf.errors import InputError
 
-    options: dict = {"color_format": "raw", "depth_format": "raw", "metadata": {"source": str(args.source)}}
+    options: dict = {
+        "color_format": "raw",
+        "depth_format": "raw",
+        "metadata": source_metadata(args.source, args.output),
+    }
     info = src.info() if callable(getattr(src, "info", None)) else None
     if info is not None:
         options["color_format"] = {"jpeg": "jpeg", "png": "png"}.get(info.color_format or "", "raw")
         options["depth_format"] = "png" if info.depth_format == "png" else "raw"
-        keep = {k: v for k, v in info.metadata.items() if k not in ("background_frames", "format_version", "writer")}
+        mine = ("background_frames", "format_version", "writer", "source", "source_relative")
+        keep = {k: v for k, v in info.metadata.items() if k not in mine}
         options["metadata"] = {**keep, **options["metadata"]}
     elif callable(getattr(src, "metadata", None)):
         options["metadata"] = {**src.metadata(), **options["metadata"]}
@@ -171,8 +183,8 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, backg
         tracked += not result.background
         bar.update(1)
     print(
-        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
-        + (f", {args.csv}" if args.csv is not None else ""),
+        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
+        + (f", {printable(args.csv)}" if args.csv is not None else ""),
         file=sys.stderr,
     )
     for t, c in counts.items():
@@ -206,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)
+    several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
     background = None if config.background is None else load_background(config.background)
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)
@@ -217,13 +230,12 @@ def run(args: argparse.Namespace) -> int:
         if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
             options["metadata"]["source_sha256"] = recording_sha256(args.source)
         table = targets_csv = None
-        if (
-            args.csv is not None and config.targets is not None and len(config.targets) > 1
-        ):  # opened first: a failing CSV leaves no MCAP
-            targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
-        elif args.csv is not None:
-            table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
-        recorder = stack.enter_context(McapRecorder(args.output, **options))
+        with sigint_deferred():  # each output is closed by the stack once it is open
+            if args.csv is not None and several:  # opened first: a failing CSV leaves no MCAP
+                targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
+            elif args.csv is not None:
+                table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
+            recorder = stack.enter_context(McapRecorder(args.output, **options))
         total = len(src) if isinstance(src, ReplaySource) else None
         bar = stack.enter_context(
             tqdm(
@@ -234,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         )
-        if config.targets is not None and len(config.targets) > 1:
+        if several:
             return _track_targets(src, config, args, recorder, targets_csv, background, bar)
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()
@@ -253,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
                 ):
                     r = result.roi
                     write_roi_ply(
-                        args.export_ply / f"frame_{result.frame:06d}.ply",
+                        args.export_ply / PLY_NAME.format(frame=f"{result.frame:06d}"),
                         result.source_frame,
                         (r.x0, r.y0, r.x1, r.y1),
                         palm=result.xyz_mm,
@@ -267,8 +279,8 @@ def run(args: argparse.Namespace) -> int:
             states[result.state] += not result.background
             bar.update(1)
     print(
-        f"tracked {tracked} frames ({n_background} background) of {args.source} -> {args.output}"
-        + (f", {args.csv}" if args.csv is not None else ""),
+        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
+        + (f", {printable(args.csv)}" if args.csv is not None else ""),
         file=sys.stderr,
     )
     print(

@@ -345,16 +345,44 @@ def _check_unit(name: str, value: float) -> float:
     return f
 
 
+def _interpreter(path: Path, num_threads: int):
+    """A LiteRT interpreter of ``path`` with its tensors allocated, the runtime's ``INFO:`` lines kept off the terminal.
+
+    The C++ runtime prints ``INFO: Created TensorFlow Lite XNNPACK delegate for
+    CPU.`` to file descriptor 2 when the tensors are allocated, and the Python
+    API has no log level: fd 2 goes to a temporary file meanwhile and every line
+    that is not ``INFO:`` is written back.
+    """
+    import os
+    import sys
+    import tempfile
+
+    from ai_edge_litert.interpreter import Interpreter
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
+            interpreter.allocate_tensors()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            kept = [line for line in held.read().splitlines(keepends=True) if not line.startswith(b"INFO: ")]
+            if kept:
+                os.write(2, b"".join(kept))
+    return interpreter
+
+
 class _Model:
     """A LiteRT interpreter with one input and named outputs."""
 
     def __init__(self, path: Path, num_threads: int, outputs: tuple[str, ...]) -> None:
-        from ai_edge_litert.interpreter import Interpreter
-
         if not path.is_file():
             raise InputError(f"hand model {path} not found (expected the shipped fusion_pf/data/hand models)")
-        self.interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
-        self.interpreter.allocate_tensors()
+        self.interpreter = _interpreter(path, num_threads)
         self.input = self.interpreter.get_input_details()[0]["index"]
         by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
         self.outputs = [by_name[n] for n in outputs]

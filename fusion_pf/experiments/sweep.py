@@ -37,6 +37,7 @@ from ..errors import InputError
 from ..frame import Frame
 from ..pipeline import TrackConfig, TrackResult, cue_names, track
 from ..score.metrics import TIE_TOL_PX, score
+from ..signals import sigint_deferred
 
 __all__ = [
     "PAPER_PARTICLE_COUNTS",
@@ -299,23 +300,24 @@ def _run_dask(frames, config, background, counts, order, seed, workers, schedule
     from distributed import Client, LocalCluster, as_completed
 
     logging.getLogger("distributed").setLevel(logging.ERROR)
-    cluster = None
-    if scheduler is None:
-        n_workers = min(len(order), workers or os.cpu_count() or 1)
-        cluster = LocalCluster(
-            n_workers=n_workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-        )
-        client = Client(cluster)
-    else:
-        try:
-            client = Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
+    cluster = client = None
     try:
+        with sigint_deferred():  # a stop request waits until the cluster is up, so that it can be closed
+            if scheduler is None:
+                n_workers = min(len(order), workers or os.cpu_count() or 1)
+                cluster = LocalCluster(
+                    n_workers=n_workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+                client = Client(cluster)
+            else:
+                try:
+                    client = Client(scheduler, timeout="10s")
+                except (OSError, TimeoutError, ValueError) as exc:
+                    raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
         n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or 1
         shared = client.scatter([frames, background], broadcast=True)
         futures = {
@@ -327,7 +329,8 @@ def _run_dask(frames, config, background, counts, order, seed, workers, schedule
             points[c, r], seconds[c, r] = fut.result()
             bar.update(1)
     finally:
-        client.close()
+        if client is not None:
+            client.close()
         if cluster is not None:
             cluster.close()
     return n_workers

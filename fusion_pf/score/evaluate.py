@@ -151,6 +151,17 @@ def as_json(evaluation: Evaluation, sweep: SweepResult | None = None, figures: l
     return out
 
 
+#: Every file :func:`write_report` may write into its folder.
+REPORT_FILES = (
+    "errors_per_frame.png",
+    "latency_per_frame.png",
+    "bestmax_vs_n.png",
+    "multiexec_bestmax.png",
+    "score.md",
+    "score.json",
+)
+
+
 def write_report(evaluation: Evaluation, out_dir: str | Path, sweep: SweepResult | None = None) -> dict[str, Path]:
     """Write the figures, ``score.md`` and ``score.json`` into ``out_dir``.
 

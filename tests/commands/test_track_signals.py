@@ -1,0 +1,120 @@
+"""Issue 24 item 3: ``track`` finalises its MCAP and CSV on SIGTERM and SIGHUP, from the first moment on.
+
+The command runs in its own session (``start_new_session``), as from a
+terminal; the signal is sent after frames were written, at the moment the
+process starts handling it (read from ``/proc/PID/status``, during start-up,
+before the commands are imported), and 0.3 s after the start.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+CLI = [sys.executable, "-m", "fusion_pf"]
+ENDLESS = "synth:frames=100000,size=160x100"
+SIGNALS = [(signal.SIGTERM, 143), (signal.SIGHUP, 129)]
+
+
+def start_track(tmp_path: Path) -> tuple[subprocess.Popen, Path, Path]:
+    out, table = tmp_path / "out.mcap", tmp_path / "out.csv"
+    proc = subprocess.Popen(
+        [*CLI, "track", ENDLESS, "-o", str(out), "--csv", str(table), "--no-progress"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    return proc, out, table
+
+
+def handles(pid: int, sig: int) -> bool:
+    """Whether the process has a handler for ``sig`` (the SigCgt mask of /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = next(int(line.split()[1], 16) for line in status.splitlines() if line.startswith("SigCgt:"))
+    return bool(caught >> (sig - 1) & 1)
+
+
+def stop(proc: subprocess.Popen, sig: int) -> tuple[int, str]:
+    proc.send_signal(sig)
+    _, stderr = proc.communicate(timeout=120)
+    return proc.returncode, stderr
+
+
+def check_outputs(out: Path, table: Path) -> int:
+    """The MCAP is complete (summary, footer) and its /tracker/estimate messages are the CSV's rows."""
+    with open(out, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        estimates = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/tracker/estimate"])]
+    assert summary is not None and summary.statistics is not None
+    with open(table, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["frame"]) for r in rows] == [e["frame"] for e in estimates]
+    assert [int(r["timestamp_ns"]) for r in rows] == [e["timestamp_ns"] for e in estimates]
+    return len(rows)
+
+
+@pytest.mark.parametrize("sig, code", SIGNALS)
+def test_track_finalises_on_terminate_and_hangup_after_frames(tmp_path, sig, code):
+    proc, out, table = start_track(tmp_path)
+    deadline = time.monotonic() + 120
+    while not (table.exists() and table.read_text().count("\n") >= 6):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.stderr else ""
+        time.sleep(0.05)
+    returncode, stderr = stop(proc, sig)
+    assert returncode == code, stderr
+    assert stderr == f"fusion-pf: terminated by signal {int(sig)}\n"
+    assert check_outputs(out, table) >= 5
+
+
+@pytest.mark.parametrize("when", ["handler installed", "0.3 s"])
+@pytest.mark.parametrize("sig, code", SIGNALS)
+def test_track_stops_cleanly_on_a_signal_during_start_up(tmp_path, sig, code, when):
+    proc, out, table = start_track(tmp_path)
+    started = time.monotonic()
+    if when == "0.3 s":
+        time.sleep(0.3)
+    else:
+        while not handles(proc.pid, sig):
+            assert proc.poll() is None and time.monotonic() - started < 60
+            time.sleep(0.001)
+    returncode, stderr = stop(proc, sig)
+    assert returncode == code, stderr
+    assert stderr == f"fusion-pf: terminated by signal {int(sig)}\n"
+    if out.exists():  # stopped after the outputs were opened: they are complete
+        check_outputs(out, table)
+
+
+@pytest.mark.parametrize("after", [0.5, 2.0])
+def test_a_stop_during_the_sweep_leaves_no_traceback(tmp_path, after):
+    """``demo``'s Dask cluster is closed, not left half-started for an atexit traceback."""
+    rec = tmp_path / "gt.mcap"
+    subprocess.run(
+        [*CLI, "synth", str(rec), "--frames", "60", "--size", "160x100", "--no-progress"], check=True, timeout=120
+    )
+    proc = subprocess.Popen(
+        [*CLI, "demo", "--recording", str(rec), "--out", str(tmp_path / "demo"), "--workers", "2", "--no-progress"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    assert proc.stderr is not None
+    lines = [proc.stderr.readline() for _ in range(2)]
+    assert lines[1].startswith("demo: tracking again"), lines
+    time.sleep(after)
+    returncode, rest = stop(proc, signal.SIGTERM)
+    assert returncode == 143 and rest.endswith("fusion-pf: terminated by signal 15\n"), rest
+    assert "Traceback" not in rest, rest
