@@ -25,6 +25,7 @@ import numpy as np
 from fusion_pf.errors import InputError
 from fusion_pf.filter.estimate import largest_std
 from fusion_pf.pipeline import TrackConfig, TrackResult, cues_json, estimate_json
+from fusion_pf.pipeline.outputs import targets_cues_json, targets_json
 from fusion_pf.signals import sigint_deferred
 
 from . import mcap_format as fmt
@@ -170,12 +171,19 @@ class TrackerTopics:
         if result.background:
             return
         t = result.timestamp_ns
+        several = bool(result.targets)
         messages = [
-            (fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, estimate_json(result, self.config)),
-            (fmt.CUES_TOPIC, fmt.CUES_SCHEMA, cues_json(result)),
+            (
+                fmt.ESTIMATE_TOPIC,
+                fmt.ESTIMATE_SCHEMA,
+                targets_json(result, self.config) if several else estimate_json(result, self.config),
+            ),
+            (fmt.CUES_TOPIC, fmt.CUES_SCHEMA, targets_cues_json(result) if several else cues_json(result)),
         ]
-        cloud = None if result.particles is None else particle_cloud(result)
+        cloud = particle_cloud(result)
         picture = overlay(result)
+        for other in list(result.targets.values())[1:]:  # several targets: one picture of all
+            picture.MergeFrom(overlay(other))
         # one Ctrl-C deferral for the frame's messages (a frame is written whole; per message it cost ~60 us each)
         with sigint_deferred():
             for topic, schema, doc in messages:
@@ -277,17 +285,24 @@ def _points_wire(annotation, point, uv: np.ndarray) -> bytes:
 
 
 def particle_cloud(result: TrackResult):
-    """``foxglove.PointCloud`` of the particles: ``x = u``, ``y = v``, ``z = 0`` (px) and ``weight``."""
+    """``foxglove.PointCloud`` of the particles: ``x = u``, ``y = v``, ``z = 0`` (px) and ``weight``.
+
+    Several targets: every target's particles, each set's weights divided by the
+    number of sets; None when no target holds particles.
+    """
     from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
     from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
     from foxglove_schemas_protobuf.Pose_pb2 import Pose
     from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
     from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 
-    n = result.particles.shape[0]
+    sets = [r for r in (result.targets.values() or [result]) if r.particles is not None and r.weights is not None]
+    if not sets:
+        return None
+    n = sum(r.particles.shape[0] for r in sets)
     data = np.zeros((n, 4), dtype="<f4")
-    data[:, :2] = result.particles
-    data[:, 3] = result.weights
+    data[:, :2] = np.concatenate([r.particles for r in sets])
+    data[:, 3] = np.concatenate([r.weights for r in sets]) / len(sets)
     f32 = PackedElementField.FLOAT32
     return PointCloud(
         timestamp=_timestamp(result.timestamp_ns),

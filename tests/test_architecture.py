@@ -47,6 +47,28 @@ def test_only_the_command_line_layer_imports_drivers():
     assert "drivers" in _imports(PACKAGE / "commands" / "track.py")
 
 
+def test_one_tracking_pipeline_for_one_target_or_several():
+    """``track`` and ``track --targets`` run the same ``pipeline.track``; no second pipeline module exists."""
+    import importlib.util
+
+    assert importlib.util.find_spec("fusion_pf.pipeline.targets") is None
+    source = (PACKAGE / "commands" / "track.py").read_text()
+    tree = ast.parse(source)
+    pipeline_names = {
+        a.name
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("fusion_pf.pipeline")
+        for a in node.names
+    }
+    assert "track" in pipeline_names and not any(n.startswith("track_") for n in pipeline_names)
+    calls = [
+        n.func.id
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "track"
+    ]
+    assert len(calls) == 2  # the single palm and the several targets' outputs, both from pipeline.track
+
+
 @pytest.mark.parametrize(
     "module, banned",
     [

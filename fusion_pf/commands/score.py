@@ -190,6 +190,11 @@ def run(args: argparse.Namespace) -> int:
         kind = file_kind(args.tracked)
         table = read_targets_csv(args.tracked) if kind == "csv" else read_targets_topic(args.tracked, read_topic)
         if table is not None:
+            if counts is not None:
+                raise InputError(
+                    f"--sweep scores one target, but {args.tracked} holds several ({', '.join(table.uv)}); "
+                    "sweep a run of one target (track without --targets, or --targets NAME)"
+                )
             return _score_targets(table, args, read_topic)
     reference = read_reference(args.reference, args.ground_truth, read_topic)
     ev = evaluate(args.tracked, reference, tie_tol=opts.tie_tol, read_topic=read_topic)

@@ -149,36 +149,36 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
-def _track_targets(src, config, args: argparse.Namespace, recorder, table, bar) -> int:
-    """``--targets``: the multi-target tracker over SOURCE, its CSV rows and ``/tracker/estimate`` messages."""
+def _track_targets(src, config, args: argparse.Namespace, recorder, table, background, bar) -> int:
+    """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages."""
     import csv
     import sys
 
-    from drivers import mcap_format as fmt
+    from drivers.tracker_topics import TrackerTopics
     from fusion_pf.errors import PARTIAL_EXIT_CODE
-    from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row, targets_json
-    from fusion_pf.pipeline.targets import track_targets
+    from fusion_pf.pipeline import track
+    from fusion_pf.pipeline.outputs import targets_csv_columns, targets_csv_row
     from fusion_pf.signals import sigint_deferred
 
     writer = None if table is None else csv.writer(table, lineterminator="\n")
     if writer is not None:
         writer.writerow(targets_csv_columns(config.targets))
+    topics = TrackerTopics(recorder, config)
     counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
     tracked = n_background = 0
-    for result in track_targets(src, config):
+    for result in track(src, config, background=background):
         with sigint_deferred():
             assert result.source_frame is not None
             if args.copy_input:
                 recorder.write(result.source_frame)
+            topics.write(result)
             if not result.background:
-                recorder.write_json(
-                    fmt.ESTIMATE_TOPIC, fmt.ESTIMATE_SCHEMA, targets_json(result, config), result.timestamp_ns
-                )
                 if writer is not None:
                     writer.writerow(targets_csv_row(result))
                     table.flush()
-                for t, (_u, _v, state) in result.targets.items():
-                    counts[t][state] = counts[t].get(state, 0) + 1
+                for t, r in result.targets.items():
+                    counts[t][r.state] = counts[t].get(r.state, 0) + 1
+        result.source_frame = None
         n_background += result.background
         tracked += not result.background
         bar.update(1)
@@ -218,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)
+    several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
     background = None if config.background is None else load_background(config.background)
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)
@@ -230,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
             options["metadata"]["source_sha256"] = recording_sha256(args.source)
         table = targets_csv = None
         with sigint_deferred():  # each output is closed by the stack once it is open
-            if args.csv is not None and config.targets is not None:  # opened first: a failing CSV leaves no MCAP
+            if args.csv is not None and several:  # opened first: a failing CSV leaves no MCAP
                 targets_csv = stack.enter_context(open(args.csv, "w", newline="", encoding="ascii"))
             elif args.csv is not None:
                 table = stack.enter_context(TrackCsv(args.csv, latency=args.csv_latency, sources=config.cues))
@@ -245,8 +246,8 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         )
-        if config.targets is not None:
-            return _track_targets(src, config, args, recorder, targets_csv, bar)
+        if several:
+            return _track_targets(src, config, args, recorder, targets_csv, background, bar)
         topics = TrackerTopics(recorder, config)
         track_stats = TrackStats()
         for result in track(src, config, background=background, stats=track_stats):

@@ -1,4 +1,4 @@
-"""The cue contract: a frame in, one palm measurement (or None) out.
+"""The cue contract: a frame in, one palm measurement (or None) and its detections out.
 
 Every cue the pipeline can run is a :class:`Cue` (``name``, ``needs``,
 ``measure(frame, ctx)``, ``reset()``) registered in :mod:`fusion_pf.cues.registry`.
@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..association.base import Detection
 from ..frame import SOURCES, Measurement
 
 if TYPE_CHECKING:
@@ -38,11 +39,23 @@ class CueResult:
         Stage images keyed by the paper's names; empty unless requested.
     latency_ns : int
         Wall time the extraction took (``time.perf_counter_ns``).
+    candidates : tuple of Detection
+        Every candidate the cue saw, for several targets (the hand cue's hands
+        with their handedness); empty: the measurement is the only one
+        (:attr:`detections`).
     """
 
     measurement: Measurement | None
     stages: Mapping[str, np.ndarray] = field(default_factory=dict)
     latency_ns: int = 0
+    candidates: tuple[Detection, ...] = ()
+
+    @property
+    def detections(self) -> tuple[Detection, ...]:
+        """The cue's detections: its candidates, else its measurement (none without one)."""
+        if self.candidates:
+            return self.candidates
+        return () if self.measurement is None else (Detection(self.measurement),)
 
 
 #: What a cue may need from a frame: the colour image, aligned depth, the
@@ -70,6 +83,13 @@ class CueContext:
     search : bool
         A whole-frame search for a palm (acquisition): regions touching the
         frame border are kept (an arm enters from the border).
+    hands : int
+        Hands the pipeline tracks (the hand cue follows up to this many; 1:
+        the one nearest ``prior``).
+    candidates : bool
+        Several targets share the frame: region cues also return every region
+        of the window as a candidate (another target's region may lie in it;
+        the association picks).
     """
 
     roi: Roi | None = None
@@ -78,6 +98,8 @@ class CueContext:
     stages: bool = False
     prior: tuple[float, float] | None = None
     search: bool = False
+    hands: int = 1
+    candidates: bool = False
 
 
 @runtime_checkable

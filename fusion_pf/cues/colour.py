@@ -52,6 +52,7 @@ from .regions import (
     fill_holes,
     measure,
     open_thin,
+    region_detections,
     remove_small,
 )
 from .roi import Roi, full_roi
@@ -126,7 +127,9 @@ class ColourCue:
     def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
         """The :class:`~fusion_pf.cues.base.Cue` form: ``frame``'s colour against ``ctx.background``."""
         background = None if ctx.background is None else ctx.background.color
-        return self(frame.color, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search)
+        return self(
+            frame.color, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search, candidates=ctx.candidates
+        )
 
     def __call__(
         self,
@@ -136,6 +139,7 @@ class ColourCue:
         roi: Roi | None = None,
         stages: bool = False,
         keep_border: bool = False,
+        candidates: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``color`` against ``background``.
 
@@ -148,6 +152,9 @@ class ColourCue:
         keep_border : bool
             Keep regions touching the window border (a whole-frame search, where
             the arm enters from the image border).
+        candidates : bool
+            Also return every region as a candidate (``CueResult.candidates``,
+            several targets: the association picks).
         stages : bool
             Also return the stage images I_C1 ... I_C9.
 
@@ -175,14 +182,15 @@ class ColourCue:
         c7 = fill_holes(c6)  # I_C7 = holes filled
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
-        m = measure(
-            c9,
-            roi.offset,
-            self.source,
-            palm_area=roi.palm_area,
-            min_area=self.min_area,
-            extras={"roi": roi.as_list()},
-        )
+        extras = {"roi": roi.as_list()}
+        if candidates:  # every region; the largest first, as measure() takes it
+            found = region_detections(
+                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
+            )
+            m = found[0].measurement if found else None
+        else:
+            found = ()
+            m = measure(c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
         if stages:
             out = {
                 "I_C1": c1.copy(),
@@ -196,7 +204,7 @@ class ColourCue:
                 "I_C8": c8,
                 "I_C9": c9,
             }
-        return CueResult(m, out, time.perf_counter_ns() - t0)
+        return CueResult(m, out, time.perf_counter_ns() - t0, found)
 
 
 def colour_cue(

@@ -78,6 +78,7 @@ from .regions import (
     keep_marked,
     measure,
     open_thin,
+    region_detections,
     remove_small,
 )
 from .roi import Roi, full_roi
@@ -189,7 +190,9 @@ class DepthCue:
         background = None if ctx.background is None else ctx.background.depth
         if frame.depth is None:
             return CueResult(None)
-        return self(frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search)
+        return self(
+            frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search, candidates=ctx.candidates
+        )
 
     def __call__(
         self,
@@ -199,6 +202,7 @@ class DepthCue:
         roi: Roi | None = None,
         stages: bool = False,
         keep_border: bool = False,
+        candidates: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -211,6 +215,9 @@ class DepthCue:
         keep_border : bool
             Keep regions touching the window border (a whole-frame search, where
             the arm enters from the image border).
+        candidates : bool
+            Also return every region as a candidate (``CueResult.candidates``,
+            several targets: the association picks).
         stages : bool
             Also return the stage images I_d1 ... I_d10.
 
@@ -261,14 +268,15 @@ class DepthCue:
         moved = bool(d6.any())
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
-        m = measure(
-            d10,
-            roi.offset,
-            self.source,
-            palm_area=roi.palm_area,
-            min_area=self.min_area,
-            extras={"roi": roi.as_list(), "moved": moved},
-        )
+        extras = {"roi": roi.as_list(), "moved": moved}
+        if candidates:  # every region; the largest first, as measure() takes it
+            found = region_detections(
+                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
+            )
+            m = found[0].measurement if found else None
+        else:
+            found = ()
+            m = measure(d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
         if stages:
             out = {
                 "I_d1": d1.copy(),
@@ -283,4 +291,4 @@ class DepthCue:
                 "I_d9": d9,
                 "I_d10": d10,
             }
-        return CueResult(m, out, time.perf_counter_ns() - t0)
+        return CueResult(m, out, time.perf_counter_ns() - t0, found)

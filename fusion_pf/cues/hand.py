@@ -54,6 +54,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..association.base import Detection, handedness_label
 from ..errors import InputError
 from ..frame import HandObservation
 from .base import CueResult, Measurement
@@ -561,6 +562,25 @@ class HandLandmarker:
         return HandRoi(u, v, size, rot)
 
 
+#: Weight of one frame in a tracked hand's smoothed handedness (a time constant of 5 frames).
+HANDEDNESS_RATE = 0.2
+#: Most confidence a handedness label gets: the model's handedness is evidence, never certain.
+HANDEDNESS_MAX_SCORE = 0.9
+
+
+def _same_hand(a: HandObservation, b: HandObservation) -> bool:
+    """Whether two observations are one hand: palm centres closer than half ``a``'s palm length."""
+    lm = a.landmarks
+    palm = math.hypot(lm[9, 0] - lm[0, 0], lm[9, 1] - lm[0, 1])
+    return float(np.hypot(*(a.palm - b.palm))) < 0.5 * max(palm, 1.0)
+
+
+def _on_hand(point: np.ndarray, obs: HandObservation) -> bool:
+    """Whether ``point`` lies in the bounding box of ``obs``'s landmarks."""
+    lo, hi = obs.landmarks[:, :2].min(axis=0), obs.landmarks[:, :2].max(axis=0)
+    return bool(np.all(point >= lo) and np.all(point <= hi))
+
+
 class HandCue:
     """The learned hand cue as a :class:`~fusion_pf.cues.base.Cue` (source ``"hand"``).
 
@@ -571,6 +591,15 @@ class HandCue:
     :class:`HandLandmarker` runs on the host in MediaPipe's video mode: the
     previous landmarks' ROI, then a window around the prior (the filter's
     prediction, sized like the cue window), then whole-frame palm detection.
+
+    Several hands (``ctx.hands`` >= 2, MediaPipe's ``max_num_hands``): every
+    tracked hand is followed with its previous landmarks' ROI; while fewer than
+    ``ctx.hands`` are tracked, whole-frame palm detection looks for the others
+    (palms on a tracked hand are skipped). Every hand is a detection
+    (:attr:`CueResult.candidates`) labelled with its handedness, smoothed over
+    the frames the hand was tracked (:data:`HANDEDNESS_RATE`), score
+    ``|2 p - 1|`` (``p`` the smoothed share of "right" votes) capped at
+    :data:`HANDEDNESS_MAX_SCORE`.
 
     Parameters
     ----------
@@ -585,6 +614,7 @@ class HandCue:
     def __init__(self, landmarker: HandLandmarker | None = None) -> None:
         self._landmarker = landmarker
         self.previous: HandObservation | None = None
+        self.hands: list[tuple[HandObservation, float]] = []
 
     @property
     def landmarker(self) -> HandLandmarker:
@@ -594,12 +624,18 @@ class HandCue:
         return self._landmarker
 
     def reset(self) -> None:
-        """Forget the tracked hand."""
+        """Forget the tracked hands."""
         self.previous = None
+        self.hands = []
 
     def measure(self, frame, ctx) -> CueResult:
-        """The palm centre of the tracked hand in ``frame`` (None when no hand is seen)."""
+        """The palm centre of the tracked hand in ``frame`` (None when no hand is seen); every hand with ``ctx.hands`` >= 2."""
         t0 = time.perf_counter_ns()
+        if ctx.hands > 1:
+            found = self._camera_hands(frame) if frame.hands is not None else self._track_hands(frame.color, ctx.hands)
+            dets = tuple(_detection(hand_measurement(obs, mode), p) for obs, mode, p in found)
+            first = dets[0].measurement if dets else None
+            return CueResult(first, {}, time.perf_counter_ns() - t0, dets)
         if frame.hands is not None:
             if not frame.hands:
                 return CueResult(None, {}, time.perf_counter_ns() - t0)
@@ -616,3 +652,40 @@ class HandCue:
         self.previous = obs
         m = None if obs is None else hand_measurement(obs, mode)
         return CueResult(m, {}, time.perf_counter_ns() - t0)
+
+    @staticmethod
+    def _camera_hands(frame) -> list[tuple[HandObservation, str, float]]:
+        """The camera's hands, with their own handedness."""
+        return [(h, "detect", 1.0 if h.handedness == "right" else 0.0) for h in frame.hands]
+
+    def _track_hands(self, rgb: np.ndarray, n: int) -> list[tuple[HandObservation, str, float]]:
+        """Up to ``n`` hands: the tracked ones followed, new ones detected; ``(obs, mode, p_right)`` each."""
+        lm = self.landmarker
+        kept: list[tuple[HandObservation, str, float]] = []
+        for prev, p in self.hands:
+            obs = lm.landmarks(rgb, landmarks_roi(prev.landmarks))
+            if obs is not None and not any(_same_hand(obs, o) for o, _, _ in kept):
+                vote = 1.0 if obs.handedness == "right" else 0.0
+                kept.append((obs, "track", (1.0 - HANDEDNESS_RATE) * p + HANDEDNESS_RATE * vote))
+        if len(kept) < n:
+            det = lm.palms(rgb)
+            for i in range(len(det)):
+                if len(kept) >= n:
+                    break
+                centre = det.keypoints[i, [0, 2]].mean(axis=0)
+                if any(_on_hand(centre, o) for o, _, _ in kept):
+                    continue
+                obs = lm.landmarks(rgb, palm_roi(det.boxes[i], det.keypoints[i]))
+                if obs is not None and not any(_same_hand(obs, o) for o, _, _ in kept):
+                    kept.append((obs, "detect", 1.0 if obs.handedness == "right" else 0.0))
+        self.hands = [(o, p) for o, _, p in kept]
+        return kept
+
+
+def _detection(m: Measurement, p_right: float) -> Detection:
+    """A hand detection labelled with its smoothed handedness ``p_right`` (module :class:`HandCue`)."""
+    return Detection(
+        m,
+        label=handedness_label("right" if p_right > 0.5 else "left"),
+        label_score=min(abs(2.0 * p_right - 1.0), HANDEDNESS_MAX_SCORE),
+    )

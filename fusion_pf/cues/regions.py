@@ -246,3 +246,41 @@ def measure(
         region_quality(region, palm_area),
         info,
     )
+
+
+def region_detections(
+    final: np.ndarray,
+    offset: tuple[int, int],
+    source: str,
+    *,
+    palm_area: float,
+    min_area: int = 1,
+    extras: dict | None = None,
+    max_regions: int = 8,
+) -> tuple:
+    """Every region of ``final`` of at least ``min_area`` px as a full-frame :class:`Detection`, largest first.
+
+    The same centroid, quality and extras as :func:`measure` gives its one
+    region; at most ``max_regions`` (the largest) are returned.
+    """
+    from ..association.base import Detection
+    from .base import Measurement
+
+    if final.size == 0 or not cv2.countNonZero(final):
+        return ()
+    n, _, stats, centroids = cv2.connectedComponentsWithStats(final, connectivity=8, ltype=cv2.CV_32S)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    x0, y0 = offset
+    out = []
+    for i in np.argsort(-areas, kind="stable")[:max_regions]:
+        area = int(areas[i])
+        if area < max(1, min_area):
+            break
+        x, y, w, h = (
+            int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
+        )
+        region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
+        info = {**(extras or {}), "area": area, "bbox": [x + x0, y + y0, w, h]}
+        m = Measurement(source, region.u + x0, region.v + y0, region_quality(region, palm_area), info)
+        out.append(Detection(m))
+    return tuple(out)

@@ -47,6 +47,7 @@ from .regions import (
     dilate,
     fill_holes,
     measure,
+    region_detections,
     remove_small,
 )
 from .roi import Roi, full_roi
@@ -414,7 +415,7 @@ class SkinCue:
 
     def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
         """The :class:`~fusion_pf.cues.base.Cue` form: skin in ``frame``'s colour image."""
-        return self(frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior)
+        return self(frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior, candidates=ctx.candidates)
 
     def __call__(
         self,
@@ -423,8 +424,13 @@ class SkinCue:
         roi: Roi | None = None,
         stages: bool = False,
         near: tuple[float, float] | None = None,
+        candidates: bool = False,
     ) -> CueResult:
-        """Segment skin in ``color`` (inside ``roi``) and measure the skin region nearest ``near`` (else the largest)."""
+        """Segment skin in ``color`` (inside ``roi``) and measure the skin region nearest ``near`` (else the largest).
+
+        With ``candidates`` every region is also returned (``CueResult.candidates``,
+        several targets: the association picks).
+        """
         t0 = time.perf_counter_ns()
         _check_rgb("colour", color)
         h, w = color.shape[:2]
@@ -447,6 +453,18 @@ class SkinCue:
             extras={"roi": roi.as_list()},
             near=near,
         )
+        found = (
+            region_detections(
+                s7,
+                roi.offset,
+                self.source,
+                palm_area=roi.palm_area,
+                min_area=self.min_area,
+                extras={"roi": roi.as_list()},
+            )
+            if candidates
+            else ()
+        )
         if stages:
             out = {
                 "I_S1": s1.copy(),
@@ -457,7 +475,7 @@ class SkinCue:
                 "I_S6": s6,
                 "I_S7": s7,
             }
-        return CueResult(m, out, time.perf_counter_ns() - t0)
+        return CueResult(m, out, time.perf_counter_ns() - t0, found)
 
 
 def skin_cue(

@@ -31,8 +31,7 @@ One :meth:`KMeansParticleFilter.step` per frame runs the paper's sub-systems:
   separate, identities are re-assigned by continuity
   (:func:`~fusion_pf.filter.states.reassign_identities`).
 
-Measurements per target come from :func:`associate` (blobs to the nearest
-prediction, gated) and from labelled sources (a skeleton joint per target).
+Measurements per target come from the caller, e.g. :func:`fusion_pf.association.associate`.
 The baselines -- one independent :class:`~fusion_pf.filter.pf.ParticleFilter`
 or :class:`~fusion_pf.filter.kf.KalmanFilter` per target -- are
 :class:`IndependentTrackers`.
@@ -70,7 +69,6 @@ __all__ = [
     "KMeansParticleFilter",
     "MultiEstimate",
     "TargetEstimate",
-    "associate",
     "cluster_spread",
     "elite_mean",
     "kmeans_clusters",
@@ -78,50 +76,6 @@ __all__ = [
     "membership",
     "overlap",
 ]
-
-
-def associate(predictions: np.ndarray, blobs: np.ndarray, gate_px) -> np.ndarray:
-    """Associate blob measurements to targets: nearest prediction, gated.
-
-    First a one-to-one assignment minimising the total distance (Hungarian)
-    among pairs closer than ``gate_px``; a target left without a blob then takes
-    its nearest blob within the gate even if another target has it (two joined
-    hands make one blob).
-
-    Parameters
-    ----------
-    predictions : ndarray, shape (K, 2)
-        Predicted target positions; a row of nan (no prediction) gets no blob.
-    blobs : ndarray, shape (M, 2)
-        Blob centroids.
-    gate_px : float or ndarray, shape (K,)
-        Largest accepted distance (> 0), for all targets or per target (e.g.
-        wider for a lost target).
-
-    Returns
-    -------
-    ndarray, shape (K,), int
-        Index of the blob of each target, -1 for none.
-    """
-    p = np.asarray(predictions, dtype=np.float64).reshape(-1, 2)
-    b = np.asarray(blobs, dtype=np.float64).reshape(-1, 2)
-    gate = np.broadcast_to(np.asarray(gate_px, dtype=np.float64), (len(p),))
-    if not (np.isfinite(gate).all() and (gate > 0).all()):
-        raise InputError(f"gate_px must be finite numbers > 0, got {gate_px!r}")
-    out = np.full(len(p), -1, dtype=np.int64)
-    if len(b) == 0 or len(p) == 0:
-        return out
-    d = np.sqrt(((p[:, None, :] - b[None, :, :]) ** 2).sum(axis=2))
-    d = np.where(np.isfinite(d), d, np.inf)
-    inside = d <= gate[:, None]
-    rows, cols = linear_sum_assignment(np.where(inside, d, 1e12))
-    keep = inside[rows, cols]
-    out[rows[keep]] = cols[keep]
-    for k in np.flatnonzero(out < 0):
-        j = int(np.argmin(d[k]))
-        if inside[k, j]:
-            out[k] = j
-    return out
 
 
 def kmeans_clusters(
@@ -474,8 +428,8 @@ class KMeansParticleFilter:
         timestamp_ns : int
             Frame time, increasing.
         measurements : mapping of str to sequence of Measurement
-            Each target's measurements (from :func:`associate` and labelled
-            sources); a target may be missing (no cue).
+            Each target's measurements (e.g. from
+            :func:`fusion_pf.association.associate`); a target may be missing (no cue).
 
         Returns
         -------

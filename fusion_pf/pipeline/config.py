@@ -163,8 +163,9 @@ class TrackConfig:
         check=_check_targets,
         metavar="TARGET,...",
         show=lambda v: "the palm only",
-        help=f"track several targets, among {', '.join(TARGETS)} (skin blobs + skeleton joints per target, "
-        "papers 000/002/004); CSV columns <target>_u, <target>_v, <target>_state",
+        help=f"track several targets, among {', '.join(TARGETS)}: every cue serves every target (a window and "
+        "a filter per target, detections associated by label and distance, paper 004's states); "
+        "CSV columns <target>_u, <target>_v, <target>_state",
     )
     cues: tuple[str, ...] | None = option(
         None,

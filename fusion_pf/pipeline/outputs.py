@@ -29,6 +29,7 @@ __all__ = [
     "estimate_json",
     "targets_csv_columns",
     "targets_csv_row",
+    "targets_cues_json",
     "targets_json",
 ]
 
@@ -147,8 +148,8 @@ def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str
     return cells
 
 
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
+def _finite_or_none(value: float | None) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def estimate_json(result: TrackResult, config: TrackConfig) -> dict:
@@ -193,23 +194,42 @@ def targets_csv_columns(targets: Sequence[str]) -> tuple[str, ...]:
     )
 
 
-def targets_csv_row(result) -> list[str]:
-    """The CSV cells of a :class:`~fusion_pf.pipeline.targets.TargetsResult`, in :func:`targets_csv_columns` order."""
+def _uv(result: TrackResult) -> tuple[float | None, float | None]:
+    e = result.estimate
+    return (None, None) if e is None else (e.u, e.v)
+
+
+def targets_csv_row(result: TrackResult) -> list[str]:
+    """The CSV cells of a multi-target frame (``result.targets``), in :func:`targets_csv_columns` order (u, v empty without an estimate)."""
     cells = [str(result.frame), str(result.timestamp_ns)]
-    for u, v, state in result.targets.values():
-        cells += [_f(u, 3), _f(v, 3), state]
-    cells.append(str(result.evaluations))
+    for r in result.targets.values():
+        u, v = _uv(r)
+        cells += [_f(u, 3), _f(v, 3), r.state]
+    cells.append(str(sum(r.evaluations for r in result.targets.values())))
     return cells
 
 
-def targets_json(result, config: TrackConfig) -> dict:
+def targets_json(result: TrackResult, config: TrackConfig) -> dict:
     """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state}`` (u, v null when none)."""
     return {
         "frame": result.frame,
         "timestamp_ns": result.timestamp_ns,
         "targets": {
-            t: {"u": _finite_or_none(u), "v": _finite_or_none(v), "state": s} for t, (u, v, s) in result.targets.items()
+            t: {"u": _finite_or_none(_uv(r)[0]), "v": _finite_or_none(_uv(r)[1]), "state": r.state}
+            for t, r in result.targets.items()
         },
         "filter": config.filter,
-        "likelihood_evaluations": result.evaluations,
+        "likelihood_evaluations": sum(r.evaluations for r in result.targets.values()),
+    }
+
+
+def targets_cues_json(result: TrackResult) -> dict:
+    """The ``/tracker/cues`` message of a multi-target frame: per target its :func:`cues_json` fields."""
+    return {
+        "frame": result.frame,
+        "timestamp_ns": result.timestamp_ns,
+        "targets": {
+            t: {k: v for k, v in cues_json(r).items() if k not in ("frame", "timestamp_ns")}
+            for t, r in result.targets.items()
+        },
     }

@@ -1,4 +1,15 @@
-"""The tracking pipeline: frames -> cues -> filter -> :class:`TrackResult` rows.
+"""The tracking pipeline: frames -> cues -> detections -> association -> filter -> :class:`TrackResult` rows.
+
+Targets
+    One pipeline for the single palm (one target, named by ``config.joint``)
+    and for several (``config.targets``, e.g. both hands and the head). Each
+    target has its prior, cue window and filter; the cues' detections (every
+    region of a window, each target's skeleton joint, up to one hand per hand
+    target with its handedness) are assigned to the targets by
+    :func:`fusion_pf.association.associate`; joined targets are ``combined``
+    and share detections, and a separating pair gets its identities back
+    (:class:`_Targets`). With several targets the first target's
+    :class:`TrackResult` carries every target's in ``targets``.
 
 One frame goes through these stages (each timed with ``time.perf_counter_ns``;
 the names are the keys of ``latency_ns``):
@@ -9,7 +20,8 @@ the names are the keys of ``latency_ns``):
 one stage per cue (``config.cues``, built by :mod:`fusion_pf.cues.registry`)
     in the configured order, e.g. ``colour`` and ``depth`` (paper 003 §3.5.1 /
     §3.5.2 on a region of interest (ROI) around a prior) and ``skeleton`` (the
-    joint ``config.joint``);
+    joint ``config.joint``, or each target's); with several targets the sum
+    over the targets' windows;
 ``filter``
     one :meth:`~fusion_pf.filter.base.Tracker.step` over the fused sources,
     then the palm in 3-D (:func:`fusion_pf.geometry.palm_xyz`);
@@ -91,8 +103,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..association import HANDS, Detection, associate
 from ..cues.background import AdaptiveBackground, BackgroundModel
-from ..cues.base import SOURCES, CueContext
+from ..cues.base import SOURCES, Cue, CueContext
 from ..cues.regions import DEFAULT_PALM_AREA
 from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
@@ -102,7 +115,15 @@ from ..filter.calibration import NoiseCalibration
 from ..filter.estimate import largest_std
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
 from ..filter.sspf import ScatterSearchPF
-from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
+from ..filter.states import (
+    Evidence,
+    StateConfig,
+    TrackState,
+    TrackStatus,
+    combine_states,
+    reassign_identities,
+    step_state,
+)
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
 from ..geometry import backproject, depth_at
 from .config import TrackConfig
@@ -138,6 +159,14 @@ PALM_RATE = 0.2
 RESCALE_TOLERANCE = 0.02
 #: Consecutive frames with a too-wide posterior before the track is lost.
 DEGRADED_FRAMES = 3
+#: States in which a target holds a track (an estimate): alone or joined (paper 004's ``combined``), or just separated.
+HOLDING = (TrackState.TRACKING, TrackState.COMBINED, TrackState.UNLABELLED)
+#: Detections of one source closer than this (px at the reference size) are one (two windows saw the same region).
+MERGE_PX = 1.0
+#: Two targets' estimates closer than this (px at the reference size) are ``combined`` (paper 004) ...
+COMBINE_PX = 20.0
+#: ... and combined ones farther apart than this separate.
+SEPARATE_PX = 35.0
 #: A cue supports the estimate within this many of its noise plus the posterior spread
 #: (a 2-D Gaussian lies farther in 1.1 % of frames).
 SUPPORT_SIGMAS = 3.0
@@ -250,6 +279,11 @@ class TrackResult:
         ``uninitialised`` frames have no estimate).
     evaluations : int
         Likelihood evaluations the filter made in this frame (paper 002's cost measure).
+    target : str
+        The target this result is of (``config.targets[0]``, else ``config.joint``).
+    targets : dict of str to TrackResult
+        With several targets (``config.targets``): every target's result, this
+        one's first; empty for one target.
     sigma_px : float or None
         Uncertainty of the estimate, px (module docstring, "Uncertainty"); None without an estimate.
     sigma_mm : float or None
@@ -270,6 +304,8 @@ class TrackResult:
     source_frame: Frame | None = None
     state: str = TrackState.UNINITIALISED.value
     evaluations: int = 0
+    target: str = "right_hand"
+    targets: dict[str, "TrackResult"] = field(default_factory=dict)
     sigma_px: float | None = None
     sigma_mm: float | None = None
 
@@ -385,26 +421,75 @@ def cue_window(
     )
 
 
+def targets_of(config: TrackConfig) -> tuple[str, ...]:
+    """The targets ``config`` tracks: ``config.targets``, else the single palm named by ``config.joint``."""
+    return config.targets if config.targets is not None else (config.joint,)
+
+
+def window_groups(targets: Sequence[str], rois: Mapping[str, Roi | None]) -> list[tuple[str, Roi | None]]:
+    """The windows the region cues process: overlapping target windows merged into one.
+
+    A target's window joins a group when the bounding box of the group and the
+    window is no larger than their areas together (two hands side by side,
+    joined hands, two whole-frame searches), so no pixel is processed twice
+    for little extra area. Returns ``(first target, window)`` per group: the
+    first target's cue instance (and its per-stream state) processes the group.
+    """
+    groups: list[tuple[str, Roi | None, float]] = []
+    for t in targets:
+        roi = rois[t]
+        area = 0.0 if roi is None else float(max(roi.x1 - roi.x0, 0) * max(roi.y1 - roi.y0, 0))
+        for k, (first, g, g_area) in enumerate(groups):
+            if roi is None or g is None or roi.empty or g.empty:
+                continue
+            x0, y0 = min(g.x0, roi.x0), min(g.y0, roi.y0)
+            x1, y1 = max(g.x1, roi.x1), max(g.y1, roi.y1)
+            if (x1 - x0) * (y1 - y0) <= g_area + area:
+                groups[k] = (first, Roi(x0, y0, x1, y1, g.palm_area), g_area + area)
+                break
+        else:
+            groups.append((t, roi, area))
+    return [(t, roi) for t, roi, _ in groups]
+
+
 class _CueStage:
-    """Per-stream cue extraction: the configured cues, their state and the ROI prior."""
+    """Per-stream cue extraction: the configured cues, their state and the ROI prior of every target.
+
+    Every target gets its own window (around its prior, the whole frame
+    without one); the colour, depth and skin cues measure in each target's
+    window, the skeleton cue reads each target's joint (a detection labelled
+    with the target), the hand cue runs once and follows up to as many hands
+    as there are hand targets. Their detections are then associated to the
+    targets (:func:`fusion_pf.association.associate`); each target's row holds
+    the detection each source gave it.
+    """
 
     def __init__(self, config: TrackConfig) -> None:
         self.config = config
+        self.targets = targets_of(config)
         self.names: tuple[str, ...] = config.cues or ()
-        self.cues = None if config.cues is None else build_cues(self.names, config.cue_options)
-        self.last_joint: tuple[float, float] | None = None
+        self.cues: dict[str, dict[str, Cue]] | None = None if config.cues is None else self._build()
+        self.last_joint: dict[str, tuple[float, float]] = {}
         self.missing: dict[str, int] = {}
         self.failed: dict[str, int] = {}
         self.first_error: dict[str, str] = {}
         self.noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1,)))
 
-    def prior(self, frame: Frame, mode: str, prediction: tuple[float, float] | None) -> tuple[float, float] | None:
-        """The ROI prior of ``frame`` under ``mode`` (module docstring)."""
-        joint = frame.joint(self.config.joint)
+    def _build(self) -> dict[str, dict[str, Cue]]:
+        """The cues of every target (each keeps its own per-stream state, e.g. the depth cue's previous frame)."""
+        return {t: build_cues(self.names, self.config.cue_options) for t in self.targets}
+
+    def prior(
+        self, frame: Frame, mode: str, prediction: tuple[float, float] | None, target: str | None = None
+    ) -> tuple[float, float] | None:
+        """The ROI prior of ``target`` (default: the first) in ``frame`` under ``mode`` (module docstring)."""
+        target = self.targets[0] if target is None else target
+        joint = frame.joint(target)
         if joint is not None and joint.confidence > 0:
-            self.last_joint = (joint.u, joint.v)
+            self.last_joint[target] = (joint.u, joint.v)
+        last = self.last_joint.get(target)
         if mode == "skeleton" or prediction is None:
-            return self.last_joint
+            return last
         if mode == "auto" and joint is not None and joint.confidence >= self.config.prior_confidence:
             return joint.u, joint.v
         return prediction
@@ -413,18 +498,18 @@ class _CueStage:
         """Window around ``prior`` (:func:`cue_window`)."""
         return cue_window(frame, prior, self.config, palm_px)
 
-    def measure(self, name: str, cue, index: int, frame: Frame, ctx: CueContext) -> Measurement | None:
-        """``cue``'s measurement of ``frame``; None (counted) when it has none or fails on this frame."""
+    def detect(self, name: str, cue: Cue, index: int, frame: Frame, ctx: CueContext) -> tuple[Detection, ...]:
+        """``cue``'s detections in ``frame``; none (the failure counted) when it fails on this frame."""
         try:
-            m = cue.measure(frame, ctx).measurement
-            if m is not None and not (math.isfinite(m.u) and math.isfinite(m.v)):
-                raise ValueError(f"non-finite position ({m.u}, {m.v})")
+            found = cue.measure(frame, ctx).detections
+            for d in found:
+                if not (math.isfinite(d.u) and math.isfinite(d.v)):
+                    raise ValueError(f"non-finite position ({d.u}, {d.v})")
         except Exception as exc:  # one frame's fault never ends the run: no measurement, counted
-            m = None
+            found = ()
             self.failed[name] = self.failed.get(name, 0) + 1
             self.first_error.setdefault(name, f"frame {index}: {exc}".splitlines()[0])
-        self.missing[name] = self.missing.get(name, 0) + (m is None)
-        return m
+        return found
 
     def add_noise(self, cues: dict[str, Measurement | None]) -> dict[str, Measurement | None]:
         """``cues`` with ``config.cue_noise_px`` Gaussian noise added (paper 003 §4.2-4.3)."""
@@ -447,26 +532,99 @@ class _CueStage:
         prior: tuple[float, float] | None,
         palm_px: float | None = None,
     ) -> CueRow:
-        """All cues of one frame: in the window around ``prior`` (sized by ``palm_px``, :func:`cue_window`), or over the whole frame without one (acquisition)."""
+        """All cues of one frame for the first target: in the window around ``prior`` (sized by ``palm_px``, :func:`cue_window`), or over the whole frame without one (acquisition)."""
+        t = self.targets[0]
+        return self.rows(index, frame, decode_ns, model, {t: prior}, {t: palm_px})[t]
+
+    def rows(
+        self,
+        index: int,
+        frame: Frame,
+        decode_ns: int,
+        model: BackgroundModel | None,
+        priors: Mapping[str, tuple[float, float] | None],
+        palms: Mapping[str, float | None] | None = None,
+        partners: Mapping[str, str] | None = None,
+    ) -> dict[str, CueRow]:
+        """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets."""
         if self.cues is None:
             self.names = cue_names(self.config, frame)
-            self.cues = build_cues(self.names, self.config.cue_options)
+            self.cues = self._build()
         lat = {"decode": decode_ns}
-        search = prior is None
-        roi: Roi | None
-        if search:
-            s = pixel_scale(frame.size, self.config)
-            roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
-        else:
-            roi = self.roi(frame, prior, palm_px)
-        ctx = CueContext(roi=roi, background=model, joint=self.config.joint, prior=prior, search=search)
-        cues: dict[str, Measurement | None] = {}
-        for name, cue in self.cues.items():
+        targets = tuple(priors)
+        several = len(targets) > 1
+        rois: dict[str, Roi | None] = {}
+        for t, p in priors.items():
+            if p is None:
+                s = pixel_scale(frame.size, self.config)
+                rois[t] = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
+            else:
+                rois[t] = self.roi(frame, p, (palms or {}).get(t))
+        hands = max(1, sum(t in HANDS for t in targets)) if several else 1
+        detections: list[Detection] = []
+        groups = window_groups(targets, rois)
+        for name in self.names:
             t0 = time.perf_counter_ns()
-            cues[name] = self.measure(name, cue, index, frame, ctx)
+            needs = self.cues[targets[0]][name].needs
+            if name == "hand":
+                calls = [(targets[0], rois[targets[0]])]
+            elif "skeleton" in needs:
+                calls = [(t, rois[t]) for t in targets]
+            else:
+                calls = groups
+            for t, roi in calls:
+                ctx = CueContext(
+                    roi=roi,
+                    background=model,
+                    joint=t,
+                    prior=priors[t],
+                    search=priors[t] is None,
+                    hands=hands,
+                    candidates=several,
+                )
+                found = self.detect(name, self.cues[t][name], index, frame, ctx)
+                if "skeleton" in needs:  # the joint of target t: a certain label
+                    found = tuple(Detection(d.measurement, label=t) for d in found)
+                detections.extend(found)
             lat[name] = time.perf_counter_ns() - t0
-        if self.config.cue_noise_px:
-            cues = self.add_noise(cues)
+        assigned = associate(
+            targets,
+            [priors[t] for t in targets],
+            detections,
+            gates=[self._gate(frame, rois[t] if several and priors[t] is not None else None) for t in targets],
+            partners=partners,
+            merge_px=MERGE_PX * pixel_scale(frame.size, self.config),
+        )
+        out = {}
+        for t in targets:
+            cues: dict[str, Measurement | None] = dict.fromkeys(self.names)
+            for d in assigned[t]:
+                cues[d.source] = d.measurement
+            if t == targets[0]:
+                for name in self.names:
+                    self.missing[name] = self.missing.get(name, 0) + (cues[name] is None)
+            if self.config.cue_noise_px:
+                cues = self.add_noise(cues)
+            out[t] = self._row(index, frame, cues, dict(lat), rois[t], t if several else None)
+        return out
+
+    @staticmethod
+    def _gate(frame: Frame, roi: Roi | None) -> float:
+        """Association gate of a target: half its window's diagonal; the image diagonal without a window (one target, acquisition)."""
+        if roi is None or roi.empty:
+            return math.hypot(*frame.size)
+        return max(math.hypot(roi.x1 - roi.x0, roi.y1 - roi.y0) / 2.0, 1.0)
+
+    @staticmethod
+    def _row(
+        index: int,
+        frame: Frame,
+        cues: dict[str, Measurement | None],
+        lat: dict[str, int],
+        roi: Roi | None,
+        target: str | None,
+    ) -> CueRow:
+        """The cue row of one target (``target`` None: the single palm, whose ground truth is the frame's)."""
         patch, origin = None, (0, 0)
         if roi is not None and not roi.empty and frame.depth is not None:
             w, h = frame.size
@@ -483,7 +641,7 @@ class _CueStage:
             depth_patch=patch,
             patch_origin=origin,
             intrinsics=frame.intrinsics,
-            ground_truth=frame.ground_truth,
+            ground_truth=frame.ground_truth if target is None else (frame.ground_truths or {}).get(target),
         )
 
 
@@ -603,8 +761,8 @@ class _FilterStage:
 
     @property
     def tracking(self) -> bool:
-        """Whether the track holds (a prediction exists to place the window)."""
-        return self.status.state == TrackState.TRACKING
+        """Whether the track holds (:data:`HOLDING`: an estimate, and a prediction to place the window)."""
+        return self.status.state in HOLDING
 
     def prediction(self, timestamp_ns: int) -> tuple[float, float] | None:
         """Constant-velocity extrapolation of the last two estimates to ``timestamp_ns``, clamped to the image (None when lost)."""
@@ -780,12 +938,12 @@ class _FilterStage:
         before = self.status.state
         evidence = Evidence(position, spread_px=spread, cues=self._support(ms, estimate))
         self.status = step_state(self.status, evidence, states)
-        if self.status.state != TrackState.TRACKING and estimate is not None:
-            self.losses += before == TrackState.TRACKING
+        if not self.tracking and estimate is not None:
+            self.losses += before in HOLDING
             tracker.reset()
             self._history = []
             estimate = None
-        elif self.status.state == TrackState.TRACKING and before == TrackState.LOST:
+        elif self.tracking and before == TrackState.LOST:
             self.reacquisitions += 1
         particles = weights = xyz = sigma = sigma_mm = None
         if estimate is not None:
@@ -818,6 +976,100 @@ class _FilterStage:
             sigma_px=sigma,
             sigma_mm=sigma_mm,
         )
+
+
+class _Targets:
+    """One :class:`_FilterStage` per target and the supervision between them (paper 004 §5.2).
+
+    After every target's step, two tracked targets closer than
+    :data:`COMBINE_PX` become ``combined`` (they share detections in the next
+    frame's association); a combined pair farther apart than
+    :data:`SEPARATE_PX` separates (``unlabelled`` for a frame) and its
+    identities are given back: by the targets' own skeleton joints of this
+    frame when both have one (handedness already decides in the association),
+    else by the side each entered the combination from
+    (:func:`~fusion_pf.filter.states.reassign_identities`). A single target is
+    the single palm: no supervision between targets, no ``targets`` in its result.
+    """
+
+    def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
+        names = targets_of(config)
+        self.names = names
+        self.stages = {
+            t: _FilterStage(
+                config, rng if k == 0 else np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(3, k)))
+            )
+            for k, t in enumerate(names)
+        }
+        self.entry: dict[str, tuple[float, float]] = {}
+
+    def partners(self) -> dict[str, str]:
+        """The combined targets, each to its partner."""
+        out = {}
+        for t, f in self.stages.items():
+            p = f.status.partner
+            if f.status.state == TrackState.COMBINED and p is not None:
+                out[t] = self.names[p]
+        return out
+
+    def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
+        results = {t: f(rows[t]) for t, f in self.stages.items()}
+        first = results[self.names[0]]
+        first.target = self.names[0]
+        if len(self.names) == 1:
+            return first
+        self._supervise(rows, results, size)
+        for t, r in results.items():
+            r.target = t
+        first.targets = results
+        return first
+
+    def _supervise(self, rows: Mapping[str, CueRow], results: dict[str, TrackResult], size: tuple[int, int]) -> None:
+        stages = [self.stages[t] for t in self.names]
+        s = pixel_scale(size, stages[0].config)
+        config = StateConfig(merge_px=COMBINE_PX * s, split_px=SEPARATE_PX * s, image_size=size)
+        positions = [None if (e := results[t].estimate) is None else (e.u, e.v) for t in self.names]
+        before = [f.status for f in stages]
+        after = combine_states(before, positions, config)
+        for k, (b, a) in enumerate(zip(before, after)):
+            t = self.names[k]
+            if a.state == TrackState.COMBINED and b.state != TrackState.COMBINED and a.partner is not None:
+                p, q = positions[k], positions[a.partner]
+                if p is not None and q is not None:
+                    self.entry[t] = (p[0] - (p[0] + q[0]) / 2, p[1] - (p[1] + q[1]) / 2)
+        for k, (b, a) in enumerate(zip(before, after)):
+            j = b.partner
+            if b.state == TrackState.COMBINED and a.state == TrackState.UNLABELLED and j is not None and k < j:
+                self._separate(self.names[k], self.names[j], rows, results)
+        for t, a in zip(self.names, after):
+            self.stages[t].status = a
+            results[t].state = a.state.value
+
+    def _separate(self, a: str, b: str, rows: Mapping[str, CueRow], results: dict[str, TrackResult]) -> None:
+        """Give a separating pair its identities: swap the two filters when the evidence says they crossed."""
+        ra, rb = results[a].estimate, results[b].estimate
+        if ra is None or rb is None:
+            return
+        modes = np.array([[ra.u, ra.v], [rb.u, rb.v]])
+        la, lb = _label_position(rows[a]), _label_position(rows[b])
+        if la is not None and lb is not None:
+            labels = np.array([la, lb])
+            straight = np.hypot(*(modes - labels).T).sum()
+            crossed = np.hypot(*(modes[::-1] - labels).T).sum()
+            swap = crossed < straight
+        elif a in self.entry and b in self.entry:
+            swap = bool(reassign_identities(np.array([self.entry[a], self.entry[b]]), modes)[0] == 1)
+        else:
+            swap = False
+        if swap:
+            self.stages[a], self.stages[b] = self.stages[b], self.stages[a]
+            results[a], results[b] = results[b], results[a]
+
+
+def _label_position(row: CueRow) -> tuple[float, float] | None:
+    """Where the target's own label puts it this frame: its skeleton joint (None without one)."""
+    m = row.cues.get("skeleton")
+    return None if m is None else (m.u, m.v)
 
 
 def _xyz(row: CueRow, u: float, v: float, radius: int) -> np.ndarray | None:
@@ -919,18 +1171,24 @@ def track(
         the frame from ``decode`` to the 3-D palm.
     """
     cues = _CueStage(config)
-    filt = _FilterStage(config, rng)
+    targets = _Targets(config, rng)
     for index, frame, dec, model in _with_background(source, config, background):
         t0 = time.perf_counter_ns() - dec
         if model is None:
             result = _background_result(_background_row(index, frame, dec, cues.names))
+            result.target = cues.targets[0]
         else:
-            prior = cues.prior(frame, config.roi_prior, filt.prediction(frame.timestamp_ns))
-            palm = None if config.roi_prior == "skeleton" else filt.palm_px  # as extract_cues: no filter there
-            result = filt(cues(index, frame, dec, model, prior, palm))
+            priors, palms = {}, {}
+            for t, f in targets.stages.items():
+                priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
+                palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
+            result = targets(cues.rows(index, frame, dec, model, priors, palms, targets.partners()), frame.size)
             result.latency_ns["total"] = time.perf_counter_ns() - t0
+            for r in result.targets.values():
+                r.latency_ns["total"] = result.latency_ns["total"]
             if stats is not None:
-                stats.losses, stats.reacquisitions = filt.losses, filt.reacquisitions
+                stats.losses = sum(f.losses for f in targets.stages.values())
+                stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
                 stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
         result.source_frame = frame
         yield result

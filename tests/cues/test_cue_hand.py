@@ -348,3 +348,49 @@ def test_previous_must_be_an_observation(hl):
 def test_observation_needs_21_landmarks():
     with pytest.raises(InputError, match=r"\(21, 3\)"):
         HandObservation(np.zeros((20, 3)), 0.9, "left")
+
+
+# ---------------------------------------------------------------- several hands
+
+
+def _two_hands() -> np.ndarray:
+    """One real hand and its mirror image side by side: a left and a right hand."""
+    rgb = load("asl_hand_000.jpg")
+    return np.ascontiguousarray(np.concatenate([rgb, rgb[:, ::-1]], axis=1))
+
+
+def _frame(rgb: np.ndarray, i: int = 0):
+    from fusion_pf.frame import Frame, Intrinsics
+
+    h, w = rgb.shape[:2]
+    return Frame(i * 33_000_000, i, rgb, None, Intrinsics(w, h, 500.0, 500.0, w / 2, h / 2))
+
+
+def test_hand_cue_follows_two_hands_with_their_handedness(hl):
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import HandCue
+
+    rgb = _two_hands()
+    w = rgb.shape[1] // 2
+    cue = HandCue(hl)
+    ctx = CueContext(hands=2)
+    first = cue.measure(_frame(rgb), ctx).detections
+    assert len(first) == 2
+    by_side = sorted(first, key=lambda d: d.u)
+    assert by_side[0].u < w <= by_side[1].u  # one on each half
+    # mirrored hands have opposite handedness; a new hand's label is one frame's vote
+    assert {d.label for d in first} == {"right_hand", "left_hand"}
+    assert all(d.label_score == pytest.approx(0.9) for d in first)
+    assert {d.measurement.extras["mode"] for d in first} == {"detect"}
+    # the mirror image of each hand lies where its twin was
+    np.testing.assert_allclose(by_side[0].u + by_side[1].u, 2 * w - 1, atol=3.0)
+    second = cue.measure(_frame(rgb, 1), ctx).detections
+    assert {d.measurement.extras["mode"] for d in second} == {"track"}  # followed, no new detection
+    assert sorted(d.label for d in second) == sorted(d.label for d in first)
+    # one hand left the frame: one detection, the other hand's label kept
+    left_only = rgb.copy()
+    left_only[:, w:] = 0
+    third = cue.measure(_frame(left_only, 2), ctx).detections
+    assert len(third) == 1 and third[0].u < w and third[0].label == by_side[0].label
+    # one hand asked for: the single-hand cue, no labels
+    assert len(HandCue(hl).measure(_frame(rgb), CueContext()).detections) == 1

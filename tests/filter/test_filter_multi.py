@@ -11,7 +11,6 @@ from fusion_pf.filter.kf import KalmanFilter
 from fusion_pf.filter.multi import (
     IndependentTrackers,
     KMeansParticleFilter,
-    associate,
     cluster_spread,
     elite_mean,
     kmeans_clusters,
@@ -23,24 +22,6 @@ from fusion_pf.filter.pf import ParticleFilter
 from fusion_pf.filter.states import TrackState
 
 NOISE = {"colour": 6.0, "skeleton": 10.0}
-
-
-def test_associate_one_to_one_then_shared_then_gated():
-    pred = np.array([[100.0, 100.0], [200.0, 100.0], [np.nan, np.nan]])
-    blobs = np.array([[205.0, 98.0], [96.0, 103.0]])
-    assert associate(pred, blobs, 30.0).tolist() == [1, 0, -1]
-    # two joined targets, one blob: both take it
-    assert associate(pred[:2], np.array([[150.0, 100.0]]), 60.0).tolist() == [0, 0]
-    # outside the gate: nothing
-    assert associate(pred[:2], np.array([[150.0, 100.0]]), 40.0).tolist() == [-1, -1]
-    # the nearest-prediction rule does not give a blob to the farther target when each has its own
-    assert associate(pred[:2], np.array([[120.0, 100.0], [190.0, 100.0]]), 90.0).tolist() == [0, 1]
-    assert associate(pred, np.zeros((0, 2)), 10.0).tolist() == [-1, -1, -1]
-    # per-target gates (a lost target looks farther)
-    far = np.array([[150.0, 100.0]])
-    assert associate(pred[:2], far, np.array([40.0, 60.0])).tolist() == [-1, 0]
-    with pytest.raises(InputError, match="gate_px"):
-        associate(pred, blobs, 0.0)
 
 
 def test_kmeans_labels_two_clouds_and_links_them_to_previous_estimates():

@@ -76,6 +76,15 @@ def test_every_target_is_tracked_scored_and_keeps_its_identity(scene, tmp_path, 
     assert from_mcap["swaps"] == 0
     for t in TARGETS.split(","):
         assert from_mcap["targets"][t]["rmse_px"] == pytest.approx(rep["targets"][t]["rmse_px"], abs=2e-3)
+    from drivers.mcap_replay import McapTopics
+    from drivers.tracker_topics import read_json_topic
+
+    cues = read_json_topic(out, "/tracker/cues")
+    assert len(cues) == 120 and all(set(m["targets"]) == set(TARGETS.split(",")) for _, m in cues)
+    with McapTopics(out) as rec:
+        overlays = rec.messages("/tracker/overlay")
+        particles = rec.messages("/tracker/particles")
+    assert len(overlays) == 120 and len(particles) == (0 if filt == "kf" else 120)
     if filt == "pf":
         assert main(["render", str(out), "--sheet", str(tmp_path / "s.png"), "--every", "40"]) == 0  # a ring per target
         assert main(["score", str(table), "--ground-truth", str(scene), "--plots", str(tmp_path / "p")]) == 0
@@ -104,3 +113,20 @@ def test_count_swaps_sees_an_exchange_only_where_the_hands_are_apart():
     assert count_swaps(ea, eb, ta, tb, 25.0) == 1
     ea[2], eb[2] = tb[2], ta[2]  # an exchange while joined does not count
     assert count_swaps(ea, eb, ta, tb, 25.0) == 1
+
+
+def test_one_named_target_writes_the_single_palm_outputs(scene, tmp_path, capsys):
+    """``--targets right_hand`` is the single palm: the same CSV, byte for byte, as no ``--targets``."""
+    for name, extra in (("default", []), ("named", ["--targets", "right_hand"])):
+        args = ["track", str(scene), "-o", str(tmp_path / f"{name}.mcap"), "--csv", str(tmp_path / f"{name}.csv")]
+        assert main([*args, "--no-progress", *extra]) == 0
+    assert (tmp_path / "named.csv").read_bytes() == (tmp_path / "default.csv").read_bytes()
+
+
+def test_a_sweep_of_several_targets_is_a_one_line_error(scene, tmp_path, capsys):
+    out = tmp_path / "t.mcap"
+    assert main(["track", str(scene), "-o", str(out), "--targets", "right_hand,left_hand", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["score", str(out), "--ground-truth", str(scene), "--sweep", "10,20"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--sweep scores one target" in err and "right_hand, left_hand" in err

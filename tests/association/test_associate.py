@@ -1,0 +1,127 @@
+"""Detections to targets: labels first, then gated nearest prediction (Hungarian), sharing only when combined."""
+
+from __future__ import annotations
+
+import pytest
+
+from fusion_pf.association import Detection, associate, compatible, handedness_label
+from fusion_pf.errors import InputError
+from fusion_pf.frame import Measurement
+
+HANDS = ("right_hand", "left_hand")
+
+
+def det(source: str, u: float, v: float, label: str | None = None, score: float = 1.0) -> Detection:
+    return Detection(Measurement(source, u, v, 0.9), label=label, label_score=score)
+
+
+def picked(out: dict[str, list[Detection]]) -> dict[str, list[tuple[str, float, float]]]:
+    return {t: [(d.source, d.u, d.v) for d in ds] for t, ds in out.items()}
+
+
+def test_nearest_prediction_one_to_one_over_all_targets():
+    # closest pair first would give (9, 0) to the left target (1 px) and leave the right one 20 px away;
+    # the joint assignment minimises the total distance (9 + 10 px) instead
+    out = associate(HANDS, [(0.0, 0.0), (10.0, 0.0)], [det("colour", 9, 0), det("colour", 20, 0)], gates=[80, 80])
+    assert picked(out) == {"right_hand": [("colour", 9, 0)], "left_hand": [("colour", 20, 0)]}
+
+
+def test_a_certain_label_goes_to_its_target_whatever_the_distance():
+    dets = [det("skeleton", 10, 0, "right_hand"), det("skeleton", 300, 0, "left_hand")]
+    out = associate(HANDS, [(300.0, 0.0), (10.0, 0.0)], dets, gates=[5, 5])  # predictions crossed, tiny gates
+    assert picked(out) == {"right_hand": [("skeleton", 10, 0)], "left_hand": [("skeleton", 300, 0)]}
+    # a joint of a target that is not tracked goes to nobody
+    out = associate(("right_hand",), [(10.0, 0.0)], [det("skeleton", 11, 0, "head")], gates=[50])
+    assert out == {"right_hand": []}
+
+
+def test_handedness_decides_between_targets_at_similar_distances():
+    # both hands predicted at the same place (joined): handedness gives each its own
+    dets = [det("hand", 100, 0, "left_hand", 0.8), det("hand", 104, 0, "right_hand", 0.8)]
+    out = associate(HANDS, [(102.0, 0.0), (102.0, 0.0)], dets, gates=[60, 60])
+    assert picked(out) == {"right_hand": [("hand", 104, 0)], "left_hand": [("hand", 100, 0)]}
+    # without labels the same detections are assigned by distance alone (here: the first target takes the first)
+    plain = [det("hand", 100, 0), det("hand", 104, 0)]
+    out = associate(HANDS, [(101.0, 0.0), (103.0, 0.0)], plain, gates=[60, 60])
+    assert picked(out) == {"right_hand": [("hand", 100, 0)], "left_hand": [("hand", 104, 0)]}
+
+
+def test_an_uncertain_label_cannot_pull_a_tracked_target_across_the_image():
+    # the right hand is tracked at (100, 0); the model calls its hand "left" with a weak score:
+    # the left target (no prediction, acquisition) does not take it from the right one
+    out = associate(HANDS, [(100.0, 0.0), None], [det("hand", 102, 0, "left_hand", 0.3)], gates=[60, 400])
+    assert picked(out) == {"right_hand": [("hand", 102, 0)], "left_hand": []}
+    # a confident opposite label does: the right hand's target was on the wrong hand
+    out = associate(HANDS, [(100.0, 0.0), None], [det("hand", 102, 0, "left_hand", 0.9)], gates=[60, 100])
+    assert picked(out) == {"right_hand": [], "left_hand": [("hand", 102, 0)]}
+
+
+def test_gate_and_acquisition():
+    # beyond the gate of the tracked target; the target without a prediction takes what nobody wants
+    out = associate(HANDS, [(0.0, 0.0), None], [det("colour", 100, 0), det("colour", 5, 0)], gates=[20, 400])
+    assert picked(out) == {"right_hand": [("colour", 5, 0)], "left_hand": [("colour", 100, 0)]}
+    out = associate(HANDS, [(0.0, 0.0), (300.0, 0.0)], [det("colour", 100, 0)], gates=[20, 20])
+    assert picked(out) == {"right_hand": [], "left_hand": []}
+
+
+def test_one_detection_is_shared_only_by_combined_targets():
+    dets = [det("colour", 100, 0), det("depth", 101, 0)]
+    preds = [(98.0, 0.0), (103.0, 0.0)]
+    apart = associate(HANDS, preds, dets, gates=[50, 50])
+    assert sum(len(v) for v in apart.values()) == 2  # each detection to one target only
+    joined = associate(
+        HANDS, preds, dets, gates=[50, 50], partners={"right_hand": "left_hand", "left_hand": "right_hand"}
+    )
+    assert picked(joined)["right_hand"] == picked(joined)["left_hand"] == [("colour", 100, 0), ("depth", 101, 0)]
+
+
+def test_the_head_never_takes_a_hand_detection():
+    hand = det("hand", 50, 50)
+    labelled = det("colour", 50, 50, "left_hand", 0.9)
+    assert not compatible("head", hand) and not compatible("head", labelled)
+    assert compatible("right_hand", hand) and compatible("head", det("colour", 50, 50))
+    # the head is predicted exactly on the hand, the hand target has no prediction: the hand target gets it
+    out = associate(("head", "right_hand"), [(50.0, 50.0), None], [hand], gates=[30, 400])
+    assert picked(out) == {"head": [], "right_hand": [("hand", 50, 50)]}
+    # alone, the head takes nothing of a hand, even combined with a hand target
+    out = associate(("head",), [(50.0, 50.0)], [hand, labelled], gates=[30])
+    assert out == {"head": []}
+    out = associate(
+        ("head", "right_hand"),
+        [(50.0, 50.0), (50.0, 50.0)],
+        [hand],
+        gates=[30, 30],
+        partners={"head": "right_hand", "right_hand": "head"},
+    )
+    assert picked(out) == {"head": [], "right_hand": [("hand", 50, 50)]}
+    # and a hand never takes the head's joint
+    assert not compatible("right_hand", det("skeleton", 0, 0, "head"))
+
+
+def test_duplicates_of_one_region_are_one_detection():
+    # the windows of two nearby targets saw the same region
+    dets = [det("colour", 100.0, 0.0), det("colour", 100.4, 0.0)]
+    out = associate(HANDS, [(99.0, 0.0), (101.0, 0.0)], dets, gates=[50, 50], merge_px=1.0)
+    assert sum(len(v) for v in out.values()) == 1
+
+
+def test_handedness_names_the_hand_target():
+    assert handedness_label("right") == "right_hand" and handedness_label(None) is None
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        ({"gates": [10]}, "same length"),
+        ({"gates": [10, -1]}, "gates"),
+        ({"gates": [10, float("nan")]}, "gates"),
+    ],
+)
+def test_bad_arguments_are_input_errors(kwargs, word):
+    with pytest.raises(InputError, match=word):
+        associate(HANDS, [None, None], [], **kwargs)
+
+
+def test_label_score_must_be_a_probability():
+    with pytest.raises(InputError, match="label_score"):
+        det("hand", 0, 0, "right_hand", 1.5)

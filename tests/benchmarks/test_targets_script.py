@@ -1,0 +1,25 @@
+"""benchmarks/targets.py: the per-seed table and the cost line, on a tiny scene."""
+
+import importlib.util
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("targets_bench", ROOT / "benchmarks" / "targets.py")
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+
+
+def test_table_per_seed_filter_and_hand_then_the_cost(capsys):
+    assert (
+        bench.main(["--seeds", "3", "--frames", "45", "--size", "160x100", "--repeats", "1", "--filters", "pf,kf"]) == 0
+    )
+    lines = capsys.readouterr().out.splitlines()
+    rows = [line for line in lines if line.startswith("| 3 |")]
+    assert [r.split(" | ")[1:3] for r in rows] == [
+        ["pf", "right_hand"],
+        ["pf", "left_hand"],
+        ["kf", "right_hand"],
+        ["kf", "left_hand"],
+    ]
+    assert all("100.0 %" in r for r in rows)  # both hands covered in every tracked frame
+    assert lines[-1].startswith("CPU time per frame at 160x100 (least of 1): one target ")
