@@ -32,9 +32,8 @@ of fitness evaluations (``evaluations``, per step) varies from frame to frame
 (paper 002: "SSPF is time-adaptive since the number of evaluations of the
 weighting function changes in each time step").
 
-:class:`ScatterSearchPF` is the single-target :class:`~fusion_pf.filter.base.Tracker`;
-:class:`JointScatterSearchPF` tracks several targets in one particle, with
-the interface of :class:`~fusion_pf.filter.multi.KMeansParticleFilter`.
+:class:`ScatterSearchPF` is the :class:`~fusion_pf.filter.base.Tracker` (one per
+target: several targets run one each in the tracking pipeline).
 """
 
 from __future__ import annotations
@@ -53,20 +52,10 @@ from .base import Estimate, Tracker
 from .estimate import weighted_covariance, weighted_mean
 from .likelihood import DEFAULT_NOISE_PX, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std
-from .multi import (
-    MultiEstimate,
-    TargetEstimate,
-    _check_measurements,
-    _check_targets,
-    _state_floats,
-    cluster_spread,
-    membership,
-)
 from .pf import check_prior, check_timestamp, fused_position
 from .resample import systematic
-from .states import Evidence, StateConfig, TrackStateMachine
 
-__all__ = ["JointScatterSearchPF", "ScatterSearchPF", "ScatterSearchCore", "diverse_subset"]
+__all__ = ["ScatterSearchPF", "ScatterSearchCore", "diverse_subset"]
 
 
 def diverse_subset(points: np.ndarray, chosen: np.ndarray, count: int) -> np.ndarray:
@@ -402,117 +391,3 @@ class ScatterSearchPF(Tracker):
             )
         est, cov, ess = core.update(z_bar[None], np.array([precision]))
         return Estimate(t, float(est[0, 0]), float(est[0, 1]), ess, True, n, cov[0], core.x[:, 0, :2].copy())
-
-
-class JointScatterSearchPF:
-    """Paper 002's SSPF over several targets in one particle (face and both hands).
-
-    Same interface as :class:`~fusion_pf.filter.multi.KMeansParticleFilter`:
-    ``predictions()`` and ``step(timestamp_ns, {target: [Measurement]}) -> MultiEstimate``.
-    The filter starts once every target has a cue in the same frame; a target
-    without cues in a frame only predicts. Every step is one frame step.
-
-    Parameters
-    ----------
-    targets : sequence of str
-    n_particles, refset_size, process_noise, noise_px, step_px, min_step_px,
-    max_rounds, init_spread_px, init_velocity_px, rng
-        As for :class:`ScatterSearchPF`.
-    states : StateConfig, optional
-        Track-state thresholds (paper 004).
-    """
-
-    def __init__(
-        self,
-        targets: Sequence[str],
-        *,
-        n_particles: int = 100,
-        refset_size: int = 6,
-        process_noise: tuple[float, float] = DEFAULT_PROCESS_NOISE,
-        noise_px: Mapping[str, float] = DEFAULT_NOISE_PX,
-        step_px: float = 4.0,
-        min_step_px: float = 0.5,
-        max_rounds: int = 3,
-        init_spread_px: float = 20.0,
-        init_velocity_px: float = 2.0,
-        states: StateConfig | None = None,
-        rng: np.random.Generator | int | None = None,
-    ) -> None:
-        self.targets = _check_targets(targets)
-        self._core = ScatterSearchCore(
-            len(self.targets),
-            n_particles=n_particles,
-            refset_size=refset_size,
-            process_noise=process_noise,
-            step_px=step_px,
-            min_step_px=min_step_px,
-            max_rounds=max_rounds,
-            init_spread_px=init_spread_px,
-            init_velocity_px=init_velocity_px,
-            rng=rng,
-        )
-        self.n_particles = self._core.n
-        self.process_noise = check_process_noise(process_noise)
-        self._like = JointLikelihood(noise_px)
-        self.noise_px = self._like.noise_px
-        self._fsm = TrackStateMachine(self.targets, states or StateConfig())
-        self._est = np.full((len(self.targets), 4), np.nan)
-        self._last_ns: int | None = None
-
-    @property
-    def evaluations(self) -> int:
-        """Fitness evaluations in the last step."""
-        return self._core.evaluations
-
-    def predictions(self) -> np.ndarray:
-        """Predicted positions of the targets, shape (K, 2) (nan before the filter starts)."""
-        return self._est[:, :2] + self._est[:, 2:]
-
-    def step(self, timestamp_ns: int, measurements: Mapping[str, Sequence[Measurement]]):
-        """PREDICT, EVALUATE, scatter search over the joint state, INCLUDE, estimate, SELECT.
-
-        Returns
-        -------
-        MultiEstimate
-        """
-        t = check_timestamp(timestamp_ns, self._last_ns)
-        _check_measurements(self.targets, measurements)
-        ms = [self._like.check(measurements.get(name, ())) for name in self.targets]
-        core = self._core
-        core.evaluations = 0
-        fused = [_fused(m, self.noise_px) for m in ms]
-        z_bar = np.array([f[0] for f in fused])
-        precision = np.array([f[1] for f in fused])
-        if core.x is None:
-            if not (precision > 0).all():
-                # wait until every target has a cue
-                self._last_ns = t
-                ev = {name: Evidence(None, cues=len(m)) for name, m in zip(self.targets, ms)}
-                states = self._fsm.update(ev)
-                nan = math.nan
-                return MultiEstimate(
-                    t, {name: TargetEstimate(nan, nan, nan, nan, states[name], nan, nan) for name in self.targets}, 0
-                )
-            core.initialise(np.concatenate([z_bar, np.zeros_like(z_bar)], axis=1))
-        elif self._last_ns is not None:
-            core.predict(1.0)
-        self._last_ns = t
-        assert core.x is not None, "initialised above"
-        if (precision > 0).any():
-            self._est, _, _ = core.update(z_bar, precision)
-        else:
-            self._est = core.x.mean(axis=0)
-        spread = [cluster_spread(core.x[:, k, :2], self._est[k, :2]) for k in range(core.k)]
-        memb = [membership(self._est[k, :2], ms[k], self.noise_px) for k in range(core.k)]
-        ev = {
-            name: Evidence((float(self._est[k, 0]), float(self._est[k, 1])), spread[k], memb[k], len(ms[k]))
-            for k, name in enumerate(self.targets)
-        }
-        states = self._fsm.update(ev)
-        out = {
-            name: TargetEstimate(
-                *_state_floats(self._est[k]), state=states[name], membership=memb[k], spread_px=spread[k]
-            )
-            for k, name in enumerate(self.targets)
-        }
-        return MultiEstimate(t, out, core.evaluations)

@@ -8,8 +8,7 @@ import pytest
 from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
 from fusion_pf.filter.pf import ParticleFilter
-from fusion_pf.filter.sspf import JointScatterSearchPF, ScatterSearchCore, ScatterSearchPF, diverse_subset
-from fusion_pf.filter.states import TrackState
+from fusion_pf.filter.sspf import ScatterSearchPF, diverse_subset
 
 T = 200
 #: The filters model the cue as it is simulated: sigma 6 px.
@@ -96,58 +95,3 @@ def test_reset_with_prior_follows_the_tracker_contract():
     # a plain reset keeps the prior given last, like ParticleFilter.reset
     f.reset()
     assert f.initialised and np.abs(f.particles[:, :2].mean(axis=0) - (50.0, 60.0)).max() < 2.0
-
-
-def test_joint_sspf_combines_target_partitions_and_tracks_a_crossing():
-    core = ScatterSearchCore(
-        3,
-        n_particles=10,
-        refset_size=6,
-        process_noise=(3, 1),
-        step_px=4,
-        min_step_px=0.5,
-        max_rounds=1,
-        init_spread_px=1,
-        init_velocity_px=1,
-        rng=0,
-    )
-    # paper 002 §5: six mixes of two (F, R, L) solutions
-    assert core._masks.shape == (6, 3, 1)
-    t = np.arange(60, dtype=float)
-    a = np.stack([100 + 100 * t / 60, np.full(60, 100.0)], 1)
-    b = np.stack([200 - 100 * t / 60, np.full(60, 130.0)], 1)
-    rng = np.random.default_rng(0)
-    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=0)
-    first = f.step(0, {"a": [Measurement("colour", *a[0])]})  # waits for both targets
-    assert first.evaluations == 0 and first.targets["b"].state == TrackState.UNINITIALISED
-    err = []
-    for k in range(1, 60):
-        e = f.step(
-            k,
-            {
-                "a": [Measurement("colour", *(a[k] + rng.normal(0, 3, 2)))],
-                "b": [Measurement("colour", *(b[k] + rng.normal(0, 3, 2)))],
-            },
-        )
-        assert e.evaluations > 50
-        err.append(
-            [
-                np.hypot(e.targets["a"].u - a[k, 0], e.targets["a"].v - a[k, 1]),
-                np.hypot(e.targets["b"].u - b[k, 0], e.targets["b"].v - b[k, 1]),
-            ]
-        )
-    assert np.max(err[5:]) < 10
-
-
-def test_joint_sspf_target_without_cues_coasts_instead_of_drifting_away():
-    f = JointScatterSearchPF(["a", "b"], n_particles=50, noise_px={"colour": 6.0}, rng=1)
-    rng = np.random.default_rng(1)
-    for k in range(40):
-        cues = {"a": [Measurement("colour", *(100 + 2.0 * k + rng.normal(0, 3), 100 + rng.normal(0, 3)))]}
-        if k < 10:
-            cues["b"] = [Measurement("colour", *(200 + rng.normal(0, 3), 150 + rng.normal(0, 3)))]
-        e = f.step(k, cues)
-    # a follows its cue; b, silent for 30 frames, stays near where it was last seen
-    assert np.hypot(e.targets["a"].u - 178.0, e.targets["a"].v - 100.0) < 10
-    assert np.hypot(e.targets["b"].u - 200.0, e.targets["b"].v - 150.0) < 60
-    assert e.targets["b"].state == TrackState.LOST
