@@ -22,6 +22,7 @@ MINIMAL = {
     "cues": ["cues", "r.mcap"],
     "demo": ["demo"],
     "import": ["import", "folder", "o.mcap"],
+    "merge": ["merge", "a.mcap", "b.mcap", "--extrinsics", "c.yaml", "-o", "o.mcap"],
     "record": ["record", "synth", "o.mcap"],
     "render": ["render", "t.mcap"],
     "score": ["score", "t.csv", "--ground-truth", "g.mcap"],
