@@ -867,7 +867,7 @@ def decode_transform(data: bytes | memoryview, where: str = TF_TOPIC) -> tuple[s
     return msg.parent_frame_id, msg.child_frame_id, pose
 
 
-def encode_world_point(target: str, xyz_mm: Sequence[float]) -> dict[str, Any]:
+def encode_world_point(target: str, xyz_mm: np.ndarray | Sequence[float]) -> dict[str, Any]:
     """The ``fusion_pf.TargetWorldPoint`` object of one target's world ground truth."""
     return {"target": target, "xyz_mm": [float(v) for v in xyz_mm]}
 

@@ -160,7 +160,10 @@ class RigRecorder:
         self.recorder.__exit__(*exc)
 
     def write(
-        self, timestamp_ns: int, frames: Mapping[str, Frame], truth_mm: Mapping[str, Sequence[float]] | None = None
+        self,
+        timestamp_ns: int,
+        frames: Mapping[str, Frame],
+        truth_mm: Mapping[str, np.ndarray | Sequence[float]] | None = None,
     ) -> None:
         """Write the frames of one instant (each with ``timestamp_ns``) and its world ground truth."""
         t = fmt.check_timestamp(timestamp_ns)
