@@ -127,6 +127,7 @@ def test_the_commands_with_options_have_configs():
     with_configs = {name for name, module in COMMANDS.items() if module.CONFIGS}
     assert with_configs == {
         "annotate",
+        "calibrate",
         "cues",
         "demo",
         "import",

@@ -19,6 +19,7 @@ from fusion_pf.options import from_args
 #: The shortest command line of each command with configs.
 MINIMAL = {
     "annotate": ["annotate", "r.mcap", "--db", "d.sqlite"],
+    "calibrate": ["calibrate", "r.mcap", "-o", "c.yaml"],
     "cues": ["cues", "r.mcap"],
     "demo": ["demo"],
     "import": ["import", "folder", "o.mcap"],

@@ -8,9 +8,9 @@ import re
 import numpy as np
 import pytest
 
+from drivers.charuco import BoardSpec
 from drivers.rig import RigReplay, load_extrinsics
 from drivers.rig_calibration import ICP_BOARD_TOLERANCE_PX, calibrate
-from drivers.charuco import BoardSpec
 from drivers.synth_rig import SynthRig
 from fusion_pf.geometry import backproject
 
@@ -79,7 +79,18 @@ def test_same_seed_same_frames_other_seed_other_poses():
 def test_calibrate_recovers_every_pose(tmp_path, fusion_pf, cameras, seed):
     rec = tmp_path / "board.mcap"
     proc = fusion_pf(
-        "synth", rec, "--cameras", cameras, "--board", "--frames", 2, "--size", "640x400", "--seed", seed, "--no-progress"
+        "synth",
+        rec,
+        "--cameras",
+        cameras,
+        "--board",
+        "--frames",
+        2,
+        "--size",
+        "640x400",
+        "--seed",
+        seed,
+        "--no-progress",
     )
     assert proc.returncode == 0, proc.stderr
     out = tmp_path / "cams.yaml"
