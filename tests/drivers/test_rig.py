@@ -202,3 +202,32 @@ def test_merge_and_info_command_line(tmp_path, rig_inputs, fusion_pf):
     proc = fusion_pf("merge", a, "--extrinsics", cams, "-o", tmp_path / "n.mcap")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "the extrinsics name 2 camera(s) (cam_a, cam_b) but 1 recording(s) were given" in proc.stderr
+
+
+def test_a_damaged_chunk_costs_only_its_own_frames_in_every_camera(tmp_path, make_frames, record):
+    """Chunks hold several instants of both cameras and start with the calibration of each: after a
+    corrupt chunk the frames keep their own camera's intrinsics (camera a's changes at frame 5)."""
+    a = record(tmp_path / "a.mcap", make_frames(12, seed=1, calibration_change=5))
+    b = record(tmp_path / "b.mcap", make_frames(12, seed=2, size=(48, 32)))
+    poses = {"a": CameraPose.identity(), "b": CameraPose.from_rvec([0, 0.3, 0], [500, 0, 0])}
+    out = tmp_path / "m.mcap"
+    merge([a, b], poses, out, recorder_kwargs={"chunk_size": 60_000})
+    with McapReplay(a) as ra:
+        want = {f.timestamp_ns: f.intrinsics for f in ra}
+    with McapReplay(out, camera="a") as r:
+        times = r.timestamps.copy()
+        victim = next(blk for blk in r._blocks if blk.start_ns <= times[5] <= blk.end_ns)
+    gone = [int(t) for t in times if victim.start_ns <= t <= victim.end_ns]
+    assert 2 <= len(gone) < 6 and victim.end_ns < times[-1]
+    data = bytearray(out.read_bytes())
+    data[victim.offset + victim.length // 2] ^= 0x01
+    out.write_bytes(bytes(data))
+    with RigReplay(out) as rig:
+        sets = list(rig)
+        lost = {name: r.stats.dropped for name, r in rig.replays.items()}
+    assert lost == {"a": len(gone), "b": len(gone)}
+    assert [s.timestamp_ns for s in sets] == [int(t) for t in times if int(t) not in gone]
+    for s in sets:
+        assert sorted(s.views) == ["a", "b"]
+        assert s.views["a"].frame.intrinsics == want[s.timestamp_ns]
+        assert s.views["b"].frame.intrinsics.width == 48
