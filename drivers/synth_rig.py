@@ -13,8 +13,8 @@ Every camera renders the same 3-D scene with :mod:`drivers.synth`'s renderer
   count only), so ``fusion-pf calibrate`` on the first recovers the poses of the
   second in the frame they were drawn in.
 * **Static scene**, ray-cast per camera in world coordinates so all cameras see
-  one geometry: the back wall 1.5 m behind the board, the floor 1.65 m below its
-  top edge, and a box on the floor to the left; colours are smooth textures of
+  one geometry: the back wall 1.5 m behind the board, a wall on the left, the
+  floor 1.65 m below the board's top edge and three boxes on it; colours are smooth textures of
   the world position (seeded). The board is the image of
   ``cv2.aruco.CharucoBoard.generateImage`` looked up (low-passed to the camera's
   pixel size) at the world point each pixel sees: the board warped into the
@@ -68,8 +68,14 @@ CAMERA_Y_M = 0.4
 ARC_HALF_ANGLE_DEG = 28.0
 #: The back wall's depth (metres, world z) and the floor's height (world y).
 WALL_Z_M, FLOOR_Y_M = 1.5, 1.65
-#: The box on the floor: min and max corners (metres, world).
-BOX_M = (np.array([-0.65, 1.1, 0.5]), np.array([-0.1, 1.65, 1.05]))
+#: The wall on the left (metres, world x).
+SIDE_WALL_X_M = -1.4
+#: Boxes on the floor: min and max corners (metres, world).
+BOXES_M = (
+    (np.array([-0.65, 1.1, 0.5]), np.array([-0.1, 1.65, 1.05])),
+    (np.array([1.7, 1.2, 0.2]), np.array([2.2, 1.65, 0.6])),
+    (np.array([-1.4, 0.9, -0.6]), np.array([-1.05, 1.65, 0.1])),
+)
 #: Board ink and paper grey levels.
 BOARD_BLACK, BOARD_WHITE = 28.0, 232.0
 
@@ -118,7 +124,7 @@ class _Textures:
 def render_static(
     intr: Intrinsics, pose: CameraPose, board: BoardSpec, board_pyramid: list[np.ndarray] | None, tex: _Textures
 ) -> sc.Background:
-    """Ray-cast the static scene (wall, floor, box and, given its image pyramid, the board) for one camera."""
+    """Ray-cast the static scene (walls, floor, boxes and, given its image pyramid, the board) for one camera."""
     h, w = intr.height, intr.width
     xn = (np.arange(w, dtype=np.float64) - intr.cx) / intr.fx
     yn = (np.arange(h, dtype=np.float64) - intr.cy) / intr.fy
@@ -132,21 +138,20 @@ def render_static(
             t = (value - o[axis]) / d[..., axis]
         return np.where(t > 1e-6, t, inf)
 
-    t_wall = plane(2, WALL_Z_M)
-    t_floor = plane(1, FLOOR_Y_M)
-    lo, hi = BOX_M
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1, t2 = (lo - o) / d, (hi - o) / d
-    t_near = np.nanmax(np.minimum(t1, t2), axis=-1)
-    t_far = np.nanmin(np.maximum(t1, t2), axis=-1)
-    t_box = np.where((t_near <= t_far) & (t_near > 1e-6), t_near, inf)
+    t_boxes = []
+    for lo, hi in BOXES_M:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (lo - o) / d, (hi - o) / d
+        t_near = np.nanmax(np.minimum(t1, t2), axis=-1)
+        t_far = np.nanmin(np.maximum(t1, t2), axis=-1)
+        t_boxes.append(np.where((t_near <= t_far) & (t_near > 1e-6), t_near, inf))
     t_board = plane(2, 0.0)
     pb = o + t_board[..., None] * d
     bw, bh = (v / 1000.0 for v in board.size_mm)
     on_board = (pb[..., 0] >= 0) & (pb[..., 0] <= bw) & (pb[..., 1] >= 0) & (pb[..., 1] <= bh)
     on_board &= board_pyramid is not None
     t_board = np.where(on_board, t_board, inf)
-    ts = np.stack([t_wall, t_floor, t_box, t_board])
+    ts = np.stack([plane(2, WALL_Z_M), plane(1, FLOOR_Y_M), plane(0, SIDE_WALL_X_M), t_board, *t_boxes])
     which = np.argmin(ts, axis=0)
     depth = np.min(ts, axis=0)
     if not np.isfinite(depth).all():
@@ -158,10 +163,14 @@ def render_static(
     floor = which == 1
     grain = tex.field(1, p[floor, 0], p[floor, 2])
     color[floor] = np.array([150.0, 118.0, 86.0], np.float32) + 22.0 * grain[:, None]
-    box = which == 2
-    face = np.argmax(np.stack([np.abs(p[box] - lo), np.abs(p[box] - hi)]).min(axis=0) < 1e-6, axis=-1)
+    side = which == 2
+    color[side] = np.asarray(sc.WALL_RGB, np.float32) * 0.9 + 14.0 * tex.field(0, p[side, 2], p[side, 1])[:, None]
     palette = np.asarray(sc.BOX_PALETTE, np.float32)[[1, 2, 3]]
-    color[box] = palette[face] * (1.0 + 0.08 * tex.field(2, p[box, 0] + p[box, 1], p[box, 2])[:, None])
+    for k, (lo, hi) in enumerate(BOXES_M):
+        box = which == 4 + k
+        face = np.argmax(np.stack([np.abs(p[box] - lo), np.abs(p[box] - hi)]).min(axis=0) < 1e-6, axis=-1)
+        shade = 1.0 + 0.08 * tex.field(2, p[box, 0] + p[box, 1], p[box, 2])[:, None]
+        color[box] = palette[(face + k) % 3] * shade
     on = which == 3
     if board_pyramid is not None and on.any():
         # the coarsest board image at least 4 times finer than the camera's pixels, low-passed to them
