@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers.charuco import BoardSpec
+from drivers.rig_calibration import REFINEMENTS
 from fusion_pf.options import add_options, from_args, option, validate
 
 NAME = "calibrate"
@@ -22,17 +25,37 @@ DESCRIPTION = (
 )
 
 
-def _show_board(value: object) -> str:
-    return "the recording's, else 7x5 squares of 160 mm, markers 120 mm, DICT_4X4_50"
+def _board_default(field: str) -> Callable[[object], str]:
+    """``show`` of a board option: the recording's board, else :class:`drivers.charuco.BoardSpec`'s default."""
+
+    def show(value: object) -> str:
+        default = getattr(BoardSpec(), field)
+        text = (
+            "x".join(map(str, default))
+            if isinstance(default, tuple)
+            else f"{default:g}"
+            if isinstance(default, float)
+            else default
+        )
+        return f"the recording's board, else {text}"
+
+    return show
 
 
 @dataclass(frozen=True)
 class CalibrateOptions:
     """The board and the refinement of ``fusion-pf calibrate`` (validated on construction)."""
 
-    refine: str = option("none", choices=("none", "icp"), help="refine the board poses by coloured ICP of the depth")
+    refine: str = option(
+        REFINEMENTS[0], choices=REFINEMENTS, help="refine the board poses by coloured ICP of the depth"
+    )
     board_squares: str | None = option(
-        None, kind="str", optional=True, metavar="CxR", show=_show_board, help="board squares (columns x rows)"
+        None,
+        kind="str",
+        optional=True,
+        metavar="CxR",
+        show=_board_default("squares"),
+        help="board squares (columns x rows)",
     )
     board_square_mm: float | None = option(
         None,
@@ -42,7 +65,7 @@ class CalibrateOptions:
         optional=True,
         unit="mm",
         metavar="MM",
-        show=_show_board,
+        show=_board_default("square_mm"),
         help="board square side",
     )
     board_marker_mm: float | None = option(
@@ -53,11 +76,16 @@ class CalibrateOptions:
         optional=True,
         unit="mm",
         metavar="MM",
-        show=_show_board,
+        show=_board_default("marker_mm"),
         help="board marker side",
     )
     board_dictionary: str | None = option(
-        None, kind="str", optional=True, metavar="DICT", show=_show_board, help="OpenCV ArUco dictionary of the board"
+        None,
+        kind="str",
+        optional=True,
+        metavar="DICT",
+        show=_board_default("dictionary"),
+        help="OpenCV ArUco dictionary of the board",
     )
 
     def __post_init__(self) -> None:
@@ -82,7 +110,6 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate, print the reprojection error per camera, write the extrinsics."""
     import dataclasses
 
-    from drivers.charuco import BoardSpec
     from drivers.rig import RigReplay, extrinsics_document, write_extrinsics
     from drivers.rig_calibration import calibrate, report_lines
     from fusion_pf.errors import InputError
