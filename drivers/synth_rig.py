@@ -27,6 +27,7 @@ Every camera renders the same 3-D scene with :mod:`drivers.synth`'s renderer
   degrees, radius +-0.2 m, height +-8 cm, aim +-10 cm, roll +-2 degrees); every
   camera has the single-camera scene's intrinsics. The poses are in the
   recording's metadata (``pose_<camera>``) and on ``/tf``.
+* **Colour-only cameras**: the last ``colour_only`` cameras have no depth.
 * **Ground truth**: per camera the pixel truth of the single-camera scene (its
   ``/ground_truth/palm``), and per target the world position in mm (right hand; with
   ``hands=2`` also left hand and head), the palm's centre in the person model.
@@ -227,13 +228,18 @@ class SynthRig:
     ----------
     cameras : int
         1 to :data:`MAX_CAMERAS`.
+    board : bool
+        Render the rig's calibration sequence (the board in the empty room) instead of the person.
+    colour_only : int
+        The last ``colour_only`` cameras have no depth (``Frame.depth = None``), in ``[0, cameras]``.
     **scene
         :class:`~drivers.synth.SynthSource`'s options (frames, seed, size, fps,
         background_frames, start_ns, depth_model, hands).
     """
 
-    def __init__(self, cameras: int, *, board: bool = False, **scene: Any) -> None:
+    def __init__(self, cameras: int, *, board: bool = False, colour_only: int = 0, **scene: Any) -> None:
         self.cameras = _int_option("synth option cameras", cameras, 1, MAX_CAMERAS)
+        self.colour_only = _int_option("synth option colour_only", colour_only, 0, self.cameras)
         self.board = BoardSpec() if board else None
         if board:  # the calibration sequence: the board in the empty room
             scene["background_frames"] = scene.get("frames", _SCENE_FRAMES)
@@ -268,9 +274,18 @@ class SynthRig:
         targets = TARGETS if self.source.hands == 2 else TARGETS[:1]
         return {name: np.asarray(p) * 1000.0 for name, p in zip(targets, points, strict=False)}
 
+    @property
+    def colour_only_cameras(self) -> tuple[str, ...]:
+        """The cameras without depth (the last ``colour_only``)."""
+        return tuple(self.poses)[self.cameras - self.colour_only :]
+
     def frames(self, index: int) -> dict[str, Frame]:
-        """Every camera's frame at ``index``."""
-        return {name: replace(view.render(index)[0], seq=index) for name, view in self.views.items()}
+        """Every camera's frame at ``index`` (no depth from the colour-only cameras)."""
+        plain = self.colour_only_cameras
+        return {
+            name: replace(view.render(index)[0], seq=index, **({"depth": None} if name in plain else {}))
+            for name, view in self.views.items()
+        }
 
     def metadata(self) -> dict[str, str]:
         """The single-camera scene's metadata, the camera count, the board and the world frame's definition."""
@@ -278,6 +293,7 @@ class SynthRig:
             **self.source.metadata(),
             "generator": "fusion_pf.synth_rig",
             "cameras_count": str(self.cameras),
+            "colour_only_cameras": ",".join(self.colour_only_cameras),
             "world": "calibration board frame (origin top-left outer corner, x right, y down, z into the board)",
             **(self.board.metadata() if self.board is not None else {}),
             **{

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from drivers.encoding import EncodingOptions
 from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, SynthSource
-from drivers.synth_rig import MAX_CAMERAS
+from drivers.synth_rig import MAX_CAMERAS, SynthRig
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
 
@@ -93,6 +93,14 @@ class SynthOptions:
         metavar="N",
         help="cameras seeing the scene; N >= 2 writes a multi-camera recording (poses on /tf, world ground truth)",
     )
+    colour_only: int = option(
+        0,
+        kind="int",
+        lo=0,
+        hi=MAX_CAMERAS,
+        metavar="K",
+        help="with --cameras: the last K cameras have no depth (colour-only cameras)",
+    )
     board: bool = option(
         False,
         kind="bool",
@@ -101,6 +109,12 @@ class SynthOptions:
 
     def __post_init__(self) -> None:
         validate(self)
+        if self.colour_only and self.cameras < 2:
+            raise InputError("--colour-only describes cameras of a rig; it needs --cameras 2 or more")
+        if self.colour_only > self.cameras:
+            raise InputError(
+                f"colour_only (--colour-only) must be in [0, cameras {self.cameras}], got {self.colour_only}"
+            )
         if self.board and self.cameras < 2:
             raise InputError("--board renders a rig's calibration sequence; it needs --cameras 2 or more")
         if self.background_frames > self.frames:
@@ -137,11 +151,13 @@ def run(args: argparse.Namespace) -> int:
     scene = from_args(SynthOptions, args)
     encoding = from_args(EncodingOptions, args)
     options = dataclasses.asdict(scene)
-    cameras, board = options.pop("cameras"), options.pop("board")
+    cameras, board, colour_only = options.pop("cameras"), options.pop("board"), options.pop("colour_only")
     out: Path = args.output
     check_output(out, force=args.force)
     if cameras > 1:
-        return _run_rig(cameras, board, options, encoding, out, args.no_progress)
+        return _run_rig(
+            SynthRig(cameras, board=board, colour_only=colour_only, **options), encoding, out, args.no_progress
+        )
     source = SynthSource(**options)
     recorder = McapRecorder(out, metadata=source.metadata(), **encoding.recorder_kwargs())
     started = time.monotonic()
@@ -166,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_rig(cameras: int, board: bool, options: dict, encoding: EncodingOptions, out: Path, no_progress: bool) -> int:
+def _run_rig(rig: SynthRig, encoding: EncodingOptions, out: Path, no_progress: bool) -> int:
     """Render the multi-camera scene into a multi-camera recording."""
     import sys
     import time
@@ -174,10 +190,9 @@ def _run_rig(cameras: int, board: bool, options: dict, encoding: EncodingOptions
     from tqdm import tqdm
 
     from drivers.rig import RigRecorder
-    from drivers.synth_rig import SynthRig
 
     started = time.monotonic()
-    rig = SynthRig(cameras, board=board, **options)
+    cameras = rig.cameras
     with (
         RigRecorder(out, rig.poses, metadata=rig.metadata(), **encoding.recorder_kwargs()) as recorder,
         tqdm(

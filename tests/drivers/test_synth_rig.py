@@ -138,3 +138,22 @@ def test_icp_refinement_runs_and_keeps_only_what_agrees_with_the_board(tmp_path)
         assert r.icp.board_rms_px <= r.board.rms_px + ICP_BOARD_TOLERANCE_PX and r.pose != r.board.pose
     else:
         assert r.pose == r.board.pose
+
+
+def test_colour_only_cameras_have_no_depth(tmp_path, fusion_pf):
+    rec = tmp_path / "mixed.mcap"
+    proc = fusion_pf(
+        "synth", rec, "--cameras", 3, "--colour-only", 1, "--frames", 2, "--size", "96x64", "--no-progress"
+    )
+    assert proc.returncode == 0, proc.stderr
+    with RigReplay(rec) as rig:
+        depth = {
+            name: [v.frame.depth is not None for s in rig for v in s.views.values() if v.camera == name]
+            for name in rig.cameras
+        }
+        assert rig.replays["cam0"].metadata()["colour_only_cameras"] == "cam2"
+    assert depth == {"cam0": [True, True], "cam1": [True, True], "cam2": [False, False]}
+    proc = fusion_pf("synth", tmp_path / "x.mcap", "--colour-only", 1)
+    assert proc.returncode == 2 and "needs --cameras 2 or more" in proc.stderr
+    proc = fusion_pf("synth", tmp_path / "x.mcap", "--cameras", 2, "--colour-only", 3)
+    assert proc.returncode == 2 and "must be in [0, cameras 2], got 3" in proc.stderr
