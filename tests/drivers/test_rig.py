@@ -217,6 +217,18 @@ def test_a_damaged_chunk_costs_only_its_own_frames_in_every_camera(tmp_path, mak
     with McapReplay(out, camera="a") as r:
         times = r.timestamps.copy()
         victim = next(blk for blk in r._blocks if blk.start_ns <= times[5] <= blk.end_ns)
+        # every chunk starts with the calibration of each camera whose frames it holds
+        for block in (blk for blk in r._blocks if blk.is_chunk):
+            topics = [r._channels[cid].topic for cid, _t, _d, _s in r._block_records(block)]
+            cameras = {t.split("/")[1] for t in topics if t.endswith("/camera/color")}
+            assert cameras
+            for c in cameras:
+                first = topics.index(f"/{c}/camera/color")
+                assert f"/{c}/camera/calibration" in topics[:first], (block.offset, c)
+        # and the calibration metadata records are each camera's own
+        assert {k.width for k in r._cal_meta.values()} == {64}
+    with McapReplay(out, camera="b") as r:
+        assert {k.width for k in r._cal_meta.values()} == {48}
     gone = [int(t) for t in times if victim.start_ns <= t <= victim.end_ns]
     assert 2 <= len(gone) < 6 and victim.end_ns < times[-1]
     data = bytearray(out.read_bytes())
