@@ -41,6 +41,21 @@ from .mcap_replay import McapReplay, McapTopics
 _CAMERA_COLOR = re.compile(r"^/([^/]+)" + re.escape(fmt.COLOR_TOPIC) + "$")
 #: Metadata key of ``fusion_pf.recording`` listing the cameras of a multi-camera recording, in order.
 CAMERAS_KEY = "cameras"
+#: Prefix of the ``fusion_pf.recording`` keys repeating each camera's pose (``pose_<camera>``, JSON).
+POSE_KEY_PREFIX = "pose_"
+
+
+def pose_metadata(pose: CameraPose) -> str:
+    """The ``pose_<camera>`` metadata value of ``pose``: JSON ``{"translation_mm", "rotation_xyzw"}`` (exact floats)."""
+    return json.dumps({"translation_mm": pose.translation_mm.tolist(), "rotation_xyzw": pose.quaternion().tolist()})
+
+
+def _pose_from_metadata(text: str, where: str) -> CameraPose:
+    try:
+        obj = json.loads(text)
+        return CameraPose.from_quaternion(obj["rotation_xyzw"], obj["translation_mm"])
+    except (ValueError, KeyError, TypeError, InputError) as exc:
+        raise RecordingError(f"{where}: not a pose ({exc}): {text[:80]!r}") from None
 
 
 # --------------------------------------------------------------------------- extrinsics files
@@ -137,8 +152,10 @@ def write_extrinsics(path: str | Path, document: Mapping[str, Any]) -> None:
 class RigRecorder:
     """Write frame sets into one multi-camera MCAP (a context manager around :class:`McapRecorder`).
 
-    The camera poses go on ``/tf`` with the first frame set; each camera's frame
-    goes on its prefixed topics; world ground truth on ``/ground_truth/world``.
+    The camera poses go on ``/tf`` with the first frame set (and into the
+    recording metadata as ``pose_<camera>``, outside the chunks, so a damaged first
+    chunk does not take them along); each camera's frame goes on its prefixed
+    topics; world ground truth on ``/ground_truth/world``.
     """
 
     def __init__(self, path: str | Path, poses: Mapping[str, CameraPose], **recorder_kwargs: Any) -> None:
@@ -147,6 +164,7 @@ class RigRecorder:
         self.poses = {check_camera_name(name): pose for name, pose in poses.items()}
         meta = dict(recorder_kwargs.pop("metadata", None) or {})
         meta[CAMERAS_KEY] = ",".join(self.poses)
+        meta.update((POSE_KEY_PREFIX + name, pose_metadata(pose)) for name, pose in self.poses.items())
         self.recorder = McapRecorder(path, metadata=meta, **recorder_kwargs)
         self._posed = False
         self.sets_written = 0
@@ -277,8 +295,12 @@ class RigReplay:
             if parent == WORLD_FRAME and child in self.cameras:
                 seen.setdefault(child, set()).add(pose)
         poses = {}
+        meta = topics.metadata()
         for name in self.cameras:
             found = seen.get(name, set())
+            if not found and POSE_KEY_PREFIX + name in meta:
+                found = {_pose_from_metadata(meta[POSE_KEY_PREFIX + name], f"{self.path} metadata pose_{name}")}
+                self.notes.append(f"camera {name}'s pose taken from the recording metadata (none on {fmt.TF_TOPIC})")
             if not found:
                 raise RecordingError(
                     f"{self.path}: camera {name} has no pose: expected a {fmt.FRAME_TRANSFORM} "

@@ -26,7 +26,7 @@ Every camera renders the same 3-D scene with :mod:`drivers.synth`'s renderer
   (``N = 1``: straight on), 0.4 m high, each jittered by the seed (yaw +-4
   degrees, radius +-0.2 m, height +-8 cm, aim +-10 cm, roll +-2 degrees); every
   camera has the single-camera scene's intrinsics. The poses are in the
-  recording's metadata (``pose_<camera>``) and on ``/tf``.
+  recording's metadata (``pose_<camera>``, written by :class:`drivers.rig.RigRecorder`) and on ``/tf``.
 * **Colour-only cameras**: the last ``colour_only`` cameras have no depth.
 * **Ground truth**: per camera the pixel truth of the single-camera scene (its
   ``/ground_truth/palm``), and per target the world position in mm (right hand; with
@@ -39,7 +39,6 @@ camera's number); motion and appearance are shared.
 from __future__ import annotations
 
 import inspect
-import json
 import math
 from dataclasses import replace
 from typing import Any
@@ -296,10 +295,4 @@ class SynthRig:
             "colour_only_cameras": ",".join(self.colour_only_cameras),
             "world": "calibration board frame (origin top-left outer corner, x right, y down, z into the board)",
             **(self.board.metadata() if self.board is not None else {}),
-            **{
-                f"pose_{name}": json.dumps(
-                    {"translation_mm": pose.translation_mm.tolist(), "rotation_xyzw": pose.quaternion().tolist()}
-                )
-                for name, pose in self.poses.items()
-            },
         }

@@ -243,3 +243,25 @@ def test_a_damaged_chunk_costs_only_its_own_frames_in_every_camera(tmp_path, mak
         assert sorted(s.views) == ["a", "b"]
         assert s.views["a"].frame.intrinsics == want[s.timestamp_ns]
         assert s.views["b"].frame.intrinsics.width == 48
+
+
+def test_poses_survive_a_damaged_first_chunk(tmp_path, make_frames, record):
+    """/tf is in the first chunk; the recording metadata repeats the poses outside the chunks."""
+    a = record(tmp_path / "a.mcap", make_frames(8, seed=1))
+    b = record(tmp_path / "b.mcap", make_frames(8, seed=2))
+    poses = {"a": CameraPose.from_rvec([0.2, 0.1, 0.0], [1, 2, 3]), "b": CameraPose.from_rvec([0, -0.3, 0], [500, 0, 0])}
+    out = tmp_path / "m.mcap"
+    merge([a, b], poses, out, recorder_kwargs={"chunk_size": 20_000})
+    with McapTopics(out) as topics:
+        first = min((blk for blk in topics._blocks if blk.is_chunk), key=lambda blk: blk.offset)
+        assert first.start_ns == first.end_ns  # the poses and the first instant
+    data = bytearray(out.read_bytes())
+    data[first.offset + first.length // 2] ^= 0x01
+    out.write_bytes(bytes(data))
+    with RigReplay(out) as rig:
+        sets = list(rig)
+        assert any("pose taken from the recording metadata" in note for note in rig.notes)
+        for name, pose in poses.items():
+            assert rig.poses[name].error_to(pose)[0] < 1e-9 and rig.poses[name].error_to(pose)[1] < 1e-6
+        assert rig.replays["a"].stats.dropped == 1 and rig.replays["b"].stats.dropped == 0
+    assert [sorted(s.views) for s in sets] == [["b"]] + [["a", "b"]] * 7  # the damage took a's first frame
