@@ -249,7 +249,10 @@ def test_poses_survive_a_damaged_first_chunk(tmp_path, make_frames, record):
     """/tf is in the first chunk; the recording metadata repeats the poses outside the chunks."""
     a = record(tmp_path / "a.mcap", make_frames(8, seed=1))
     b = record(tmp_path / "b.mcap", make_frames(8, seed=2))
-    poses = {"a": CameraPose.from_rvec([0.2, 0.1, 0.0], [1, 2, 3]), "b": CameraPose.from_rvec([0, -0.3, 0], [500, 0, 0])}
+    poses = {
+        "a": CameraPose.from_rvec([0.2, 0.1, 0.0], [1, 2, 3]),
+        "b": CameraPose.from_rvec([0, -0.3, 0], [500, 0, 0]),
+    }
     out = tmp_path / "m.mcap"
     merge([a, b], poses, out, recorder_kwargs={"chunk_size": 20_000})
     with McapTopics(out) as topics:
