@@ -29,16 +29,18 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame
-from fusion_pf.geometry import roi_points
 from fusion_pf.rig import CameraPose
 
 from .charuco import BoardPose, BoardSpec, Detection, camera_pose, detect, reprojection_error
-from .rig import RigReplay
+
+if TYPE_CHECKING:  # the command line imports this module for its choices: keep it light
+    from .rig import RigReplay
 
 #: Voxel sizes (mm) of the coarse-to-fine coloured ICP; the correspondence distance is twice the voxel.
 ICP_VOXELS_MM = (40.0, 20.0, 10.0)
@@ -91,6 +93,8 @@ def _static_frame(frames: list[Frame]) -> Frame | None:
 
 def _cloud(frame: Frame, pose: CameraPose | None = None):  # -> open3d PointCloud
     import open3d as o3d
+
+    from fusion_pf.geometry import roi_points
 
     h, w = frame.depth.shape  # type: ignore[union-attr]
     points, colours = roi_points(frame, (0, 0, w, h))
