@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from google.protobuf.message import DecodeError, Message
@@ -31,6 +32,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import DISTORTION_MODELS, HandObservation, Intrinsics, Joint, PalmPoint
+from fusion_pf.rig import WORLD_FRAME, CameraPose, check_camera_name
 
 # --------------------------------------------------------------------------- topics
 
@@ -57,6 +59,10 @@ PARTICLES_TOPIC = "/tracker/particles"
 
 #: Topics :meth:`McapRecorder.write` fills from a frame.
 FRAME_TOPICS = (CALIBRATION_TOPIC, COLOR_TOPIC, DEPTH_TOPIC, SKELETON_TOPIC, GROUND_TRUTH_TOPIC, HAND_TOPIC)
+#: Camera poses of a multi-camera recording: foxglove.FrameTransform from ``world`` to each camera.
+TF_TOPIC = "/tf"
+#: JSON fusion_pf.TargetWorldPoint: world ground truth of multi-camera synthetic recordings.
+WORLD_TRUTH_TOPIC = "/ground_truth/world"
 
 #: Name of the MCAP metadata record describing the recording.
 RECORDING_METADATA = "fusion_pf.recording"
@@ -85,6 +91,9 @@ PALM_SCHEMA = "fusion_pf.PalmPoint"
 #: Ground truth of one target of a multi-target recording (a PalmPoint plus ``target``).
 TARGET_PALM_SCHEMA = "fusion_pf.TargetPalmPoint"
 HAND_SCHEMA = "fusion_pf.HandLandmarks"
+#: World ground truth of one target (mm) in a multi-camera recording.
+WORLD_POINT_SCHEMA = "fusion_pf.TargetWorldPoint"
+FRAME_TRANSFORM = "foxglove.FrameTransform"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 CUES_SCHEMA = "fusion_pf.Cues"
 
@@ -192,6 +201,17 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "u": _NUMBER,
             "v": _NUMBER,
             "occluded": {"type": "boolean"},
+        },
+    },
+    WORLD_POINT_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": WORLD_POINT_SCHEMA,
+        "description": "Ground-truth centre of one target in the world frame of a multi-camera recording (mm).",
+        "type": "object",
+        "required": ["target", "xyz_mm"],
+        "properties": {
+            "target": {"type": "string", "minLength": 1},
+            "xyz_mm": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
         },
     },
     ESTIMATE_SCHEMA: {
@@ -814,3 +834,54 @@ def check_timestamp(timestamp_ns: object, what: str = "timestamp_ns") -> int:
 def format_ns(timestamp_ns: int) -> str:
     """``timestamp_ns`` as seconds with millisecond precision, e.g. ``"12.345 s"``."""
     return f"{timestamp_ns / 1e9:.3f} s"
+
+
+# --------------------------------------------------------------------------- several cameras
+
+
+def camera_topic(camera: str | None, topic: str) -> str:
+    """The topic of ``camera`` in a multi-camera recording (``/cam_left/camera/color``); ``topic`` itself for None."""
+    return topic if camera is None else f"/{check_camera_name(camera)}{topic}"
+
+
+def encode_transform(camera: str, pose: CameraPose, timestamp_ns: int) -> FrameTransform:
+    """The ``foxglove.FrameTransform`` from ``world`` (parent) to ``camera`` (child): metres and a quaternion."""
+    msg = FrameTransform(
+        timestamp=_timestamp(timestamp_ns), parent_frame_id=WORLD_FRAME, child_frame_id=check_camera_name(camera)
+    )
+    x, y, z = (float(v) / 1000.0 for v in pose.translation_mm)
+    msg.translation.x, msg.translation.y, msg.translation.z = x, y, z
+    qx, qy, qz, qw = (float(v) for v in pose.quaternion())
+    msg.rotation.x, msg.rotation.y, msg.rotation.z, msg.rotation.w = qx, qy, qz, qw
+    return msg
+
+
+def decode_transform(data: bytes | memoryview, where: str = TF_TOPIC) -> tuple[str, str, CameraPose]:
+    """``(parent, child, pose)`` of a ``foxglove.FrameTransform`` message (translation back in mm)."""
+    msg = _parse(FrameTransform, data, where)
+    t, q = msg.translation, msg.rotation
+    try:
+        pose = CameraPose.from_quaternion([q.x, q.y, q.z, q.w], [1000.0 * t.x, 1000.0 * t.y, 1000.0 * t.z])
+    except InputError as exc:
+        raise RecordingError(f"{where} ({msg.parent_frame_id} -> {msg.child_frame_id}): {exc}") from None
+    return msg.parent_frame_id, msg.child_frame_id, pose
+
+
+def encode_world_point(target: str, xyz_mm: np.ndarray | Sequence[float]) -> dict[str, Any]:
+    """The ``fusion_pf.TargetWorldPoint`` object of one target's world ground truth."""
+    return {"target": target, "xyz_mm": [float(v) for v in xyz_mm]}
+
+
+def decode_world_point(obj: Any, where: str = WORLD_TRUTH_TOPIC) -> tuple[str, np.ndarray]:
+    """``(target, xyz_mm)`` of a ``fusion_pf.TargetWorldPoint`` object."""
+    target = obj.get("target") if isinstance(obj, dict) else None
+    xyz = obj.get("xyz_mm") if isinstance(obj, dict) else None
+    if not (isinstance(target, str) and target):
+        raise RecordingError(f"{where}: 'target' must be a non-empty string, got {str(obj)[:80]!r}")
+    try:
+        point = np.asarray(xyz, dtype=np.float64)
+    except (TypeError, ValueError):
+        point = np.zeros(0)
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise RecordingError(f"{where}: 'xyz_mm' of {target!r} must be 3 finite numbers, got {xyz!r}")
+    return target, point

@@ -126,8 +126,10 @@ class McapRecorder(Sink):
         self._writer: Writer | None = None
         self._schemas: dict[tuple[str, str], int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
-        self._intrinsics: Intrinsics | None = None
-        self._last_ns: int | None = None
+        self._intrinsics: dict[str | None, Intrinsics] = {}
+        self._last_ns: dict[str | None, int] = {}
+        self._chunk_cameras: set[str | None] = set()
+        self._last_background_ns: int | None = None
         self._background = 0
         self._foreground = False
         self.frames_written = 0
@@ -161,7 +163,10 @@ class McapRecorder(Sink):
         self._fh, self._writer = fh, writer
         self._schemas.clear()
         self._channels.clear()
-        self._intrinsics, self._last_ns = None, None
+        self._intrinsics.clear()
+        self._last_ns.clear()
+        self._chunk_cameras.clear()
+        self._last_background_ns = None
         self._background, self._foreground = 0, False
         self.frames_written = self.messages_written = 0
         self._chunk_bytes, self.error = 0, None
@@ -291,6 +296,7 @@ class McapRecorder(Sink):
                     self.error = exc
                     raise self._failure() from None
                 self._chunk_bytes = 0
+                self._chunk_cameras.clear()
 
     def _announce_background(self, writer: Writer) -> None:
         if self._background != self._announced:
@@ -309,22 +315,29 @@ class McapRecorder(Sink):
 
     # ------------------------------------------------------------------ writing
 
-    def write(self, frame: Frame) -> None:
+    def write(self, frame: Frame, camera: str | None = None) -> None:
         """Write one frame: calibration (first frame and when it changes), colour, depth, skeleton, ground truth, hands.
 
         Parameters
         ----------
         frame : Frame
-            Its timestamp must be later than the previous frame's; background
-            frames must come before every other frame.
+            Its timestamp must be later than the previous frame's (of the same
+            camera); background frames must come before every other frame.
+        camera : str, optional
+            In a multi-camera recording, the camera: its topics get the prefix
+            ``/<camera>`` and its Foxglove messages the ``frame_id`` ``<camera>``
+            (the child frame of its pose on ``/tf``). The frames of one instant
+            share a timestamp; background frames are counted per instant.
         """
         writer = self._require_writer()
         if not isinstance(frame, Frame):
             raise InputError(f"McapRecorder.write takes a Frame, got {type(frame).__name__}")
         t = frame.timestamp_ns
-        if self._last_ns is not None and t <= self._last_ns:
+        last = self._last_ns.get(camera)
+        if last is not None and t <= last:
+            of = f" of camera {camera}" if camera is not None else ""
             raise InputError(
-                f"frame timestamps must increase: frame seq {frame.seq} has timestamp_ns={t} after {self._last_ns}"
+                f"frame timestamps{of} must increase: frame seq {frame.seq} has timestamp_ns={t} after {last}"
             )
         if frame.background and self._foreground:
             raise InputError(
@@ -332,7 +345,7 @@ class McapRecorder(Sink):
                 f"is a background frame after {self.frames_written - self._background} other frames"
             )
         messages: list[tuple[str, Message | None, str | None, Any]] = []
-        changed = frame.intrinsics != self._intrinsics
+        changed = frame.intrinsics != self._intrinsics.get(camera)
         messages.append((fmt.CALIBRATION_TOPIC, fmt.encode_calibration(frame.intrinsics, t), None, None))
         messages.append(
             (fmt.COLOR_TOPIC, fmt.encode_color(frame.color, t, self.color_format, self.jpeg_quality), None, None)
@@ -353,6 +366,11 @@ class McapRecorder(Sink):
         if not frame.background and not self._foreground:
             self._foreground = True
             self._announce_background(writer)
+        if camera is not None:
+            messages = [(fmt.camera_topic(camera, topic), proto, name, obj) for topic, proto, name, obj in messages]
+            for _topic, proto, _name, _obj in messages:
+                if proto is not None:
+                    proto.frame_id = camera  # type: ignore[attr-defined]
         payloads = [
             (self._proto_channel(topic, proto), proto.SerializeToString())
             if proto is not None
@@ -367,14 +385,20 @@ class McapRecorder(Sink):
             if self._chunk_bytes and self._chunk_bytes + size > self.chunk_size:
                 self._end_chunk()
             if changed:
-                self._metadata_record(writer, fmt.CALIBRATION_METADATA, fmt.calibration_metadata(frame.intrinsics, t))
-            if not (changed or self._chunk_bytes == 0):  # the chunk already holds this calibration
+                record = fmt.calibration_metadata(frame.intrinsics, t)
+                self._metadata_record(
+                    writer, fmt.CALIBRATION_METADATA, record if camera is None else {**record, "camera": camera}
+                )
+            if not (changed or camera not in self._chunk_cameras):  # the chunk already holds this calibration
                 payloads = payloads[1:]
             for channel_id, data in payloads:
                 self._add(channel_id, t, data, frame.seq)
-            self._intrinsics = frame.intrinsics
-            self._last_ns = t
-            self._background += frame.background
+            self._chunk_cameras.add(camera)
+            self._intrinsics[camera] = frame.intrinsics
+            self._last_ns[camera] = t
+            if frame.background and t != self._last_background_ns:
+                self._background += 1
+                self._last_background_ns = t
             self.frames_written += 1
             if self._chunk_bytes > self.chunk_size:
                 self._end_chunk()

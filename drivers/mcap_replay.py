@@ -429,6 +429,10 @@ class McapReplay(ReplaySource):
     start_ns, end_ns : int, optional
         Select the frames with ``start_ns <= timestamp_ns < end_ns`` (absolute
         log times). ``len()``, ``frames()`` and ``frame()`` index this selection.
+    camera : str, optional
+        In a multi-camera recording, the camera to replay: its topics carry the
+        prefix ``/<camera>`` (``/cam_left/camera/color``) and its calibration
+        metadata records the key ``camera`` (:mod:`drivers.rig` reads all of them).
 
     Notes
     -----
@@ -439,9 +443,13 @@ class McapReplay(ReplaySource):
     the file have ``background=True``.
     """
 
-    def __init__(self, path: str | Path, *, start_ns: int | None = None, end_ns: int | None = None) -> None:
+    def __init__(
+        self, path: str | Path, *, start_ns: int | None = None, end_ns: int | None = None, camera: str | None = None
+    ) -> None:
         super().__init__()
         self.path = Path(path)
+        self.camera = camera
+        self._topic_kind = {fmt.camera_topic(camera, topic): kind for topic, kind in _KINDS.items()}
         self._window = (
             None if start_ns is None else fmt.check_timestamp(start_ns, "start_ns"),
             None if end_ns is None else fmt.check_timestamp(end_ns, "end_ns"),
@@ -663,7 +671,7 @@ class McapReplay(ReplaySource):
 
     def _add_channel(self, channel: _Channel) -> None:
         self._channels[channel.id] = channel
-        kind = _KINDS.get(channel.topic)
+        kind = self._topic_kind.get(channel.topic)
         if kind is not None:
             self._kind[channel.id] = kind
 
@@ -676,8 +684,11 @@ class McapReplay(ReplaySource):
         if name == fmt.RECORDING_METADATA:
             self._metadata.update(cur.mapping())
         elif name == fmt.CALIBRATION_METADATA:
+            record = cur.mapping()
+            if record.get("camera") != self.camera:
+                return None
             try:
-                t, intrinsics = fmt.decode_calibration_metadata(cur.mapping())
+                t, intrinsics = fmt.decode_calibration_metadata(record)
             except RecordingError as exc:
                 raise _Corrupt(str(exc)) from None
             self._cal_meta[t] = intrinsics
@@ -742,7 +753,7 @@ class McapReplay(ReplaySource):
             cid, sid = cur.uint(2), cur.uint(2)
             topic, encoding = cur.string(), cur.string()
             pending[cid] = (cid, sid, topic, encoding)
-            if topic == fmt.COLOR_TOPIC:
+            if self._topic_kind.get(topic) == "color":
                 color_ids.add(cid)
 
         def schema(cur: _Cursor) -> None:
@@ -820,7 +831,7 @@ class McapReplay(ReplaySource):
                     fields = self._add_metadata(body)
                     if fields is not None and fields.get("id", "").isdigit():
                         spare[int(fields["id"])] = fields
-                        if fields.get("topic") == fmt.COLOR_TOPIC:
+                        if self._topic_kind.get(fields.get("topic", "")) == "color":
                             color_ids.add(int(fields["id"]))
                 elif opcode == _OP_MESSAGE and not in_summary:
                     cid, _seq, t = _message_header(body)
@@ -1031,7 +1042,9 @@ class McapReplay(ReplaySource):
         self._block_start = np.array([b.start_ns for b in self._blocks], np.int64)
         self._block_end = np.array([b.end_ns for b in self._blocks], np.int64)
         kinds = set(self._kind.values())
-        required = (("color", fmt.COLOR_TOPIC),) + (() if self._cal_meta else (("calibration", fmt.CALIBRATION_TOPIC),))
+        required = (("color", fmt.camera_topic(self.camera, fmt.COLOR_TOPIC)),) + (
+            () if self._cal_meta else (("calibration", fmt.camera_topic(self.camera, fmt.CALIBRATION_TOPIC)),)
+        )
         for kind, topic in required:
             if kind not in kinds:
                 raise RecordingError(f"{self.path} has no {topic} topic, which is required; {self._topics_present()}")
@@ -1294,7 +1307,7 @@ class McapReplay(ReplaySource):
             if reason is not None:
                 what = "chunk" if block.is_chunk else "message"
                 return f"{what} at byte {block.offset} is corrupt ({reason})", block.offset
-        topic = {v: k for k, v in _KINDS.items()}[kind]
+        topic = {v: k for k, v in self._topic_kind.items()}[kind]
         return f"its {topic} message cannot be found", None
 
     def _publish(self) -> None:

@@ -505,10 +505,21 @@ def _polygon_part(intr, points3, centre_x, half_width, bulge, rgb, label):
     return Part(rows, cols, mask, depth, shade, rgb, label)
 
 
+def _drop(pose: Pose) -> float:
+    """How far (metres, down) the torso is from its place in the single-camera scene (0 there).
+
+    The outlines of torso, neck and legs follow the torso by it, so a camera
+    that sees the person from another height (:mod:`drivers.synth_rig`) draws them
+    around the body.
+    """
+    return float(pose.torso[1]) - (SHOULDER_Y + HIP_Y) / 2.0
+
+
 def torso_outline(pose: Pose) -> list[np.ndarray]:
     """3-D outline of the torso (a shirt from shoulders to hips)."""
     x, z = pose.torso[0], pose.torso[2]
     ys = SHOULDER_Y
+    dy = _drop(pose)
     pts = [
         (-0.20, ys + 0.03),
         (-0.07, ys - 0.01),
@@ -521,7 +532,7 @@ def torso_outline(pose: Pose) -> list[np.ndarray]:
         (-0.16, 0.22),
         (-CHEST_HALF_WIDTH, ys + 0.16),
     ]
-    return [np.array([x + dx, y, z]) for dx, y in pts]
+    return [np.array([x + dx, y + dy, z]) for dx, y in pts]
 
 
 def _hand_angle(intr: Intrinsics, wrist: np.ndarray, hand: np.ndarray) -> float:
@@ -547,9 +558,9 @@ def _fill_polygon(intr: Intrinsics, points3: list[np.ndarray], rows: slice, cols
 
 
 def _neck_outline(pose: Pose) -> list[np.ndarray]:
-    x, z = pose.torso[0], pose.torso[2] - 0.04
+    x, z, dy = pose.torso[0], pose.torso[2] - 0.04, _drop(pose)
     return [
-        np.array([x + dx, y, z])
+        np.array([x + dx, y + dy, z])
         for dx, y in ((-0.055, -0.29), (0.055, -0.29), (0.055, SHOULDER_Y), (-0.055, SHOULDER_Y))
     ]
 
@@ -591,11 +602,11 @@ def person_parts(
     (sleeve and skin) and palm are the ``moving`` parts, last in the list.
     Skin (face, neck, hands, bare forearm) has colour ``skin``.
     """
-    x, z = pose.torso[0], pose.torso[2]
+    x, z, dy = pose.torso[0], pose.torso[2], _drop(pose)
     parts = []
     for side in (-1.0, 1.0):
         leg = [
-            np.array([x + side * dx, y, z + 0.02])
+            np.array([x + side * dx, y + dy, z + 0.02])
             for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
         ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
@@ -858,11 +869,11 @@ def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Par
     palms are ``LABEL_PALM``; the nearer arm is drawn last (on top). Nothing is
     ``moving`` (the two-hand scene has no motion blur).
     """
-    x, z = pose.torso[0], pose.torso[2]
+    x, z, dy = pose.torso[0], pose.torso[2], _drop(pose)
     parts = []
     for side in (-1.0, 1.0):
         leg = [
-            np.array([x + side * dx, y, z + 0.02])
+            np.array([x + side * dx, y + dy, z + 0.02])
             for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
         ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))

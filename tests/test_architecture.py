@@ -147,7 +147,19 @@ def test_every_option_default_comes_from_a_config(command):
 
 def test_the_commands_with_options_have_configs():
     with_configs = {name for name, module in COMMANDS.items() if module.CONFIGS}
-    assert with_configs == {"annotate", "cues", "demo", "import", "record", "render", "score", "synth", "track"}
+    assert with_configs == {
+        "annotate",
+        "calibrate",
+        "cues",
+        "demo",
+        "import",
+        "merge",
+        "record",
+        "render",
+        "score",
+        "synth",
+        "track",
+    }
     assert COMMANDS["info"].CONFIGS == COMMANDS["annotations"].CONFIGS == ()
 
 

@@ -150,23 +150,26 @@ def intrinsics_from_mapping(doc: Mapping[str, Any], where: str) -> Intrinsics:
         raise InputError(f"{where}: {exc}") from None
 
 
-def load_intrinsics(path: str | Path) -> Intrinsics:
-    """Intrinsics from a JSON or YAML file (layouts of :func:`intrinsics_from_mapping`)."""
+def load_document(path: str | Path, what: str) -> Any:
+    """The document of a YAML (``.yaml``/``.yml``) or JSON file; ``what`` names it in errors."""
     path = Path(path)
     text = path.read_text()
     if path.suffix.lower() in (".yaml", ".yml"):
         from ruamel.yaml import YAML, YAMLError
 
         try:
-            doc = YAML(typ="safe").load(text)
+            return YAML(typ="safe").load(text)
         except YAMLError as exc:
-            raise InputError(f"intrinsics file {path} is not valid YAML ({' '.join(str(exc).split())})") from None
-    else:
-        try:
-            doc = json.loads(text)
-        except ValueError as exc:
-            raise InputError(f"intrinsics file {path} is not valid JSON ({exc})") from None
-    return intrinsics_from_mapping(doc, f"intrinsics file {path}")
+            raise InputError(f"{what} {path} is not valid YAML ({' '.join(str(exc).split())})") from None
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        raise InputError(f"{what} {path} is not valid JSON ({exc})") from None
+
+
+def load_intrinsics(path: str | Path) -> Intrinsics:
+    """Intrinsics from a JSON or YAML file (layouts of :func:`intrinsics_from_mapping`)."""
+    return intrinsics_from_mapping(load_document(path, "intrinsics file"), f"intrinsics file {path}")
 
 
 @dataclass(frozen=True)

@@ -8,14 +8,15 @@ from pathlib import Path
 from typing import Any
 
 NAME = "info"
-HELP = "describe a recording: topics, counts, duration, fps, calibration, truncation"
+HELP = "describe a recording: topics, counts, duration, fps, calibration, truncation; the rig of a multi-camera one"
 DESCRIPTION = (
     "Print the topics, schemas and message counts of FILE.mcap, its duration, frame rate, "
     "resolution and intrinsics, background frames, frames missing depth or skeleton, and "
     "whether it is truncated. Counts come from the summary when the file is indexed; a "
     "truncated file is scanned. --verify also decodes every frame (checking chunk CRCs), says "
     "which frames could not be read and why, and exits 2 when frames are lost (a truncated tail "
-    "alone, as an unfinished recording has, is a warning). Strings from the "
+    "alone, as an unfinished recording has, is a warning). For a multi-camera recording it shows "
+    "the rig: each camera's resolution, formats, frames, intrinsics and pose in the world. Strings from the "
     "file are printed with control characters escaped."
 )
 
@@ -131,9 +132,14 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from drivers.mcap_replay import McapReplay
+    from drivers.rig import is_rig
     from fusion_pf.errors import RecordingError
     from fusion_pf.text import printable
 
+    if args.file.is_file() and is_rig(args.file):
+        from ._rig_info import run as rig_info
+
+        return rig_info(args)
     try:
         with McapReplay(args.file) as replay:
             info = replay.info()

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from drivers.encoding import EncodingOptions
 from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, VARIATIONS, SynthSource
+from drivers.synth_rig import MAX_CAMERAS, SynthRig
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.text import printable
@@ -23,7 +24,11 @@ DESCRIPTION = (
     "whose bare right palm repeatedly passes in front of the torso, stereo-like depth, a "
     "Kinect-like skeleton that fails during self-occlusion, ground truth on /ground_truth/palm) "
     "into OUT.mcap. The first K frames show the empty scene (background frames). The same seed "
-    "and options give the same frames."
+    "and options give the same frames. With --cameras N (N >= 2) the scene is seen by N calibrated "
+    "cameras (drivers/synth_rig.py) and OUT.mcap is a multi-camera recording: each camera's topics "
+    "under /camN, the poses on /tf and in the metadata, world ground truth per target on "
+    "/ground_truth/world. --board renders the same rig's calibration sequence instead: a ChArUco "
+    "board where the person stands, for fusion-pf calibrate (the same seed gives the same poses)."
 )
 
 
@@ -118,9 +123,38 @@ class SynthOptions:
         help="factor on the skeleton hand's failure (bias toward the torso and jitter) while the palm "
         "is over the body; 0: a skeleton that never fails",
     )
+    cameras: int = option(
+        1,
+        kind="int",
+        lo=1,
+        hi=MAX_CAMERAS,
+        metavar="N",
+        help="cameras seeing the scene; N >= 2 writes a multi-camera recording (poses on /tf, world ground truth)",
+    )
+    colour_only: int = option(
+        0,
+        kind="int",
+        lo=0,
+        hi=MAX_CAMERAS,
+        metavar="K",
+        help="with --cameras: the last K cameras have no depth (colour-only cameras)",
+    )
+    board: bool = option(
+        False,
+        kind="bool",
+        help="with --cameras: the rig's calibration sequence (a ChArUco board in the empty room) instead of the person",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
+        if self.colour_only and self.cameras < 2:
+            raise InputError("--colour-only describes cameras of a rig; it needs --cameras 2 or more")
+        if self.colour_only > self.cameras:
+            raise InputError(
+                f"colour_only (--colour-only) must be in [0, cameras {self.cameras}], got {self.colour_only}"
+            )
+        if self.board and self.cameras < 2:
+            raise InputError("--board renders a rig's calibration sequence; it needs --cameras 2 or more")
         if self.background_frames > self.frames:
             raise InputError(
                 f"background_frames (--background-frames) must be in [0, frames {self.frames}], "
@@ -154,9 +188,15 @@ def run(args: argparse.Namespace) -> int:
 
     scene = from_args(SynthOptions, args)
     encoding = from_args(EncodingOptions, args)
-    source = SynthSource(**dataclasses.asdict(scene))
+    options = dataclasses.asdict(scene)
+    cameras, board, colour_only = options.pop("cameras"), options.pop("board"), options.pop("colour_only")
     out: Path = args.output
     check_output(out, force=args.force)
+    if cameras > 1:
+        return _run_rig(
+            SynthRig(cameras, board=board, colour_only=colour_only, **options), encoding, out, args.no_progress
+        )
+    source = SynthSource(**options)
     recorder = McapRecorder(out, metadata=source.metadata(), **encoding.recorder_kwargs())
     started = time.monotonic()
     with (
@@ -176,5 +216,36 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"wrote {recorder.frames_written} frames ({source.background_frames} background) to {printable(out)} "
         f"in {time.monotonic() - started:.1f} s: {recorder.bytes_written} bytes"
+    )
+    return 0
+
+
+def _run_rig(rig: SynthRig, encoding: EncodingOptions, out: Path, no_progress: bool) -> int:
+    """Render the multi-camera scene into a multi-camera recording."""
+    import sys
+    import time
+
+    from tqdm import tqdm
+
+    from drivers.rig import RigRecorder
+
+    started = time.monotonic()
+    cameras = rig.cameras
+    with (
+        RigRecorder(out, rig.poses, metadata=rig.metadata(), **encoding.recorder_kwargs()) as recorder,
+        tqdm(
+            total=len(rig),
+            unit="set",
+            desc=f"synth rig of {cameras}",
+            disable=True if no_progress else None,
+            file=sys.stderr,
+        ) as bar,
+    ):
+        for index in range(len(rig)):
+            recorder.write(rig.timestamp_ns(index), rig.frames(index), rig.truth_mm(index))
+            bar.update()
+    print(
+        f"wrote {recorder.sets_written} instants of {cameras} cameras ({rig.source.background_frames} background) "
+        f"to {out} in {time.monotonic() - started:.1f} s: {recorder.recorder.bytes_written} bytes"
     )
     return 0

@@ -19,9 +19,11 @@ from fusion_pf.options import from_args
 #: The shortest command line of each command with configs.
 MINIMAL = {
     "annotate": ["annotate", "r.mcap", "--db", "d.sqlite"],
+    "calibrate": ["calibrate", "r.mcap", "-o", "c.yaml"],
     "cues": ["cues", "r.mcap"],
     "demo": ["demo"],
     "import": ["import", "folder", "o.mcap"],
+    "merge": ["merge", "a.mcap", "b.mcap", "--extrinsics", "c.yaml", "-o", "o.mcap"],
     "record": ["record", "synth", "o.mcap"],
     "render": ["render", "t.mcap"],
     "score": ["score", "t.csv", "--ground-truth", "g.mcap"],

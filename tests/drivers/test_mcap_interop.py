@@ -3,6 +3,7 @@ and the TypeScript @mcap readers (CRC-validated)."""
 
 import json
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -201,3 +202,92 @@ def test_typescript_reader_validates_crcs(tmp_path, make_frames, record):
     path.write_bytes(bytes(data))
     proc = node_read(path)
     assert proc.returncode == 1 and "CRC" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+# --------------------------------------------------------------------------- several cameras
+
+_RERUN_TF = re.compile(r"\[(\w+)\]\s+┆\s+\[world\]\s+┆\s+\[\[([^\]]+)\]\]\s+┆\s+\[\[([^\]]+)\]\]")
+
+
+@pytest.fixture(params=["merged", "synth"])
+def rig_file(request, tmp_path, make_frames, record):
+    """A multi-camera recording: merged from two single-camera ones (calibration changing, depth missing,
+    small chunks), or the synthetic rig with world ground truth."""
+    from drivers.rig import RigRecorder, merge
+    from drivers.synth_rig import SynthRig
+    from fusion_pf.rig import CameraPose
+
+    path = tmp_path / "rig.mcap"
+    if request.param == "merged":
+        a = record(tmp_path / "a.mcap", make_frames(8, seed=1, no_depth=(3,), calibration_change=5))
+        b = record(tmp_path / "b.mcap", make_frames(8, seed=2, size=(48, 32)))
+        poses = {
+            "cam_left": CameraPose.from_rvec([0.0, 0.5, 0.0], [-600.0, 0.0, 0.0]),
+            "cam_right": CameraPose.from_rvec([0.1, -0.5, 0.05], [600.0, 20.0, -30.0]),
+        }
+        merge([a, b], poses, path, recorder_kwargs={"chunk_size": 16_000, "color_format": "jpeg"})
+    else:
+        rig = SynthRig(3, frames=3, seed=3, size=(96, 64), background_frames=1, hands=2)
+        with RigRecorder(path, rig.poses, metadata=rig.metadata()) as rec:
+            for i in range(3):
+                rec.write(rig.timestamp_ns(i), rig.frames(i), rig.truth_mm(i))
+    return path
+
+
+def test_rig_recording_opens_in_the_typescript_readers_with_its_poses(rig_file):
+    from drivers.mcap_replay import McapTopics
+    from drivers.rig import RigReplay
+
+    proc = node_read(rig_file)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    indexed, stream = out["indexed"], out["stream"]
+    with McapTopics(rig_file) as topics:
+        counts = {topic: len(topics.messages(topic)) for topic in topics.topics}
+    assert {topic: t["count"] for topic, t in indexed["topics"].items()} == counts
+    assert stream["done"] and stream["counts"] == counts
+    with RigReplay(rig_file) as rig:
+        poses = rig.poses
+        for name in rig.cameras:
+            cal = indexed["topics"][f"/{name}/camera/calibration"]["first"]
+            assert cal["frame_id"] == name  # placed in the tf tree by its pose
+            assert indexed["topics"][f"/{name}/camera/color"]["first"]["frame_id"] == name
+    tf = {t["child_frame_id"]: t for t in indexed["transforms"]}
+    assert sorted(tf) == sorted(poses) and {t["topic"] for t in tf.values()} == {"/tf"}
+    for name, pose in poses.items():
+        assert tf[name]["parent_frame_id"] == "world"
+        assert tf[name]["translation"] == pytest.approx(pose.translation_mm / 1000.0, abs=1e-12)
+        assert tf[name]["rotation"] == pytest.approx(pose.quaternion(), abs=1e-12)
+
+
+def test_rig_recording_passes_rerun_and_rerun_reads_its_poses(rig_file, rerun_env, tmp_path):
+    from drivers.rig import RigReplay
+
+    rerun, env = rerun_env
+    proc = subprocess.run([rerun, "mcap", "check", str(rig_file)], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = {
+        line.split()[3]: line.split()[0]
+        for line in proc.stdout.splitlines()
+        if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
+    }
+    with RigReplay(rig_file) as rig:
+        poses = rig.poses
+        assert {f"/{name}/camera/color" for name in rig.cameras} | {"/tf"} <= set(rows)
+    assert set(rows.values()) == {"ok"}, proc.stdout
+    rrd = tmp_path / "rig.rrd"
+    proc = subprocess.run(
+        [rerun, "mcap", "convert", str(rig_file), "-o", str(rrd)], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run(
+        [rerun, "rrd", "print", "-vvv", str(rrd)], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    found = {m.group(1): (m.group(2), m.group(3)) for m in _RERUN_TF.finditer(proc.stdout)}
+    assert sorted(found) == sorted(poses), proc.stdout[-2000:]  # Rerun's Transform3D, world -> camera
+    for name, (quaternion, translation) in found.items():
+        q = [float(v) for v in quaternion.split(",")]
+        t = [float(v) for v in translation.split(",")]
+        assert q == pytest.approx(poses[name].quaternion(), abs=1e-6)  # float32
+        assert t == pytest.approx(poses[name].translation_mm / 1000.0, abs=1e-6)

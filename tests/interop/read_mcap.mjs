@@ -5,7 +5,7 @@
 // Two independent passes, both validating CRCs:
 //   * indexed: McapIndexedReader (summary, chunk and message indexes) -> per-topic counts,
 //     schemas, metadata, and the first message of each topic decoded (protobuf through the
-//     schema's FileDescriptorSet, JSON parsed);
+//     schema's FileDescriptorSet, JSON parsed), and every foxglove.FrameTransform decoded;
 //   * stream:  McapStreamReader over the whole file (chunk CRCs + data-section CRC) -> counts.
 // Exits 1 with a one-line message on any error.
 import { open, readFile } from "node:fs/promises";
@@ -25,6 +25,11 @@ function summarize(schema, channel, data) {
   for (const key of ["width", "height", "encoding", "format", "distortion_model", "frame_id"]) {
     if (msg[key] !== undefined && msg[key] !== "") out[key] = msg[key];
   }
+  for (const key of ["parent_frame_id", "child_frame_id"]) {
+    if (msg[key] !== undefined && msg[key] !== "") out[key] = msg[key];
+  }
+  if (msg.translation) out.translation = [msg.translation.x, msg.translation.y, msg.translation.z];
+  if (msg.rotation) out.rotation = [msg.rotation.x, msg.rotation.y, msg.rotation.z, msg.rotation.w];
   if (msg.K) out.K = Array.from(msg.K);
   if (msg.data) out.dataBytes = msg.data.length;
   return out;
@@ -49,6 +54,7 @@ async function indexedPass(path, decompressHandlers) {
       };
     }
     let messages = 0;
+    const transforms = [];
     let lastTime = -1n;
     let ordered = true;
     for await (const message of reader.readMessages({ validateCrcs: true })) {
@@ -59,8 +65,12 @@ async function indexedPass(path, decompressHandlers) {
       if (message.logTime < lastTime) ordered = false;
       lastTime = message.logTime;
       if (message.logTime !== message.publishTime) throw new Error(`log_time != publish_time on ${channel.topic}`);
+      const schema = reader.schemasById.get(channel.schemaId);
       if (entry.first === null) {
-        entry.first = summarize(reader.schemasById.get(channel.schemaId), channel, message.data);
+        entry.first = summarize(schema, channel, message.data);
+      }
+      if (schema?.name === "foxglove.FrameTransform") {
+        transforms.push({ topic: channel.topic, ...summarize(schema, channel, message.data) });
       }
     }
     const metadata = [];
@@ -79,6 +89,7 @@ async function indexedPass(path, decompressHandlers) {
       topics,
       metadata,
       statistics,
+      transforms,
     };
   } finally {
     await handle.close();
