@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ from drivers import mcap_format as fmt
 from drivers.mcap_replay import McapReplay
 
 INTEROP = Path(__file__).resolve().parents[1] / "interop"
-VENV_BIN = Path(__file__).resolve().parents[2] / ".venv" / "bin"
+VENV_BIN = Path(sys.executable).parent  # the test run's own environment (tools/setup.sh: .venv)
 
 
 def replay(path):
