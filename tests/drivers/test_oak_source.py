@@ -162,7 +162,8 @@ def test_cli_record_without_device_exits_2_with_one_line(tmp_path: Path) -> None
     )
     elapsed = time.monotonic() - start
     assert proc.returncode == 2, proc.stderr
-    assert elapsed < 3.0
+    assert elapsed < 10.0  # refused at once: never waits out --duration 10 (start-up time is a benchmark's business)
+    assert not out.exists()
     lines = proc.stderr.splitlines()
     assert [line for line in lines if line.startswith("fusion-pf:")] == [f"fusion-pf: error: {NO_DEVICE_MESSAGE}"]
     # anything else is depthai's own log (e.g. its container USB warning), never a traceback
