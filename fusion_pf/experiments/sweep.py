@@ -27,8 +27,10 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +42,7 @@ from ..score.metrics import TIE_TOL_PX, score
 
 __all__ = [
     "PAPER_PARTICLE_COUNTS",
+    "dask_client",
     "PAPER_RUNS",
     "SweepResult",
     "job_config",
@@ -292,16 +295,26 @@ def run_sweep(
     )
 
 
-def _run_dask(frames, config, background, counts, order, seed, workers, scheduler, points, seconds, bar) -> int:
-    """Run the jobs as Dask tasks; fills ``points`` and ``seconds``; returns the worker count."""
+@contextmanager
+def dask_client(workers: int | None, scheduler: str | None, n_tasks: int) -> Iterator[tuple[Any, int]]:
+    """A Dask client and its worker count: a local cluster of ``workers`` processes (at most ``n_tasks``), or ``scheduler``.
+
+    The local cluster's workers are processes (one thread each, started with
+    ``spawn``); both are closed on exit.
+
+    Raises
+    ------
+    InputError
+        When ``scheduler`` cannot be reached (within 10 s).
+    """
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     logging.getLogger("distributed").setLevel(logging.ERROR)
     cluster = None
     if scheduler is None:
-        n_workers = min(len(order), workers or os.cpu_count() or 1)
+        n_workers = min(n_tasks, workers or os.cpu_count() or 1)
         cluster = LocalCluster(
             n_workers=n_workers,
             threads_per_worker=1,
@@ -316,7 +329,18 @@ def _run_dask(frames, config, background, counts, order, seed, workers, schedule
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
     try:
-        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or 1
+        yield client, len(client.scheduler_info(n_workers=-1)["workers"]) or 1
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _run_dask(frames, config, background, counts, order, seed, workers, scheduler, points, seconds, bar) -> int:
+    """Run the jobs as Dask tasks; fills ``points`` and ``seconds``; returns the worker count."""
+    from distributed import as_completed
+
+    with dask_client(workers, scheduler, len(order)) as (client, n_workers):
         shared = client.scatter([frames, background], broadcast=True)
         futures = {
             client.submit(_run_job, shared[0], job_config(config, seed, counts[c], r), shared[1], pure=False): (c, r)
@@ -326,8 +350,4 @@ def _run_dask(frames, config, background, counts, order, seed, workers, schedule
             c, r = futures[fut]
             points[c, r], seconds[c, r] = fut.result()
             bar.update(1)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     return n_workers
