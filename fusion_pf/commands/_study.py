@@ -109,7 +109,7 @@ def recordings(items: list[str]) -> list[Path]:
     for item in items:
         path = Path(item)
         if path.is_dir():
-            found = sorted(path.glob("*.mcap"))
+            found = sorted(p for p in path.glob("*.mcap") if not p.name.startswith("."))
             if not found:
                 raise InputError(f"folder {item} has no .mcap recordings")
         elif any(c in item for c in "*?["):
