@@ -145,18 +145,16 @@ class FoxgloveClient:
             await ws.close()
 
 
-def frame_ms(csv_path: Path) -> float:
-    """Mean tracker time per tracked frame in ms: cues, filter and sinks (``latency_total_ms - latency_decode_ms +
+def frame_ms(csv_path: Path) -> list[float]:
+    """Tracker time of every tracked frame in ms: cues, filter and sinks (``latency_total_ms - latency_decode_ms +
     latency_sinks_ms``; decoding is left out because ``--realtime`` waits there for the frame's time)."""
     with open(csv_path, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    return statistics.fmean(
-        float(r["latency_total_ms"]) - float(r["latency_decode_ms"]) + float(r["latency_sinks_ms"]) for r in rows
-    )
+    return [float(r["latency_total_ms"]) - float(r["latency_decode_ms"]) + float(r["latency_sinks_ms"]) for r in rows]
 
 
-def run(source: str, out: Path, client: str) -> float:
-    """Track ``source`` serving live with ``client`` in ``{"none", "reading", "stalled"}``; mean frame time in ms."""
+def run(source: str, out: Path, client: str) -> list[float]:
+    """Track ``source`` serving live with ``client`` in ``{"none", "reading", "stalled"}``; its frame times in ms."""
     port = free_port()
     csv_path = out / f"{client}.csv"
     cmd = [sys.executable, "-m", "fusion_pf", "track", source, "-o", out / f"{client}.mcap", "--csv", csv_path]
@@ -178,22 +176,25 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--size", default="320x200")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--repeats", type=int, default=3, help="runs of each case; the median is reported")
+    p.add_argument("--repeats", type=int, default=3, help="runs of each case; the median over runs is reported")
     p.add_argument("--out", type=Path, default=Path("out/bench_live"))
     a = p.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     source = f"synth:seed={a.seed},frames={a.frames},size={a.size}"
     cases = ("none", "reading", "stalled")
-    times: dict[str, list[float]] = {c: [] for c in cases}
+    times: dict[str, list[list[float]]] = {c: [] for c in cases}
     for _ in range(a.repeats):
         for c in cases:  # interleaved, so machine load drifts hit every case alike
             times[c].append(run(source, a.out, c))
-    base = statistics.median(times["none"])
-    print(f"{source}, {a.repeats} runs each (median), mean tracker time per frame (cues, filter, sinks):")
+    print(f"{source}, {a.repeats} runs each, tracker time per frame (cues, filter, sinks):")
+    base_mean = statistics.median(statistics.fmean(t) for t in times["none"])
+    base_median = statistics.median(statistics.median(t) for t in times["none"])
     for c in cases:
-        m = statistics.median(times[c])
+        mean = statistics.median(statistics.fmean(t) for t in times[c])
+        median = statistics.median(statistics.median(t) for t in times[c])
         print(
-            f"  {c:8s} client: {m:6.2f} ms/frame  ({m / base:.3f} x no client)  runs {[round(t, 2) for t in times[c]]}"
+            f"  {c:8s} client: mean {mean:6.2f} ms ({mean / base_mean:.3f} x no client), "
+            f"median {median:6.2f} ms ({median / base_median:.3f} x no client)"
         )
 
 

@@ -359,6 +359,7 @@ class RerunLogger:
     def publish(self, item: _Item) -> None:
         import rerun as rr
 
+        from . import mcap_format as fmt
         from .tracker_topics import OVERLAY_COLOURS
 
         rec, frame, result = self.rec, item.frame, item.result
@@ -372,9 +373,10 @@ class RerunLogger:
                 rr.Transform3D(),
             )
             self._intrinsics = k
-        rec.log("camera/color", rr.Image(frame.color, color_model="RGB").compress(jpeg_quality=JPEG_QUALITY))
-        if frame.depth is not None:
-            rec.log("camera/depth", rr.DepthImage(frame.depth, meter=1000.0))
+        jpeg = fmt.encode_color(frame.color, frame.timestamp_ns, "jpeg", JPEG_QUALITY).data
+        rec.log("camera/color", rr.EncodedImage(contents=jpeg, media_type="image/jpeg", draw_order=-10.0))
+        if frame.depth is not None:  # behind the colour image in 2-D, a point cloud in 3-D
+            rec.log("camera/depth", rr.DepthImage(frame.depth, meter=1000.0, draw_order=-20.0))
         if result.background:
             return
 

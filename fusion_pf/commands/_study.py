@@ -258,6 +258,8 @@ def run_study(args: argparse.Namespace, config) -> int:
         raise InputError("--targets is not supported for a study yet; track each recording with -o")
     sources = recordings([str(args.source), *args.more_sources])
     out_dir = opts.out_dir
+    if opts.scheduler is not None:  # workers elsewhere: paths that do not depend on this process's directory
+        sources, out_dir = [p.resolve() for p in sources], out_dir.resolve()
     settings = json.dumps(config.settings(), sort_keys=True)
     rows: dict[str, dict] = {}
     todo: list[tuple[str, str]] = []
@@ -272,10 +274,11 @@ def run_study(args: argparse.Namespace, config) -> int:
         f"fusion-pf: study of {len(sources)} recordings into {out_dir}: {len(rows)} already done, {len(todo)} to track"
     )
     t0 = time.perf_counter()
-    with _executor(opts, len(todo)) as (submit, workers):
+    with _executor(opts, len(todo)) as executor:
+        workers = executor[2]
         out_dir.mkdir(exist_ok=True)
         print(plan + (f" on {workers} worker{'s' if workers != 1 else ''}" if todo else ""), file=sys.stderr)
-        _run_tasks(args, submit, todo, str(out_dir), settings, rows)
+        _run_tasks(args, executor, todo, str(out_dir), settings, rows)
     wall = time.perf_counter() - t0
     for leftover in out_dir.glob(".*.partial.*"):  # of tasks killed with their worker and done again since
         leftover.unlink(missing_ok=True)
@@ -294,20 +297,23 @@ def run_study(args: argparse.Namespace, config) -> int:
 
 
 @contextlib.contextmanager
-def _executor(opts: StudyOptions, n_tasks: int) -> Iterator[tuple[Callable[..., Any], int]]:
-    """``(submit, workers)``: ``submit(fn, *args)`` returns a future-like with ``.result()``.
+def _executor(opts: StudyOptions, n_tasks: int) -> Iterator[tuple[Callable[..., Any], Callable[[list], Any], int]]:
+    """``(submit, as_completed, workers)``: ``submit(fn, *args)`` returns a future (``.result()``).
 
-    No task, or ``--workers 1`` without a scheduler: in this process. Otherwise
-    the sweeps' Dask set-up (:func:`fusion_pf.experiments.sweep.dask_client`);
-    an unreachable scheduler is an :class:`InputError` before anything is written.
+    No task, or ``--workers 1`` without a scheduler: in this process (a task
+    runs when submitted). Otherwise the sweeps' Dask set-up
+    (:func:`fusion_pf.experiments.sweep.dask_client`); an unreachable
+    scheduler is an :class:`InputError` before anything is written.
     """
     if n_tasks == 0 or (opts.scheduler is None and opts.workers == 1):
-        yield _InProcess, (1 if n_tasks else 0)
+        yield _InProcess, iter, (1 if n_tasks else 0)
         return
+    from distributed import as_completed
+
     from fusion_pf.experiments.sweep import dask_client
 
     with dask_client(opts.workers, opts.scheduler, n_tasks) as (client, workers):
-        yield (lambda fn, *a: client.submit(fn, *a, pure=False)), workers
+        yield (lambda fn, *a: client.submit(fn, *a, pure=False)), as_completed, workers
 
 
 class _InProcess:
@@ -320,28 +326,23 @@ class _InProcess:
         return self.value
 
 
-def _run_tasks(args, submit, todo, out_dir: str, settings: str, rows: dict[str, dict]) -> None:
+def _run_tasks(args, executor, todo, out_dir: str, settings: str, rows: dict[str, dict]) -> None:
     """Submit one :func:`track_recording` task per recording of ``todo`` and collect the rows as they finish."""
     from tqdm import tqdm
 
+    submit, completed, _ = executor
     task_args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "_run"})
     bar = tqdm(
         total=len(todo), desc="study", unit="recording", disable=True if args.no_progress else None, file=sys.stderr
     )
     with bar:
-        futures = {}
-        for source, sha in todo:
-            futures[submit(track_recording, task_args, source, out_dir, sha, settings)] = Path(source).stem
-            if isinstance(next(reversed(futures)), _InProcess):
-                bar.update(1)
-        if futures and not isinstance(next(iter(futures)), _InProcess):
-            from distributed import as_completed
-
-            for fut in as_completed(list(futures)):
-                rows[futures[fut]] = _row(fut, futures[fut])
-                bar.update(1)
-        else:
-            rows.update((name, fut.result()) for fut, name in futures.items())
+        futures = {
+            submit(track_recording, task_args, source, out_dir, sha, settings): Path(source).stem
+            for source, sha in todo
+        }
+        for fut in completed(list(futures)):
+            rows[futures[fut]] = _row(fut, futures[fut])
+            bar.update(1)
 
 
 def _row(fut: Any, name: str) -> dict:

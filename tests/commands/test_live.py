@@ -3,6 +3,7 @@
 import csv
 import importlib.util
 import json
+import statistics
 import subprocess
 from pathlib import Path
 
@@ -86,8 +87,8 @@ def test_a_client_that_stops_reading_neither_stops_nor_slows_the_tracker(tmp_pat
         assert proc.returncode == 0, err
         with open(out / "out.csv", newline="") as fh:
             assert sum(1 for _ in csv.DictReader(fh)) == 150
-        times[case] = live_serve.frame_ms(out / "out.csv")
-    # generous: the 10 % figure is measured by benchmarks/live_serve.py on a quiet machine
+        times[case] = statistics.median(live_serve.frame_ms(out / "out.csv"))
+    # generous: the 10 % figure is measured by benchmarks/live_serve.py
     assert times["stalled"] < 2.0 * times["none"] + 2.0, times
 
 
