@@ -447,10 +447,17 @@ class Live:
         self.error: BaseException | None = None
 
     def __enter__(self) -> Live:
-        for sink, what in ((self.foxglove, "Foxglove"), (self.rerun, "Rerun")):
-            if sink is not None:
-                where = sink.open()
-                self.stream.write(f"fusion-pf: live view for {what} at {where}\n")
+        opened: list[Any] = []
+        try:
+            for sink, what in ((self.foxglove, "Foxglove"), (self.rerun, "Rerun")):
+                if sink is not None:
+                    where = sink.open()
+                    opened.append(sink)
+                    self.stream.write(f"fusion-pf: live view for {what} at {where}\n")
+        except BaseException:
+            for sink in opened:
+                sink.close()
+            raise
         self.stream.flush()
         self._thread = threading.Thread(target=self._run, name="fusion-pf-live", daemon=True)
         self._thread.start()

@@ -57,7 +57,7 @@ SUMMARY_COLUMNS = (
 #: Suffix of the record a finished recording leaves in DIR.
 DONE_SUFFIX = ".done.json"
 #: Options of a single run that a study sets itself, per recording.
-SINGLE_ONLY = ("output", "csv", "export_ply", "serve", "rerun")
+SINGLE_ONLY = ("output", "csv", "export_ply", "serve", "rerun", "realtime")
 
 
 def _check_dir(label: str, value: Any) -> Path:
