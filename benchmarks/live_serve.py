@@ -94,7 +94,11 @@ class FoxgloveClient:
         while True:
             try:
                 return await websockets.connect(
-                    self.url, subprotocols=[SUBPROTOCOL], max_size=None, max_queue=1 if self.stall else 64
+                    self.url,
+                    subprotocols=[SUBPROTOCOL],
+                    max_size=None,
+                    max_queue=1 if self.stall else 64,
+                    close_timeout=1,
                 )
             except OSError:
                 if time.monotonic() > end:

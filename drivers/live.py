@@ -48,6 +48,8 @@ DEFAULT_RERUN_URL = "rerun+http://127.0.0.1:9876/proxy"
 DEFAULT_HOST = "127.0.0.1"
 #: Messages foxglove-sdk buffers per client before it drops the oldest (about 12 frames of every topic: 0.4 s at 30 fps).
 CLIENT_BACKLOG = 96
+#: Seconds the end of a run waits for the Foxglove server to stop (its clients to close).
+STOP_WAIT_S = 1.0
 #: JPEG quality of the streamed colour image.
 JPEG_QUALITY = 80
 #: Seconds between two status lines when stderr is not a terminal.
@@ -321,11 +323,14 @@ class FoxgloveServer:
             channel.log(data, log_time=timestamp_ns)
 
     def close(self) -> None:
-        if self.server is not None:
-            self.server.stop()
-            self.server = None
+        server, self.server = self.server, None
         for channel in self._channels.values():
             channel.close()
+        if server is not None:
+            # stop() waits for every client to close, ~50 s for one that does not read: not waited for
+            stopper = threading.Thread(target=server.stop, name="fusion-pf-foxglove-stop", daemon=True)
+            stopper.start()
+            stopper.join(STOP_WAIT_S)
         logger = logging.getLogger("foxglove")
         logger.removeHandler(self.drops)
 

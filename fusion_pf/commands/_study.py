@@ -187,10 +187,11 @@ def track_recording(args: argparse.Namespace, source: str, out_dir: str, sha: st
     try:
         with contextlib.redirect_stderr(err):
             code = track.run(single)
-    except FusionPFError as exc:
+    except Exception as exc:  # one recording's failure is its row, not the end of the study
         for tmp in (tmp_mcap, tmp_csv):
             tmp.unlink(missing_ok=True)
-        return {"recording": name, "status": f"failed: {exc}", "input_sha256": sha}
+        why = str(exc) if isinstance(exc, FusionPFError) else f"{type(exc).__name__}: {exc}"
+        return {"recording": name, "status": f"failed: {why}".splitlines()[0], "input_sha256": sha}
     seconds = time.perf_counter() - t0
     skipped = _warning(err.getvalue())
     row = _summary_row(name, (tmp_mcap, tmp_csv), seconds, skipped, sha, "partial" if code else "done")
