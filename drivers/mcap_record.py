@@ -45,6 +45,37 @@ _MESSAGE_OVERHEAD = 31
 _NEVER = 1 << 62
 
 
+#: One message of a frame: ``(topic, protobuf message or None, JSON schema name or None, JSON object or None)``.
+FrameMessage = tuple[str, Message | None, str | None, Any]
+
+
+def frame_messages(frame: Frame, color_format: str, jpeg_quality: int, depth_format: str) -> list[FrameMessage]:
+    """The messages of one frame, calibration first: what :meth:`McapRecorder.write` writes (and the live view streams).
+
+    Calibration, colour and depth are protobuf messages; skeleton, ground truth
+    and hand landmarks JSON objects with their schema name.
+    """
+    t = frame.timestamp_ns
+    messages: list[FrameMessage] = [
+        (fmt.CALIBRATION_TOPIC, fmt.encode_calibration(frame.intrinsics, t), None, None),
+        (fmt.COLOR_TOPIC, fmt.encode_color(frame.color, t, color_format, jpeg_quality), None, None),
+    ]
+    if frame.depth is not None:
+        messages.append((fmt.DEPTH_TOPIC, fmt.encode_depth(frame.depth, t, depth_format), None, None))
+    if frame.joints is not None:
+        messages.append((fmt.SKELETON_TOPIC, None, fmt.SKELETON_SCHEMA, fmt.encode_skeleton(frame.joints)))
+    if frame.ground_truths is not None:
+        messages.extend(
+            (fmt.GROUND_TRUTH_TOPIC, None, fmt.TARGET_PALM_SCHEMA, fmt.encode_target_palm(name, point))
+            for name, point in frame.ground_truths.items()
+        )
+    elif frame.ground_truth is not None:
+        messages.append((fmt.GROUND_TRUTH_TOPIC, None, fmt.PALM_SCHEMA, fmt.encode_palm(frame.ground_truth)))
+    if frame.hands is not None:
+        messages.append((fmt.HAND_TOPIC, None, fmt.HAND_SCHEMA, fmt.encode_hands(frame.hands)))
+    return messages
+
+
 class McapRecorder(Sink):
     """Write frames and tracker outputs into an MCAP file.
 
@@ -344,25 +375,8 @@ class McapRecorder(Sink):
                 f"background frames must be the first frames of a recording: frame seq {frame.seq} "
                 f"is a background frame after {self.frames_written - self._background} other frames"
             )
-        messages: list[tuple[str, Message | None, str | None, Any]] = []
         changed = frame.intrinsics != self._intrinsics.get(camera)
-        messages.append((fmt.CALIBRATION_TOPIC, fmt.encode_calibration(frame.intrinsics, t), None, None))
-        messages.append(
-            (fmt.COLOR_TOPIC, fmt.encode_color(frame.color, t, self.color_format, self.jpeg_quality), None, None)
-        )
-        if frame.depth is not None:
-            messages.append((fmt.DEPTH_TOPIC, fmt.encode_depth(frame.depth, t, self.depth_format), None, None))
-        if frame.joints is not None:
-            messages.append((fmt.SKELETON_TOPIC, None, fmt.SKELETON_SCHEMA, fmt.encode_skeleton(frame.joints)))
-        if frame.ground_truths is not None:
-            messages.extend(
-                (fmt.GROUND_TRUTH_TOPIC, None, fmt.TARGET_PALM_SCHEMA, fmt.encode_target_palm(name, point))
-                for name, point in frame.ground_truths.items()
-            )
-        elif frame.ground_truth is not None:
-            messages.append((fmt.GROUND_TRUTH_TOPIC, None, fmt.PALM_SCHEMA, fmt.encode_palm(frame.ground_truth)))
-        if frame.hands is not None:
-            messages.append((fmt.HAND_TOPIC, None, fmt.HAND_SCHEMA, fmt.encode_hands(frame.hands)))
+        messages = frame_messages(frame, self.color_format, self.jpeg_quality, self.depth_format)
         if not frame.background and not self._foreground:
             self._foreground = True
             self._announce_background(writer)

@@ -12,6 +12,16 @@ import sys
 
 import pytest
 
+#: Flags of the headless Debian Chromium the browser tests drive with playwright.
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+
 #: The command line as a subprocess runs it (the interpreter of the test run).
 CLI = (sys.executable, "-m", "fusion_pf")
 

@@ -86,10 +86,19 @@ CONFIGS = (ScoreOptions,)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Register the options of ``fusion-pf score``."""
-    p.add_argument("tracked", metavar="TRACKED", help="tracker output: TRACKED.csv or TRACKED.mcap")
+    p.add_argument(
+        "tracked",
+        metavar="TRACKED",
+        help="tracker output: TRACKED.csv or TRACKED.mcap, or the --out-dir folder of a study (with --ground-truth "
+        "a folder of the recordings: per recording and pooled)",
+    )
     ref = p.add_mutually_exclusive_group(required=True)
     ref.add_argument("--reference", metavar="DB", help="annotations SQLite database (fusion-pf annotate)")
-    ref.add_argument("--ground-truth", metavar="REC.mcap", help="recording with /ground_truth/palm (synthetic)")
+    ref.add_argument(
+        "--ground-truth",
+        metavar="REC.mcap",
+        help="recording with /ground_truth/palm (synthetic); for a study, the folder of its recordings",
+    )
     p.add_argument("--plots", metavar="DIR", help="write the PNG figures, score.md and score.json to DIR")
     p.add_argument("--json", action="store_true", help="print the report as JSON instead of Markdown")
     add_options(p, ScoreOptions, exclude=SWEEP_OPTIONS)
@@ -166,6 +175,20 @@ def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
     return 0
 
 
+def _score_study(args: argparse.Namespace, opts: ScoreOptions, read_topic) -> int:
+    """A study's output folder against a folder of recordings with ground truth: per recording and pooled."""
+    from fusion_pf.score.study import score_study, study_markdown
+
+    if args.ground_truth is None or opts.sweep is not None or args.plots is not None or args.json:
+        raise InputError(
+            f"{args.tracked} is a folder: score a study with --ground-truth REF_DIR (no --reference, --sweep, "
+            "--plots or --json)"
+        )
+    study = score_study(args.tracked, args.ground_truth, read_topic=read_topic, tie_tol=opts.tie_tol)
+    print(study_markdown(study, args.tracked, args.ground_truth), end="")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Score, optionally sweep, write and print the report; returns the exit status."""
     from drivers.tracker_topics import find_source, read_topic, recording_metadata
@@ -177,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
 
     opts = from_args(ScoreOptions, args)
     counts = opts.sweep
+    if Path(args.tracked).is_dir():
+        return _score_study(args, opts, read_topic)
     needs_meta = args.plots is not None or args.reference is not None or counts is not None
     meta = recording_metadata(args.tracked) if needs_meta and file_kind(args.tracked) == "mcap" else {}
     source = find_source(args.tracked, meta)

@@ -6,9 +6,12 @@ import argparse
 from pathlib import Path
 
 from drivers import SOURCE_SPECS
+from drivers.live import LiveOptions
 from fusion_pf.cues.registry import CueOptions
 from fusion_pf.pipeline import TrackConfig
 from fusion_pf.text import printable
+
+from ._study import StudyOptions
 
 NAME = "track"
 HELP = "track the palm (data-fusion particle filter or Kalman baseline) and write MCAP/CSV outputs"
@@ -30,7 +33,7 @@ DESCRIPTION = (
 
 
 #: The config classes whose flags the command registers.
-CONFIGS = (TrackConfig, CueOptions)
+CONFIGS = (TrackConfig, CueOptions, LiveOptions, StudyOptions)
 
 #: File name of each ``--export-ply`` point cloud.
 PLY_NAME = "frame_{frame}.ply"
@@ -43,11 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from fusion_pf.options import add_options
 
     p.add_argument("source", metavar="SOURCE", help=f"what to track: {SOURCE_SPECS}")
+    p.add_argument("more_sources", nargs="*", metavar="SOURCE", help="more recordings to track (with --out-dir)")
     p.add_argument(
         "-o",
         "--output",
         type=Path,
-        required=True,
         metavar="OUT.mcap",
         help="MCAP file to write (tracker topics; with --copy-input also the input frames)",
     )
@@ -78,6 +81,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_options(p, TrackConfig, title="tracker")
     add_options(p, CueOptions, title="cues")
+    add_options(p, LiveOptions, title="live view (Foxglove, Rerun)")
+    add_options(p, StudyOptions, title="study: several recordings as Dask tasks")
 
 
 def config_from_args(args: argparse.Namespace):
@@ -206,19 +211,30 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from drivers import ReplaySource, open_source
+    from drivers.live import Live, paced
     from drivers.mcap_record import McapRecorder
     from drivers.tracker_topics import TrackerTopics
     from fusion_pf.annotate.db import recording_sha256
     from fusion_pf.errors import PARTIAL_EXIT_CODE, InputError
     from fusion_pf.geometry import write_roi_ply
+    from fusion_pf.options import from_args
     from fusion_pf.pipeline import STATES, TrackCsv, TrackStats, track
     from fusion_pf.signals import sigint_deferred
 
     config = config_from_args(args)
+    live_options = from_args(LiveOptions, args)
+    if args.more_sources or getattr(args, "out_dir", None) is not None:
+        from ._study import run_study
+
+        return run_study(args, config)
+    if args.output is None:
+        raise InputError("track needs -o OUT.mcap (or --out-dir DIR to track several recordings)")
+    several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
+    if live_options.enabled and several:
+        raise InputError("--serve and --rerun do not show several --targets yet; track one target")
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)
-    several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
     background = None if config.background is None else load_background(config.background)
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)
@@ -242,21 +258,25 @@ def run(args: argparse.Namespace) -> int:
                 total=total,
                 unit="frame",
                 desc=src.describe(),
-                disable=True if args.no_progress else None,
+                disable=True if args.no_progress or live_options.enabled else None,
                 file=sys.stderr,
             )
         )
+        live = stack.enter_context(Live(live_options)) if live_options.enabled else None
         if several:
             return _track_targets(src, config, args, recorder, targets_csv, background, bar)
-        topics = TrackerTopics(recorder, config)
+        topics = TrackerTopics(recorder if live is None else live.tee(recorder), config)
         track_stats = TrackStats()
-        for result in track(src, config, background=background, stats=track_stats):
+        frames = paced(src) if live_options.realtime else src
+        for result in track(frames, config, background=background, stats=track_stats):
             with sigint_deferred():
                 t0 = time.perf_counter_ns()
                 assert result.source_frame is not None  # track() sets it on every result
                 if args.copy_input:
                     recorder.write(result.source_frame)
                 topics.write(result)
+                if live is not None:
+                    live.publish(result, result.source_frame)
                 if (
                     args.export_ply is not None
                     and not result.background

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from ..conftest import CHROMIUM_ARGS
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -139,16 +141,6 @@ def server_factory():
     yield start
     for server in started:
         server.stop()
-
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 
 
 @pytest.fixture(scope="module")

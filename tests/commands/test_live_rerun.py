@@ -1,0 +1,59 @@
+"""``fusion-pf track --rerun``: the tracking in Rerun's web viewer (shipped in the rerun-sdk wheel), in headless Chromium."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ..conftest import CHROMIUM_ARGS, run_cli
+from .test_live import live_serve
+
+pytestmark = pytest.mark.browser
+
+
+def _shot(page, path: Path) -> np.ndarray:
+    page.screenshot(path=path)
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.int16)
+
+
+def test_the_live_tracking_shows_in_rerun_s_web_viewer(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    grpc, web = live_serve.free_port(), live_serve.free_port()
+    rerun = Path(sys.executable).with_name("rerun")
+    viewer = subprocess.Popen(
+        [rerun, "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc), "--web-viewer-port", str(web)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    url = f"rerun+http://127.0.0.1:{grpc}/proxy"
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            for _ in range(200):  # the viewer's web server starts
+                try:
+                    page.goto(f"http://127.0.0.1:{web}/?url={url}")
+                    break
+                except Exception:
+                    time.sleep(0.05)
+            time.sleep(8)
+            before = _shot(page, tmp_path / "before.png")
+            r = run_cli("track", "synth:seed=1,frames=60,size=320x200", "-o", tmp_path / "o.mcap", "--rerun", url)
+            assert r.returncode == 0, r.stderr
+            assert f"live view for Rerun at {url}" in r.stderr
+            time.sleep(12)
+            after = _shot(page, tmp_path / "rerun_live.png")
+            browser.close()
+    finally:
+        viewer.terminate()
+        viewer.wait(timeout=30)
+    print(f"screenshot: {tmp_path / 'rerun_live.png'}")
+    # the empty viewer turned into image views: a large part of the page changed and is far from uniform
+    changed = (np.abs(after - before).sum(axis=2) > 60).mean()
+    assert changed > 0.15, changed
+    assert after.std() > 30
