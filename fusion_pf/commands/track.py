@@ -203,6 +203,11 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.signals import sigint_deferred
 
     config = config_from_args(args)
+    if config.filter == "pf":
+        # the particle filter's compiled kernels load while the recording opens and the cues start
+        from fusion_pf.filter.kernel import warm_up
+
+        warm_up()
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)

@@ -81,6 +81,7 @@ from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.calibration import NoiseCalibration
 from ..filter.estimate import largest_std
+from ..filter.kernel import warm_up
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
 from ..filter.sspf import ScatterSearchPF
 from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
@@ -505,6 +506,9 @@ class _FilterStage:
     """
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
+        if config.filter == "pf":
+            # the tracker is made at the first measurement: its compiled kernels start loading now
+            warm_up()
         self.config = config
         self.rng = rng
         self.tracker: Tracker | None = None
