@@ -222,6 +222,7 @@ def measure(
     min_area: int = 1,
     extras: dict | None = None,
     near: tuple[float, float] | None = None,
+    step: int = 1,
 ):
     """Turn a cue's final mask into a full-frame :class:`Measurement` (or None).
 
@@ -229,20 +230,26 @@ def measure(
     largest (:func:`largest_region`). The centroid is shifted by the window ``offset``
     ``(x0, y0)`` into full-frame pixels; ``quality`` is :func:`region_quality`;
     ``extras`` gets ``area`` (px) and ``bbox`` (full-frame ``[x, y, w, h]``).
+    ``step`` > 1: ``final`` holds every ``step``-th row and column of the window
+    (a reduced whole-frame search); ``min_area`` and ``palm_area`` are full-resolution
+    pixels and everything returned is in full-resolution pixels.
     """
     from .base import Measurement
 
     x0, y0 = offset
-    region = largest_region(final, min_area, None if near is None else (near[0] - x0, near[1] - y0))
+    k2 = step * step
+    near_w = None if near is None else ((near[0] - x0) / step, (near[1] - y0) / step)
+    region = largest_region(final, min_area // k2, near_w)
     if region is None:
         return None
     info = dict(extras or {})
-    info["area"] = region.area
-    info["bbox"] = [region.bbox[0] + x0, region.bbox[1] + y0, region.bbox[2], region.bbox[3]]
+    info["area"] = region.area * k2
+    bx, by, bw, bh = region.bbox
+    info["bbox"] = [bx * step + x0, by * step + y0, bw * step, bh * step]
     return Measurement(
         source,
-        region.u + x0,  # window centroid + ROI offset = full-frame column
-        region.v + y0,  # window centroid + ROI offset = full-frame row
-        region_quality(region, palm_area),
+        region.u * step + x0,  # window centroid + ROI offset = full-frame column
+        region.v * step + y0,  # window centroid + ROI offset = full-frame row
+        region_quality(region, palm_area / k2),
         info,
     )
