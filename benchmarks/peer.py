@@ -25,7 +25,8 @@ Per frame (background frames skipped):
    static-image mode (palm detection + landmarks).
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
-both sides tracked) and of acquisition frames (step 3: every frame; p99 too), each side and the
+both sides tracked; wall time, and the CPU time of all the side's threads, which other processes
+on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too), each side and the
 ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
 RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
 estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
@@ -36,6 +37,7 @@ script keeps one core busy with a spinning process for the whole pass).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -78,7 +80,7 @@ def worker() -> None:
 
     ``open NAME H W``: attach the shared frame buffer and start fresh Hands (video and
     static-image mode); ``video`` / ``static``: process the buffer's frame, answer
-    ``MS`` then ``U V`` of the palm when a hand was found.
+    its wall and CPU ms (all the worker's threads), then ``U V`` of the palm when a hand was found.
     """
     from multiprocessing import resource_tracker, shared_memory
 
@@ -106,10 +108,10 @@ def worker() -> None:
             print("ok", flush=True)
             continue
         assert hands is not None, "open before processing"
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         res = hands[cmd[0]].process(frame)
-        ms = (time.perf_counter() - t0) * 1e3
-        out = [ms]
+        ms, cpu = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+        out = [ms, cpu]
         if res.multi_hand_landmarks:
             lm = res.multi_hand_landmarks[0].landmark
             h, w = frame.shape[:2]
@@ -154,14 +156,14 @@ class MediaPipePeer:
         self.frame = np.ndarray((h, w, 3), np.uint8, self.shm.buf)
         self._ask(f"open {self.shm.name} {h} {w}")
 
-    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, tuple[float, float] | None]:
-        """Wall ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
+    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, float, tuple[float, float] | None]:
+        """Wall and CPU ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
         if self.frame is None or self.frame.shape != rgb.shape:
             self.open(*rgb.shape[:2])
         assert self.frame is not None
         self.frame[...] = rgb
         vals = [float(x) for x in self._ask(mode)]
-        return vals[0], (vals[1], vals[2]) if len(vals) == 3 else None
+        return vals[0], vals[1], (vals[2], vals[3]) if len(vals) == 4 else None
 
     def _release(self) -> None:
         if self.shm is not None:
@@ -212,12 +214,31 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
     config = TrackConfig()
     acq_cues, acq_context = _acquisition_cues(rec, config)
     cols = ("fp_ms", "fp_track", "mp_ms", "mp_track", "fp_acq_ms", "mp_acq_ms", "gt_u", "gt_v")
-    cols += ("fp_u", "fp_v", "mp_u", "mp_v")
+    cols += ("fp_u", "fp_v", "mp_u", "mp_v", "fp_cpu", "mp_cpu")
     rows: list[list[float]] = []
     mp_had_hand = False
     size = None
+    decode_cpu = [0.0]
+
+    def decoded(src):
+        # the CPU time of decoding, taken out of the pipeline's CPU time below
+        it = iter(src)
+        while True:
+            c0 = time.process_time()
+            frame = next(it, None)
+            decode_cpu[0] = time.process_time() - c0
+            if frame is None:
+                return
+            yield frame
+
     with open_source(rec) as src:
-        for k, result in enumerate(track(src, config)):
+        results = track(decoded(src), config)
+        for k in itertools.count():
+            c0 = time.process_time()
+            result = next(results, None)
+            if result is None:
+                break
+            fp_cpu = (time.process_time() - c0 - decode_cpu[0]) * 1e3
             frame = result.source_frame
             assert frame is not None  # track() sets it
             if result.background:
@@ -227,7 +248,7 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
             fp_ms = (lat["total"] - lat["decode"]) / 1e6
             roi = result.roi
             fp_track = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
-            mp_ms, mp_palm = peer(frame.color, "video")
+            mp_ms, mp_cpu, mp_palm = peer(frame.color, "video")
             mp_track = mp_had_hand
             mp_had_hand = mp_palm is not None
 
@@ -241,9 +262,9 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
 
             if k % 2:
                 fp_acq = fp_acquire()
-                mp_acq, _ = peer(frame.color, "static")
+                mp_acq, _, _ = peer(frame.color, "static")
             else:
-                mp_acq, _ = peer(frame.color, "static")
+                mp_acq, _, _ = peer(frame.color, "static")
                 fp_acq = fp_acquire()
             gt = frame.ground_truth
             est = result.estimate
@@ -261,6 +282,8 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
                     math.nan if est is None else est.v,
                     math.nan if mp_palm is None else mp_palm[0],
                     math.nan if mp_palm is None else mp_palm[1],
+                    fp_cpu,
+                    mp_cpu,
                 ]
             )
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
@@ -278,15 +301,19 @@ def summarise(r: dict) -> dict:
     for side in ("fp", "mp"):
         t = r[f"{side}_ms"][both]
         a = r[f"{side}_acq_ms"]
+        cpu = r[f"{side}_cpu"][both]
         out[side] = {
             "track_median_ms": _pct(t, 50),
             "track_p95_ms": _pct(t, 95),
+            "track_cpu_median_ms": _pct(cpu, 50),
+            "track_cpu_p95_ms": _pct(cpu, 95),
             "acq_median_ms": _pct(a, 50),
             "acq_p95_ms": _pct(a, 95),
             "acq_p99_ms": _pct(a, 99),
             "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
         }
-    for key in ("track_median_ms", "track_p95_ms", "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
+    keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
+    for key in (*keys, "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
         out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
     has_gt = np.isfinite(r["gt_u"])
     if has_gt.any():
@@ -320,25 +347,27 @@ def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict)
         f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
         f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)"
     )
-    print(f"{'ms per frame':<44} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
+    print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
     lines = [
         (f"tracking frames, median (n={s['tracking_frames']}, both tracked)", "track_median_ms"),
         ("tracking frames, p95", "track_p95_ms"),
+        ("tracking frames, CPU ms (all threads), median", "track_cpu_median_ms"),
+        ("tracking frames, CPU ms, p95", "track_cpu_p95_ms"),
         ("acquisition (whole-frame search), median", "acq_median_ms"),
         ("acquisition, p95", "acq_p95_ms"),
         ("acquisition, p99", "acq_p99_ms"),
     ]
     for label, key in lines:
-        print(f"{label:<44} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")
+        print(f"{label:<48} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")
     print(
-        f"{'own acquisition frames in the tracking run':<44} {fp['own_acquisition_frames']:10d} "
+        f"{'own acquisition frames in the tracking run':<48} {fp['own_acquisition_frames']:10d} "
         f"{mp['own_acquisition_frames']:10d}"
     )
     if "rmse_px" in fp:
-        print(f"{'palm vs /ground_truth/palm':<44} {'fusion-pf':>10} {'MediaPipe':>10}")
+        print(f"{'palm vs /ground_truth/palm':<48} {'fusion-pf':>10} {'MediaPipe':>10}")
         for label, key, fmt in (("RMSE px", "rmse_px", "10.2f"), ("p95 px", "p95_px", "10.2f")):
-            print(f"{label:<44} {fp[key]:{fmt}} {mp[key]:{fmt}}")
-        print(f"{'coverage':<44} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
+            print(f"{label:<48} {fp[key]:{fmt}} {mp[key]:{fmt}}")
+        print(f"{'coverage':<48} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
 
 
 def main(argv: list[str] | None = None) -> int:

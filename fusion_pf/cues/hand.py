@@ -354,7 +354,7 @@ class _Model:
     another process holds a core the parallel call stalls for that core's time
     slice while a single-threaded one runs on the free core undisturbed. Each
     call goes to the interpreter with the smaller moving average of recent call
-    times (after two calls of each, the first not counted); every
+    times (after one call of each; both were warmed up at construction); every
     :data:`_EXPLORE` calls the other one runs instead to refresh its figure. Both give bit-identical outputs (XNNPACK splits the work, not the
     sums; tested), so the choice changes timing only, never a result.
     """
@@ -370,17 +370,22 @@ class _Model:
             interpreter.allocate_tensors()
             self.interpreters.append(interpreter)
         self.interpreter = self.interpreters[0]
-        self.input = self.interpreter.get_input_details()[0]["index"]
+        details = self.interpreter.get_input_details()[0]
+        self.input = details["index"]
+        for interpreter in self.interpreters:
+            # the first call packs the weights (several times a call): paid here, not in the first frames
+            interpreter.set_tensor(self.input, np.zeros(details["shape"], np.float32))
+            interpreter.invoke()
         by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
         self.outputs = [by_name[n] for n in outputs]
         self.mean_ns = [0.0] * len(self.interpreters)
         self.calls = 0
 
     def _pick(self) -> int:
-        """Index of the interpreter for this call: each twice first, then the faster, the other every _EXPLORE."""
+        """Index of the interpreter for this call: each once first, then the faster, the other every _EXPLORE."""
         n = len(self.interpreters)
-        if self.calls < 2 * n:
-            return self.calls % n
+        if self.calls < n:
+            return self.calls
         best = min(range(n), key=self.mean_ns.__getitem__)
         return (best + 1) % n if self.calls % _EXPLORE == 0 else best
 
@@ -391,10 +396,8 @@ class _Model:
         interpreter.set_tensor(self.input, x)
         interpreter.invoke()
         dt = time.perf_counter_ns() - t0
-        # moving average of the call time; each interpreter's first call (warm-up) is not counted
-        n = len(self.interpreters)
-        if self.calls >= n:
-            self.mean_ns[i] = dt if self.calls < 2 * n else 0.8 * self.mean_ns[i] + 0.2 * dt
+        # moving average of the call time, from each interpreter's first call
+        self.mean_ns[i] = dt if self.calls < len(self.interpreters) else 0.8 * self.mean_ns[i] + 0.2 * dt
         self.calls += 1
         return [interpreter.get_tensor(j)[0] for j in self.outputs]
 

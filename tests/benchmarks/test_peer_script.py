@@ -29,12 +29,14 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
         "fp_v": np.full(n, 14.0),
         "mp_u": np.full(n, math.nan),
         "mp_v": np.full(n, math.nan),
+        "fp_cpu": np.full(n, 3.0),
+        "mp_cpu": np.full(n, 6.0),
     }
     s = peer.summarise(r)
     assert s["tracking_frames"] == 6  # frames 2-7: both sides tracked
     assert s["fp"]["track_median_ms"] == 2.0 and s["mp"]["track_median_ms"] == 4.0
     assert s["ratio_track_median_ms"] == pytest.approx(0.5)
-    assert s["ratio_acq_median_ms"] == pytest.approx(0.5)
+    assert s["ratio_acq_median_ms"] == pytest.approx(0.5) == s["ratio_track_cpu_median_ms"]
     assert s["fp"]["own_acquisition_frames"] == 1 and s["mp"]["own_acquisition_frames"] == 2
     # errors 5 (frame 0) and 4 (frames 1-6), frame 7 has no estimate
     assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt((25 + 6 * 16) / 7))
