@@ -43,6 +43,8 @@ def test_filter_sections_json_and_markdown(tmp_path):
         # both filters follow the path to within a few cue sigmas (the cues' noise is 6-15 px)
         assert set(r["rmse_px"]) == {"ours", "ours_robust_mean", "stonesoup"}
         assert all(0.5 < e < 15.0 for e in r["rmse_px"].values())
+        assert r["rmse_gap_px"] == pytest.approx(r["rmse_px"]["ours"] - r["rmse_px"]["stonesoup"])
+        assert r["rmse_gap_se_px"] > 0.0
     for r in result["resampling"]:
         for key in (
             "ours_residual",
@@ -59,7 +61,7 @@ def test_filter_sections_json_and_markdown(tmp_path):
     # only targets whose sizes were measured are reported: here the Stone Soup race
     assert [t["target"] for t in result["targets"]] == [
         ">= 10x faster than Stone Soup, interleaved (worst N)",
-        "estimate RMSE <= Stone Soup's at equal N (worst N, ours - theirs)",
+        "estimate RMSE <= Stone Soup's at equal N (worst N: (ours - theirs) / its s.e.)",
     ]
     md = (tmp_path / "bench.md").read_text()
     assert md == to_markdown(result)
