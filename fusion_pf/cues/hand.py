@@ -46,6 +46,7 @@ the anchors computed here with its ``generate_handtracker_anchors``.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 from importlib import resources
@@ -349,45 +350,57 @@ def _check_unit(name: str, value: float) -> float:
 class _Model:
     """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
 
-    With ``num_threads`` > 1 it holds a second interpreter of the same model
-    on one thread. A multi-threaded call waits for its slowest thread, so when
-    another process holds a core the parallel call stalls for that core's time
-    slice while a single-threaded one runs on the free core undisturbed. Each
-    call goes to the interpreter with the smaller moving average of recent call
-    times (after one call of each; both were warmed up at construction); every
-    :data:`_EXPLORE` calls the other one runs instead to refresh its figure. Both give bit-identical outputs (XNNPACK splits the work, not the
-    sums; tested), so the choice changes timing only, never a result.
+    With ``num_threads`` > 1 a second interpreter of the same model on one
+    thread is built (and its weights packed by one call) in a background thread.
+    A multi-threaded call waits for its slowest thread, so when another process
+    holds a core the parallel call stalls for that core's time slice while a
+    single-threaded one runs on the free core undisturbed. Once the twin is
+    ready each call goes to the interpreter with the smaller moving average of
+    recent call times; every :data:`_EXPLORE` calls the other one runs instead to
+    refresh its figure. Both give bit-identical outputs (XNNPACK splits the
+    work, not the sums; tested), so which one runs changes timing only.
     """
 
     def __init__(self, path: Path, num_threads: int, outputs: tuple[str, ...]) -> None:
-        from ai_edge_litert.interpreter import Interpreter
-
         if not path.is_file():
             raise InputError(f"hand model {path} not found (expected the shipped fusion_pf/data/hand models)")
-        self.interpreters = []
-        for threads in sorted({num_threads, 1}, reverse=True):
-            interpreter = Interpreter(model_path=str(path), num_threads=threads)
-            interpreter.allocate_tensors()
-            self.interpreters.append(interpreter)
-        self.interpreter = self.interpreters[0]
+        self.interpreter = self._interpreter(path, num_threads)
+        self.interpreters = [self.interpreter]
         details = self.interpreter.get_input_details()[0]
         self.input = details["index"]
-        for interpreter in self.interpreters:
-            # the first call packs the weights (several times a call): paid here, not in the first frames
-            interpreter.set_tensor(self.input, np.zeros(details["shape"], np.float32))
-            interpreter.invoke()
         by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
         self.outputs = [by_name[n] for n in outputs]
-        self.mean_ns = [0.0] * len(self.interpreters)
-        self.calls = 0
+        self.mean_ns = [0.0, 0.0]
+        self.calls = [0, 0]
+        self.twin: threading.Thread | None = None
+        if num_threads > 1:
+            self.twin = threading.Thread(target=self._add_twin, args=(path, details), daemon=True)
+            self.twin.start()
+
+    @staticmethod
+    def _interpreter(path: Path, num_threads: int):
+        from ai_edge_litert.interpreter import Interpreter
+
+        interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
+        interpreter.allocate_tensors()
+        return interpreter
+
+    def _add_twin(self, path: Path, details: dict) -> None:
+        twin = self._interpreter(path, 1)
+        # the first call packs the weights (several times a call): paid here, off the frames
+        twin.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
+        twin.invoke()
+        self.interpreters.append(twin)
 
     def _pick(self) -> int:
-        """Index of the interpreter for this call: each once first, then the faster, the other every _EXPLORE."""
-        n = len(self.interpreters)
-        if self.calls < n:
-            return self.calls
-        best = min(range(n), key=self.mean_ns.__getitem__)
-        return (best + 1) % n if self.calls % _EXPLORE == 0 else best
+        """Index of the interpreter for this call: the twin once when it is new, then the faster one, the
+        other every :data:`_EXPLORE` calls."""
+        if len(self.interpreters) == 1:
+            return 0
+        if self.calls[1] == 0:
+            return 1
+        best = 0 if self.mean_ns[0] <= self.mean_ns[1] else 1
+        return 1 - best if sum(self.calls) % _EXPLORE == 0 else best
 
     def __call__(self, x: np.ndarray) -> list[np.ndarray]:
         i = self._pick()
@@ -396,9 +409,12 @@ class _Model:
         interpreter.set_tensor(self.input, x)
         interpreter.invoke()
         dt = time.perf_counter_ns() - t0
-        # moving average of the call time, from each interpreter's first call
-        self.mean_ns[i] = dt if self.calls < len(self.interpreters) else 0.8 * self.mean_ns[i] + 0.2 * dt
-        self.calls += 1
+        # moving average of the call time (the primary's first call packs its weights: not counted)
+        if self.calls[i] == int(i == 0):
+            self.mean_ns[i] = dt
+        elif self.calls[i] > 0:
+            self.mean_ns[i] = 0.8 * self.mean_ns[i] + 0.2 * dt
+        self.calls[i] += 1
         return [interpreter.get_tensor(j)[0] for j in self.outputs]
 
 

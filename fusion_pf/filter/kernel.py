@@ -21,8 +21,8 @@ and ties of the robust mean's top set are broken by index.
 
 Compiled on first use and cached on disk (``cache=True``, numba's cache
 directory: ``__pycache__`` next to this file, or the user cache when that is not
-writable). :func:`warm_up` loads them in a background thread so the first frame
-of a run does not wait for numba.
+writable). :func:`warm_up` loads them in a background thread so that no frame
+of a run waits for numba.
 """
 
 from __future__ import annotations
@@ -218,19 +218,28 @@ def _build() -> SimpleNamespace:
 _warm: threading.Thread | None = None
 
 
-def warm_up() -> None:
-    """Load (or compile) the kernels in a daemon thread; :func:`kernels` then returns at once."""
+def warm_up(wait: bool = False) -> None:
+    """Load (or compile) every kernel in a daemon thread, started once; ``wait``: until they are ready.
+
+    Started early (``fusion-pf track`` starts it before it opens the recording) the
+    load overlaps the run's start-up; :func:`~fusion_pf.pipeline.track` then waits
+    for it before its first frame, so no frame pays numba's start-up (~0.5 s of
+    CPU: importing numba and its typing registry, then each cached kernel).
+    """
     global _warm
-    if _warm is None and _build.cache_info().currsize == 0:
-        _warm = threading.Thread(target=_compile_all, name="fusion-pf-kernels", daemon=True)
-        _warm.start()
+    with _lock:
+        if _warm is None:
+            _warm = threading.Thread(target=_compile_all, name="fusion-pf-kernels", daemon=True)
+            _warm.start()
+    if wait:
+        _warm.join()
 
 
 def _compile_all() -> None:
     from .resample import residual_trusted
 
     residual_trusted(np.array([0.25, 0.75]), np.random.default_rng(0))
-    k = kernels()
+    k = _build()
     x = np.zeros((4, 2))
     joint, w, logw = np.zeros(2), np.zeros(2), np.zeros(2)
     k.predict(x, np.zeros((4, 2)), np.ones(4), 1.0, 0, 4)

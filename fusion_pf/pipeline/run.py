@@ -507,8 +507,8 @@ class _FilterStage:
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
         if config.filter == "pf":
-            # the tracker is made at the first measurement: its compiled kernels start loading now
-            warm_up()
+            # the tracker is made at the first measurement: its compiled kernels are ready before any frame
+            warm_up(wait=True)
         self.config = config
         self.rng = rng
         self.tracker: Tracker | None = None
