@@ -203,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     from fusion_pf.signals import sigint_deferred
 
     config = config_from_args(args)
-    if config.filter == "pf":
+    if config.filter == "pf" and not config.targets:
         # the particle filter's compiled kernels load while the recording opens and the cues start
         from fusion_pf.filter.kernel import warm_up
 
