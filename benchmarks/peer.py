@@ -25,7 +25,7 @@ Per frame (background frames skipped):
    static-image mode (palm detection + landmarks).
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
-both sides tracked; wall time, and the CPU time of all the side's threads, which other processes
+both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
 on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too), each side and the
 ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
 RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
@@ -299,9 +299,11 @@ def summarise(r: dict) -> dict:
     both = (r["fp_track"] > 0) & (r["mp_track"] > 0)
     out: dict = {"frames": int(r["fp_ms"].size), "size": r["size"], "tracking_frames": int(both.sum())}
     for side in ("fp", "mp"):
-        t = r[f"{side}_ms"][both]
+        # the frames both tracked; when there are none (one side never finds the hand), each side's own
+        sel = both if both.any() else r[f"{side}_track"] > 0
+        t = r[f"{side}_ms"][sel]
         a = r[f"{side}_acq_ms"]
-        cpu = r[f"{side}_cpu"][both]
+        cpu = r[f"{side}_cpu"][sel]
         out[side] = {
             "track_median_ms": _pct(t, 50),
             "track_p95_ms": _pct(t, 95),
@@ -311,6 +313,7 @@ def summarise(r: dict) -> dict:
             "acq_p95_ms": _pct(a, 95),
             "acq_p99_ms": _pct(a, 99),
             "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
+            "tracking_frames": int(sel.sum()),
         }
     keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
     for key in (*keys, "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
@@ -349,7 +352,12 @@ def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict)
     )
     print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
     lines = [
-        (f"tracking frames, median (n={s['tracking_frames']}, both tracked)", "track_median_ms"),
+        (
+            f"tracking frames, median (n={s['tracking_frames']}, both tracked)"
+            if s["tracking_frames"]
+            else f"tracking frames, median (n={fp['tracking_frames']}/{mp['tracking_frames']}: own)",
+            "track_median_ms",
+        ),
         ("tracking frames, p95", "track_p95_ms"),
         ("tracking frames, CPU ms (all threads), median", "track_cpu_median_ms"),
         ("tracking frames, CPU ms, p95", "track_cpu_p95_ms"),

@@ -42,6 +42,11 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
     assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt((25 + 6 * 16) / 7))
     assert s["fp"]["coverage"] == pytest.approx(7 / 8)
     assert s["mp"]["coverage"] == 0.0 and math.isnan(s["mp"]["rmse_px"])
+    # MediaPipe never tracking: each side's own tracking frames
+    r["mp_track"] = np.zeros(n)
+    s = peer.summarise(r)
+    assert s["tracking_frames"] == 0 and s["fp"]["tracking_frames"] == 7 and s["mp"]["tracking_frames"] == 0
+    assert s["fp"]["track_median_ms"] == 2.0 and math.isnan(s["mp"]["track_median_ms"])
 
 
 def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
