@@ -134,11 +134,14 @@ class ParticleFilter(Tracker):
 
     Notes
     -----
-    Cost per step is O(N) numpy work on preallocated ``(4, N)`` buffers (no
-    per-particle Python loop): ~0.07 ms at N = 100, < 1 ms at N = 1e4 on one
-    core, dominated by the 4 N normal draws of eq. 4. From
-    :data:`~fusion_pf.filter.resample.COMPILED_MIN_N` particles, residual
-    resampling runs compiled with numba (first use compiles, ~1 s).
+    The phases run as a few compiled passes over preallocated ``(4, N)``
+    buffers (:mod:`~fusion_pf.filter.kernel`; the normals of eq. 4 are drawn by
+    numpy from ``rng``): ~15-30 us per step at N = 100, ~0.5 ms at N = 1e4 on
+    one core, 10-20x Stone Soup's equivalent step (``benchmarks/bench.py``),
+    dominated from N ~ 1e3 on by the 4 N normal draws. The kernels are loaded
+    from numba's on-disk cache by a background thread started at construction
+    (~0.5 s of CPU once per process; after an install or an edit of the kernels
+    numba compiles them once, ~5-20 s).
     """
 
     def __init__(
