@@ -397,7 +397,12 @@ def main(argv: list[str] | None = None) -> int:
     for rec in args.recordings:
         if not rec.is_file():
             ap.error(f"recording {rec} not found")
-    peer = MediaPipePeer(ensure_venv(args.venv))
+    try:
+        python = ensure_venv(args.venv)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"peer: error: could not make MediaPipe's environment {args.venv} ({exc})", file=sys.stderr)
+        return 2
+    peer = MediaPipePeer(python)
     results: dict = {}
     try:
         for rec in args.recordings:
@@ -419,4 +424,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from fusion_pf.errors import FusionPFError
+
+    try:
+        sys.exit(main())
+    except FusionPFError as exc:
+        print(f"peer: error: {exc}", file=sys.stderr)
+        sys.exit(2)
