@@ -402,6 +402,8 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, subprocess.CalledProcessError) as exc:
         print(f"peer: error: could not make MediaPipe's environment {args.venv} ({exc})", file=sys.stderr)
         return 2
+    from fusion_pf.errors import FusionPFError
+
     peer = MediaPipePeer(python)
     results: dict = {}
     try:
@@ -416,6 +418,9 @@ def main(argv: list[str] | None = None) -> int:
                 load = (before, os.getloadavg()[0])
                 print_summary(rec, condition, load, s)
                 results[f"{rec}:{condition}"] = {"load": load, **s}
+    except FusionPFError as exc:
+        print(f"peer: error: {exc}", file=sys.stderr)
+        return 2
     finally:
         peer.close()
     if args.json:
@@ -424,10 +429,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from fusion_pf.errors import FusionPFError
-
-    try:
-        sys.exit(main())
-    except FusionPFError as exc:
-        print(f"peer: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(main())
