@@ -20,9 +20,9 @@ Per frame (background frames skipped):
 2. **MediaPipe** Hands in video mode (one hand, full model, confidences 0.5) on the same RGB
    array, timed around ``process``; a tracking frame when the previous frame had a hand (one
    landmark call), else an acquisition frame (palm detection);
-3. **acquisition cost on every frame**, in alternating order: fusion-pf's cues of ``track``
-   reset and run on the whole frame with no prior (what a lost frame costs), and MediaPipe in
-   static-image mode (palm detection + landmarks).
+3. **acquisition cost on every frame**: fusion-pf's cues of ``track`` reset and run on the
+   whole frame with no prior (what a lost frame costs), and MediaPipe in static-image mode
+   (palm detection + landmarks).
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
 both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
@@ -206,86 +206,108 @@ def _acquisition_cues(rec: Path, config):
     return cues, context
 
 
-def race(rec: Path, peer: MediaPipePeer) -> dict:
-    """One pass over ``rec``: per frame fusion-pf ``track`` and MediaPipe video mode, then both acquisitions."""
-    from drivers import open_source
+def fusion_worker(conn, rec: str) -> None:
+    """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
+
+    Per frame received: one ``track`` step (its time ``total - decode``, where the
+    decode is the wait for the frame; its CPU time without that wait), then the
+    acquisition cost (the cues reset and run on the whole frame); answers a tuple
+    (see :func:`race`). ``None`` ends the stream.
+    """
     from fusion_pf.pipeline import TrackConfig, track
 
     config = TrackConfig()
-    acq_cues, acq_context = _acquisition_cues(rec, config)
-    cols = ("fp_ms", "fp_track", "mp_ms", "mp_track", "fp_acq_ms", "mp_acq_ms", "gt_u", "gt_v")
-    cols += ("fp_u", "fp_v", "mp_u", "mp_v", "fp_cpu", "mp_cpu")
-    rows: list[list[float]] = []
-    mp_had_hand = False
-    size = None
-    decode_cpu = [0.0]
+    acq_cues, acq_context = _acquisition_cues(Path(rec), config)
+    wait_cpu = [0.0]
 
-    def decoded(src):
-        # the CPU time of decoding, taken out of the pipeline's CPU time below
-        it = iter(src)
+    def received():
         while True:
             c0 = time.process_time()
-            frame = next(it, None)
-            decode_cpu[0] = time.process_time() - c0
+            frame = conn.recv()
+            wait_cpu[0] = time.process_time() - c0
             if frame is None:
                 return
             yield frame
 
-    with open_source(rec) as src:
-        results = track(decoded(src), config)
-        for k in itertools.count():
-            c0 = time.process_time()
-            result = next(results, None)
-            if result is None:
-                break
-            fp_cpu = (time.process_time() - c0 - decode_cpu[0]) * 1e3
-            frame = result.source_frame
-            assert frame is not None  # track() sets it
-            if result.background:
-                continue
-            size = frame.size
-            lat = result.latency_ns
-            fp_ms = (lat["total"] - lat["decode"]) / 1e6
-            roi = result.roi
-            fp_track = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
-            mp_ms, mp_cpu, mp_palm = peer(frame.color, "video")
-            mp_track = mp_had_hand
-            mp_had_hand = mp_palm is not None
+    results = track(received(), config)
+    while True:
+        c0 = time.process_time()
+        result = next(results, None)
+        if result is None:
+            return
+        cpu = (time.process_time() - c0 - wait_cpu[0]) * 1e3
+        frame = result.source_frame
+        assert frame is not None  # track() sets it
+        if result.background:
+            conn.send(None)
+            continue
+        lat = result.latency_ns
+        roi = result.roi
+        tracking = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
+        ctx = acq_context(frame)
+        t0 = time.perf_counter_ns()
+        for cue in acq_cues.values():
+            cue.reset()
+            cue.measure(frame, ctx)
+        acq = (time.perf_counter_ns() - t0) / 1e6
+        est = result.estimate
+        u, v = (math.nan, math.nan) if est is None else (est.u, est.v)
+        conn.send(((lat["total"] - lat["decode"]) / 1e6, cpu, tracking, acq, u, v))
 
-            def fp_acquire(frame=frame) -> float:
-                ctx = acq_context(frame)
-                t0 = time.perf_counter_ns()
-                for cue in acq_cues.values():
-                    cue.reset()
-                    cue.measure(frame, ctx)
-                return (time.perf_counter_ns() - t0) / 1e6
 
-            if k % 2:
-                fp_acq = fp_acquire()
-                mp_acq, _, _ = peer(frame.color, "static")
-            else:
-                mp_acq, _, _ = peer(frame.color, "static")
-                fp_acq = fp_acquire()
-            gt = frame.ground_truth
-            est = result.estimate
-            rows.append(
-                [
-                    fp_ms,
-                    fp_track,
-                    mp_ms,
-                    mp_track,
-                    fp_acq,
-                    mp_acq,
-                    math.nan if gt is None else gt.u,
-                    math.nan if gt is None else gt.v,
-                    math.nan if est is None else est.u,
-                    math.nan if est is None else est.v,
-                    math.nan if mp_palm is None else mp_palm[0],
-                    math.nan if mp_palm is None else mp_palm[1],
-                    fp_cpu,
-                    mp_cpu,
-                ]
-            )
+def race(rec: Path, peer: MediaPipePeer) -> dict:
+    """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
+    mode, then static-image mode), each in its own process, the order alternating frame by frame."""
+    import multiprocessing as mp
+
+    from drivers import open_source
+
+    cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_u", "fp_v")
+    cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_u", "mp_v", "gt_u", "gt_v")
+    rows: list[list[float]] = []
+    mp_had_hand = False
+    size = None
+    ctx = mp.get_context("spawn")
+    here, there = ctx.Pipe()
+    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec)), daemon=True)
+    worker_proc.start()
+    try:
+        with open_source(rec) as src:
+            for k, frame in enumerate(src):
+
+                def fusion(frame=frame):
+                    here.send(frame)
+                    return here.recv()
+
+                def mediapipe(frame=frame):
+                    return peer(frame.color, "video"), peer(frame.color, "static")
+
+                if k % 2:
+                    fp = fusion()
+                    if fp is None:  # a background frame: not tracked
+                        continue
+                    (mp_ms, mp_cpu, mp_palm), (mp_acq, _, _) = mediapipe()
+                else:
+                    if frame.background:
+                        here.send(frame)
+                        here.recv()
+                        continue
+                    (mp_ms, mp_cpu, mp_palm), (mp_acq, _, _) = mediapipe()
+                    fp = fusion()
+                size = frame.size
+                mp_track = mp_had_hand
+                mp_had_hand = mp_palm is not None
+                gt = frame.ground_truth
+                fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v = fp
+                mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
+                gt_u, gt_v = (math.nan, math.nan) if gt is None else (gt.u, gt.v)
+                rows.append([fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v])
+                rows[-1] += [mp_ms, mp_cpu, mp_track, mp_acq, mp_u, mp_v, gt_u, gt_v]
+        here.send(None)
+    finally:
+        worker_proc.join(timeout=30)
+        if worker_proc.is_alive():
+            worker_proc.kill()
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
     return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
 
