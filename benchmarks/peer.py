@@ -37,7 +37,6 @@ script keeps one core busy with a spinning process for the whole pass).
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import math
 import os
