@@ -72,6 +72,9 @@ _ANCHORS_PER_LAYER = 2
 MODES = ("detect", "track", "hint")
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
+#: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
+#: (on a saturated machine both take the same wall time and the twin ~10 % less CPU).
+_MULTI_GAIN = 0.85
 
 
 @dataclass(frozen=True, slots=True)
@@ -356,8 +359,9 @@ class _Model:
     holds a core the parallel call stalls for that core's time slice while a
     single-threaded one runs on the free core undisturbed. Once the twin is
     ready each call goes to the interpreter with the smaller moving average of
-    recent call times; every :data:`_EXPLORE` calls the other one runs instead to
-    refresh its figure. Both give bit-identical outputs (XNNPACK splits the
+    recent call times (the multi-threaded one only when it is below
+    :data:`_MULTI_GAIN` x the twin's); every :data:`_EXPLORE` calls the other one
+    runs instead to refresh its figure. Both give bit-identical outputs (XNNPACK splits the
     work, not the sums; tested), so which one runs changes timing only.
     """
 
@@ -399,7 +403,8 @@ class _Model:
             return 0
         if self.calls[1] == 0:
             return 1
-        best = 0 if self.mean_ns[0] <= self.mean_ns[1] else 1
+        # the multi-threaded primary only when clearly faster: its threads spin between layers, costing CPU
+        best = 0 if self.mean_ns[0] < _MULTI_GAIN * self.mean_ns[1] else 1
         return 1 - best if sum(self.calls) % _EXPLORE == 0 else best
 
     def __call__(self, x: np.ndarray) -> list[np.ndarray]:
