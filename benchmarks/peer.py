@@ -208,10 +208,13 @@ def _acquisition_cues(rec: Path, config):
 def fusion_worker(conn, rec: str) -> None:
     """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
 
-    Per frame received: one ``track`` step (its time ``total - decode``, where the
-    decode is the wait for the frame; its CPU time without that wait), then the
-    acquisition cost (the cues reset and run on the whole frame); answers a tuple
-    (see :func:`race`). ``None`` ends the stream.
+    Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
+    few ahead, e.g. for a running background model), then waits for it; per
+    result ``("result", frame index, ...)``: the step's time ``total - decode``
+    (the decode being the wait for the frame), its CPU time without that wait,
+    whether the cues tracked in a window, the acquisition cost on that frame (the
+    cues reset and run on the whole frame) and the estimate. ``None`` from the
+    script ends the stream.
     """
     from fusion_pf.pipeline import TrackConfig, track
 
@@ -221,24 +224,26 @@ def fusion_worker(conn, rec: str) -> None:
 
     def received():
         while True:
+            conn.send(("want",))
             c0 = time.process_time()
             frame = conn.recv()
-            wait_cpu[0] = time.process_time() - c0
+            wait_cpu[0] += time.process_time() - c0
             if frame is None:
                 return
             yield frame
 
     results = track(received(), config)
     while True:
+        wait_cpu[0] = 0.0
         c0 = time.process_time()
         result = next(results, None)
         if result is None:
+            conn.send(("done",))
             return
         cpu = (time.process_time() - c0 - wait_cpu[0]) * 1e3
         frame = result.source_frame
         assert frame is not None  # track() sets it
         if result.background:
-            conn.send(None)
             continue
         lat = result.latency_ns
         roi = result.roi
@@ -251,62 +256,66 @@ def fusion_worker(conn, rec: str) -> None:
         acq = (time.perf_counter_ns() - t0) / 1e6
         est = result.estimate
         u, v = (math.nan, math.nan) if est is None else (est.u, est.v)
-        conn.send(((lat["total"] - lat["decode"]) / 1e6, cpu, tracking, acq, u, v))
+        conn.send(("result", result.frame, (lat["total"] - lat["decode"]) / 1e6, cpu, tracking, acq, u, v))
 
 
 def race(rec: Path, peer: MediaPipePeer) -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
-    mode, then static-image mode), each in its own process, the order alternating frame by frame."""
+    mode, then static-image mode), each in its own process, one after the other (the order alternating
+    frame by frame)."""
     import multiprocessing as mp
 
     from drivers import open_source
 
     cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_u", "fp_v")
     cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_u", "mp_v", "gt_u", "gt_v")
-    rows: list[list[float]] = []
+    fusion: dict[int, tuple] = {}
+    mediapipe: dict[int, list[float]] = {}
     mp_had_hand = False
     size = None
     ctx = mp.get_context("spawn")
     here, there = ctx.Pipe()
     worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec)), daemon=True)
     worker_proc.start()
+    there.close()
+
+    def until_wanted() -> None:
+        # collect results until the worker asks for the next frame (EOFError if it died)
+        while True:
+            msg = here.recv()
+            if msg[0] != "result":
+                return
+            fusion[msg[1]] = msg[2:]
+
     try:
+        until_wanted()
         with open_source(rec) as src:
             for k, frame in enumerate(src):
-
-                def fusion(frame=frame):
-                    here.send(frame)
-                    return here.recv()
-
-                def mediapipe(frame=frame):
-                    return peer(frame.color, "video"), peer(frame.color, "static")
-
-                if k % 2:
-                    fp = fusion()
-                    if fp is None:  # a background frame: not tracked
-                        continue
-                    (mp_ms, mp_cpu, mp_palm), (mp_acq, _, _) = mediapipe()
-                else:
-                    if frame.background:
-                        here.send(frame)
-                        here.recv()
-                        continue
-                    (mp_ms, mp_cpu, mp_palm), (mp_acq, _, _) = mediapipe()
-                    fp = fusion()
-                size = frame.size
-                mp_track = mp_had_hand
-                mp_had_hand = mp_palm is not None
-                gt = frame.ground_truth
-                fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v = fp
-                mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
-                gt_u, gt_v = (math.nan, math.nan) if gt is None else (gt.u, gt.v)
-                rows.append([fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v])
-                rows[-1] += [mp_ms, mp_cpu, mp_track, mp_acq, mp_u, mp_v, gt_u, gt_v]
+                run_mediapipe = not frame.background
+                if run_mediapipe and k % 2:
+                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                here.send(frame)
+                until_wanted()
+                if run_mediapipe and not k % 2:
+                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                if run_mediapipe:
+                    gt = frame.ground_truth
+                    mediapipe[k] += [math.nan, math.nan] if gt is None else [gt.u, gt.v]
+                    size = frame.size
         here.send(None)
+        until_wanted()
     finally:
         worker_proc.join(timeout=30)
         if worker_proc.is_alive():
             worker_proc.kill()
+    rows = []
+    for k in sorted(set(fusion) & set(mediapipe)):
+        fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v = fusion[k]
+        mp_ms, mp_cpu, mp_palm, mp_acq, gt_u, gt_v = mediapipe[k]
+        mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
+        rows.append([fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v])
+        rows[-1] += [mp_ms, mp_cpu, mp_had_hand, mp_acq, mp_u, mp_v, gt_u, gt_v]
+        mp_had_hand = mp_palm is not None
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
     return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
 
