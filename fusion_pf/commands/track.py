@@ -232,6 +232,11 @@ def run(args: argparse.Namespace) -> int:
     several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
     if live_options.enabled and several:
         raise InputError("--serve and --rerun do not show several --targets yet; track one target")
+    if config.filter == "pf":
+        # the particle filter's compiled kernels load while the recording opens and the cues start
+        from fusion_pf.filter.kernel import warm_up
+
+        warm_up()
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)

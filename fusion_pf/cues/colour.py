@@ -55,7 +55,7 @@ from .regions import (
     region_detections,
     remove_small,
 )
-from .roi import Roi, full_roi
+from .roi import Roi, full_roi, search_step
 
 
 def _check_pair(color: np.ndarray, background: np.ndarray | None) -> bool:
@@ -151,12 +151,15 @@ class ColourCue:
             Window to process; the whole frame when None.
         keep_border : bool
             Keep regions touching the window border (a whole-frame search, where
-            the arm enters from the image border).
+            the arm enters from the image border). The search of a window larger
+            than :data:`~fusion_pf.cues.roi.SEARCH_PIXELS` reads every k-th row and
+            column (:func:`~fusion_pf.cues.roi.search_step`).
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
         stages : bool
-            Also return the stage images I_C1 ... I_C9.
+            Also return the stage images I_C1 ... I_C9 (at the search's reduced
+            resolution when it had one).
 
         Returns
         -------
@@ -172,25 +175,30 @@ class ColourCue:
         if not has_bg or roi.empty:
             return CueResult(None, out, time.perf_counter_ns() - t0)
         assert background is not None  # _check_pair is False without a background
-        c1 = roi.crop(color)
-        c2 = cv2.absdiff(c1, roi.crop(background))  # I_C2 = |I - B| per channel
+        step = search_step(roi) if keep_border else 1
+        c1, b1 = roi.crop(color), roi.crop(background)
+        if step > 1:
+            c1, b1 = np.ascontiguousarray(c1[::step, ::step]), np.ascontiguousarray(b1[::step, ::step])
+        c2 = cv2.absdiff(c1, b1)  # I_C2 = |I - B| per channel
         c3 = cv2.cvtColor(c2, cv2.COLOR_RGB2GRAY)  # I_C3 = grayscale difference
         c4a = cv2.threshold(c3, self.lower, 255, cv2.THRESH_BINARY)[1]  # I_C4A = I_C3 > lower
         c4b = cv2.threshold(c3, self.upper, 255, cv2.THRESH_BINARY_INV)[1]  # I_C4B = I_C3 <= upper
         c5 = cv2.bitwise_and(c4a, c4b)  # I_C5 = I_C4A AND I_C4B
-        c6 = remove_small(open_thin(c5, self.open_radius), self.min_area)  # I_C6 = thin and small removed
+        c6 = remove_small(open_thin(c5, self.open_radius), self.min_area // (step * step))  # I_C6 = thin, small removed
         c7 = fill_holes(c6)  # I_C7 = holes filled
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
-        extras = {"roi": roi.as_list()}
+        extras = {"roi": roi.as_list(), "search_step": step}
         if candidates:  # every region; the largest first, as measure() takes it
             found = region_detections(
-                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
+                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
             )
             m = found[0].measurement if found else None
         else:
             found = ()
-            m = measure(c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
+            m = measure(
+                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
+            )
         if stages:
             out = {
                 "I_C1": c1.copy(),

@@ -81,7 +81,7 @@ from .regions import (
     region_detections,
     remove_small,
 )
-from .roi import Roi, full_roi
+from .roi import Roi, full_roi, search_step
 
 
 class DepthCue:
@@ -214,12 +214,15 @@ class DepthCue:
             Window to process; the whole frame when None.
         keep_border : bool
             Keep regions touching the window border (a whole-frame search, where
-            the arm enters from the image border).
+            the arm enters from the image border). The search of a window larger
+            than :data:`~fusion_pf.cues.roi.SEARCH_PIXELS` reads every k-th row and
+            column (:func:`~fusion_pf.cues.roi.search_step`).
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
         stages : bool
-            Also return the stage images I_d1 ... I_d10.
+            Also return the stage images I_d1 ... I_d10 (at the search's reduced
+            resolution when it had one).
 
         Returns
         -------
@@ -241,8 +244,9 @@ class DepthCue:
         roi = full_roi(w, h) if roi is None else roi
         if roi.empty:
             return CueResult(None, out, time.perf_counter_ns() - t0)
-        d1 = roi.crop(depth)
-        b1 = roi.crop(background)
+        step = search_step(roi) if keep_border else 1
+        d1 = roi.crop(depth)[::step, ::step]
+        b1 = roi.crop(background)[::step, ::step]
         if self.invalid_far:
             b1 = np.where(b1 > 0, b1, np.uint16(65535))  # no background depth: as far as can be
         valid = (d1 > 0) & (b1 > 0)  # invalid current depth never counts as foreground
@@ -258,25 +262,34 @@ class DepthCue:
             d5[d1 > z0 + self.nearest_mm] = 0  # keep the slab of the nearest surface
             d5 = open_thin(d5, self.open_radius)  # the slab's ragged noisy edge removed
         prev = self._previous(roi, (h, w)) if self.temporal else None
-        self._prev = (d5, roi, (h, w))
+        if step > 1:
+            # the previous mask at this search's resolution; this one kept at full resolution for the next frame
+            prev = None if prev is None else np.ascontiguousarray(prev[::step, ::step])
+            full = np.repeat(np.repeat(d5, step, axis=0), step, axis=1)[: roi.shape[0], : roi.shape[1]]
+            self._prev = (full, roi, (h, w))
+        else:
+            self._prev = (d5, roi, (h, w))
         if prev is None:
             d6 = np.zeros_like(d5)
         else:
-            d6 = remove_small(cv2.bitwise_xor(d5, prev), self.min_area)  # I_d6 = |I_d5(t) - I_d5(t-1)|
+            # I_d6 = |I_d5(t) - I_d5(t-1)|
+            d6 = remove_small(cv2.bitwise_xor(d5, prev), self.min_area // (step * step))
         d7 = fill_holes(d6)  # I_d7 = filling
         d8 = dilate(d7, self.dilate)  # I_d8 = dilation
         moved = bool(d6.any())
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
-        extras = {"roi": roi.as_list(), "moved": moved}
+        extras = {"roi": roi.as_list(), "moved": moved, "search_step": step}
         if candidates:  # every region; the largest first, as measure() takes it
             found = region_detections(
-                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras
+                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
             )
             m = found[0].measurement if found else None
         else:
             found = ()
-            m = measure(d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras)
+            m = measure(
+                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
+            )
         if stages:
             out = {
                 "I_d1": d1.copy(),

@@ -222,6 +222,7 @@ def measure(
     min_area: int = 1,
     extras: dict | None = None,
     near: tuple[float, float] | None = None,
+    step: int = 1,
 ):
     """Turn a cue's final mask into a full-frame :class:`Measurement` (or None).
 
@@ -229,21 +230,27 @@ def measure(
     largest (:func:`largest_region`). The centroid is shifted by the window ``offset``
     ``(x0, y0)`` into full-frame pixels; ``quality`` is :func:`region_quality`;
     ``extras`` gets ``area`` (px) and ``bbox`` (full-frame ``[x, y, w, h]``).
+    ``step`` > 1: ``final`` holds every ``step``-th row and column of the window
+    (a reduced whole-frame search); ``min_area`` and ``palm_area`` are full-resolution
+    pixels and everything returned is in full-resolution pixels.
     """
     from .base import Measurement
 
     x0, y0 = offset
-    region = largest_region(final, min_area, None if near is None else (near[0] - x0, near[1] - y0))
+    k2 = step * step
+    near_w = None if near is None else ((near[0] - x0) / step, (near[1] - y0) / step)
+    region = largest_region(final, min_area // k2, near_w)
     if region is None:
         return None
     info = dict(extras or {})
-    info["area"] = region.area
-    info["bbox"] = [region.bbox[0] + x0, region.bbox[1] + y0, region.bbox[2], region.bbox[3]]
+    info["area"] = region.area * k2
+    bx, by, bw, bh = region.bbox
+    info["bbox"] = [bx * step + x0, by * step + y0, bw * step, bh * step]
     return Measurement(
         source,
-        region.u + x0,  # window centroid + ROI offset = full-frame column
-        region.v + y0,  # window centroid + ROI offset = full-frame row
-        region_quality(region, palm_area),
+        region.u * step + x0,  # window centroid + ROI offset = full-frame column
+        region.v * step + y0,  # window centroid + ROI offset = full-frame row
+        region_quality(region, palm_area / k2),
         info,
     )
 
@@ -257,11 +264,12 @@ def region_detections(
     min_area: int = 1,
     extras: dict | None = None,
     max_regions: int = 8,
+    step: int = 1,
 ) -> tuple:
     """Every region of ``final`` of at least ``min_area`` px as a full-frame :class:`Detection`, largest first.
 
     The same centroid, quality and extras as :func:`measure` gives its one
-    region; at most ``max_regions`` (the largest) are returned.
+    region (``step`` as there); at most ``max_regions`` (the largest) are returned.
     """
     from ..association.base import Detection
     from .base import Measurement
@@ -271,16 +279,19 @@ def region_detections(
     n, _, stats, centroids = cv2.connectedComponentsWithStats(final, connectivity=8, ltype=cv2.CV_32S)
     areas = stats[1:, cv2.CC_STAT_AREA]
     x0, y0 = offset
+    k2 = step * step
     out = []
     for i in np.argsort(-areas, kind="stable")[:max_regions]:
         area = int(areas[i])
-        if area < max(1, min_area):
+        if area < max(1, min_area // k2):
             break
         x, y, w, h = (
             int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
         )
         region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
-        info = {**(extras or {}), "area": area, "bbox": [x + x0, y + y0, w, h]}
-        m = Measurement(source, region.u + x0, region.v + y0, region_quality(region, palm_area), info)
+        info = {**(extras or {}), "area": area * k2, "bbox": [x * step + x0, y * step + y0, w * step, h * step]}
+        m = Measurement(
+            source, region.u * step + x0, region.v * step + y0, region_quality(region, palm_area / k2), info
+        )
         out.append(Detection(m))
     return tuple(out)

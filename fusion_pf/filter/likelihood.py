@@ -308,6 +308,37 @@ class JointLikelihood:
             return min(max(1.0 - m.quality, MIN_OUTLIER_PROB), self.outlier_prob)
         return self.outlier_prob
 
+    def stacked(self, measurements: Sequence[Measurement]) -> tuple[float, float, float, float]:
+        """The Gaussian joint of eq. 7 as one Gaussian: ``(u, v)`` of ``z_bar``, precision ``P`` and ``C``.
+
+        ``sum_phi -L_phi / (2 rho_phi) = -P |p - z_bar|^2 / 2 - C`` with
+        ``z_bar = sum_phi z_phi / rho_phi / P``, ``P = sum_phi 1 / rho_phi`` and
+        ``C = sum_phi |z_phi - z_bar|^2 / (2 rho_phi)`` (plain floats: a frame has a few sources).
+        """
+        prec = [1.0 / self.noise_px[m.source] ** 2 for m in measurements]
+        total = sum(prec)
+        # z_bar = sum_phi z_phi / rho_phi / P
+        zu = sum(p * m.u for p, m in zip(prec, measurements)) / total
+        zv = sum(p * m.v for p, m in zip(prec, measurements)) / total
+        # C = sum_phi |z_phi - z_bar|^2 / (2 rho_phi)
+        c = 0.5 * sum(p * ((m.u - zu) ** 2 + (m.v - zv) ** 2) for p, m in zip(prec, measurements))
+        return zu, zv, total, c
+
+    def mixture_rows(self, measurements: Sequence[Measurement]) -> np.ndarray:
+        """Per source the constants of :func:`robust_loglik` and the loss test, shape (M, 6).
+
+        Columns: ``u, v, -1 / (2 sigma^2), log((1 - eps) / (2 pi sigma^2)) - log(eps / A), log(eps / A)``
+        and ``log(2 eps / A)`` (some particle is an inlier when its log-likelihood reaches it).
+        """
+        rows = []
+        for m in measurements:
+            sigma, eps = self.sigma(m), self.outlier(m)
+            log_in = math.log1p(-eps) - math.log(2.0 * math.pi * sigma * sigma)
+            log_out = math.log(eps) - math.log(self.outlier_area_px2)
+            thresh = math.log(2.0 * eps / self.outlier_area_px2)
+            rows.append((m.u, m.v, -0.5 / (sigma * sigma), log_in - log_out, log_out, thresh))
+        return np.array(rows, dtype=np.float64).reshape(-1, 6)
+
     def source_loglik(self, positions: np.ndarray, m: Measurement, out: np.ndarray) -> np.ndarray:
         """Unnormalised log-likelihood of one source (eqs. 5-6, or the robust mixture)."""
         self._buffers(out)
@@ -358,14 +389,8 @@ class JointLikelihood:
         """
         self._buffers(out)
         if self.likelihood == "gaussian":
-            prec = np.array([1.0 / self.noise_px[m.source] ** 2 for m in measurements])
-            z = np.array([[m.u, m.v] for m in measurements])
-            total = float(prec.sum())
-            # z_bar = sum_phi z_phi / rho_phi / P
-            z_bar = prec @ z / total
-            # C = sum_phi |z_phi - z_bar|^2 / (2 rho_phi)
-            c = 0.5 * float(prec @ np.sum((z - z_bar) ** 2, axis=1))
-            d2 = squared_distance(positions, z_bar, out=out, scratch=self._work)
+            zu, zv, total, c = self.stacked(measurements)
+            d2 = squared_distance(positions, (zu, zv), out=out, scratch=self._work)
             # log Lh = sum_phi -L_phi / (2 rho_phi) = -P |p - z_bar|^2 / 2 - C   (eqs. 5-7)
             joint = np.multiply(d2, -0.5 * total, out=d2)
             peak = float(joint.max())

@@ -14,8 +14,8 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
    likelihood (eq. 6, or the robust mixture), each normalised (step 3), joint
    likelihood as their product (eq. 7) -- all as sums of logs -- and the weight
    update (eq. 3) with normalisation (eq. 2);
-4. estimation: robust mean of the 10 % largest-weighted particles (or MAP /
-   weighted mean);
+4. estimation: weighted mean of the particles (or the paper's robust mean of the
+   10 % largest-weighted particles, or MAP);
 5. resampling: ESS = 1 / sum(w^2); resample (residual by default) when
    ESS < 2/3 N.
 
@@ -40,11 +40,12 @@ from fusion_pf.frame import Measurement
 from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
-from .estimate import ESTIMATORS, dot_product, weighted_covariance, weighted_mean
-from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, JointLikelihood
+from .estimate import ESTIMATORS
+from .kernel import ESTIMATOR_CODES, kernels, warm_up
+from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, UNDERFLOW_LOG, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
-from .resample import RESAMPLERS
+from .resample import RESAMPLERS, residual_trusted
 
 __all__ = ["ParticleFilter"]
 
@@ -76,8 +77,10 @@ class ParticleFilter(Tracker):
         Resampling scheme (paper: residual).
     ess_threshold : float
         Resample when ``ESS < ess_threshold * N`` (paper: 2/3), in [0, 1].
-    estimator : {"robust_mean", "map", "weighted_mean"}
-        Point estimate (paper: robust mean of the top 10 %).
+    estimator : {"weighted_mean", "robust_mean", "map"}
+        Point estimate: the weighted mean of all particles (default; the
+        posterior mean, more accurate at equal N than the paper's robust mean of
+        the top 10 %, ``benchmarks/bench.py``), the paper's choice, or MAP.
     top_fraction : float
         Fraction of particles the robust mean averages, in (0, 1].
     init_spread_px : float
@@ -131,11 +134,14 @@ class ParticleFilter(Tracker):
 
     Notes
     -----
-    Cost per step is O(N) numpy work on preallocated ``(4, N)`` buffers (no
-    per-particle Python loop): ~0.07 ms at N = 100, < 1 ms at N = 1e4 on one
-    core, dominated by the 4 N normal draws of eq. 4. From
-    :data:`~fusion_pf.filter.resample.COMPILED_MIN_N` particles, residual
-    resampling runs compiled with numba (first use compiles, ~1 s).
+    The phases run as a few compiled passes over preallocated ``(4, N)``
+    buffers (:mod:`~fusion_pf.filter.kernel`; the normals of eq. 4 are drawn by
+    numpy from ``rng``): ~15-30 us per step at N = 100, ~0.5 ms at N = 1e4 on
+    one core, 10-20x Stone Soup's equivalent step (``benchmarks/bench.py``),
+    dominated from N ~ 1e3 on by the 4 N normal draws. The kernels are loaded
+    from numba's on-disk cache by a background thread started at construction
+    (~0.5 s of CPU once per process; after an install or an edit of the kernels
+    numba compiles them once, ~5-20 s).
     """
 
     def __init__(
@@ -151,7 +157,7 @@ class ParticleFilter(Tracker):
         outlier_area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
         resampler: str = "residual",
         ess_threshold: float = 2.0 / 3.0,
-        estimator: str = "robust_mean",
+        estimator: str = "weighted_mean",
         top_fraction: float = 0.1,
         init_spread_px: float = 20.0,
         init_velocity_px: float = 2.0,
@@ -195,8 +201,9 @@ class ParticleFilter(Tracker):
         self._resample = RESAMPLERS[resampler]
         self.ess_threshold = float(ess_threshold)
         self.estimator = estimator
-        self._estimate = ESTIMATORS[estimator]
+        self._estimator_code = ESTIMATOR_CODES[estimator]
         self.top_fraction = float(top_fraction)
+        self._top_k = max(1, math.ceil(self.top_fraction * self.n_particles))
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
         self.prior = check_prior(prior)
@@ -213,10 +220,15 @@ class ParticleFilter(Tracker):
         self._logw = np.empty(n)
         self._w = np.empty(n)
         self._joint = np.empty(n)
+        self._indices = np.empty(n, dtype=np.int64)
         self._std_unit = noise_std(self.process_noise, 1.0)
         self.reinitialisations = 0
         self._expected: np.ndarray | None = None
+        # what _finish does to the weights: 0 nothing, 1 add _joint and normalise, 2 normalise
+        self._weighed = 0
         self.reset()
+        # the compiled step kernels load from numba's cache while the caller gets its first frame
+        warm_up()
 
     @property
     def particles(self) -> np.ndarray:
@@ -245,6 +257,7 @@ class ParticleFilter(Tracker):
             self.prior = check_prior(prior)
         self._last_ns: int | None = None
         self.initialised = False
+        self._weighed = 0
         if self.prior is not None:
             self._initialise(self.prior)
 
@@ -267,22 +280,21 @@ class ParticleFilter(Tracker):
 
     def _update(self, measurements: Sequence[Measurement]) -> None:
         """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising when the target is lost."""
-        positions = self._x[:2].T
-        joint, lost = self._like(positions, measurements, self._joint)
-        if lost:
+        if self._lost(measurements):
             self.reinitialisations += 1
             self._initialise(self._centre_of(measurements))
-            joint, _ = self._like(positions, measurements, self._joint)
-        logw = self._logw
-        # w_k ∝ w_(k-1) * p(z_k | x_k)   (eq. 3, logs)
-        logw += joint
-        peak = logw.max()
-        w = np.subtract(logw, peak, out=self._w)
-        np.exp(w, out=w)
-        total = w.sum()
-        # w~_i = w_i / sum_j w_j   (eq. 2)
-        w *= 1.0 / total
-        logw -= peak + math.log(total)
+            self._lost(measurements)
+        self._weighed = 1
+
+    def _lost(self, measurements: Sequence[Measurement]) -> bool:
+        """Normalised joint log-likelihood (eqs. 5-7) into ``_joint``; whether the particles lost the target."""
+        k = kernels()
+        if self.likelihood == "gaussian":
+            zu, zv, total, c = self._like.stacked(measurements)
+            # log Lh = -P |p - z_bar|^2 / 2 - C: lost when its maximum underflows float64
+            peak = k.gaussian(self._x, zu, zv, -0.5 * total, self._joint)
+            return peak - c < UNDERFLOW_LOG
+        return not k.robust(self._x, self._like.mixture_rows(measurements), self._joint)
 
     def step(self, timestamp_ns: int, measurements: Sequence[Measurement]) -> Estimate | None:
         """Run one frame: (initialise |) predict, update, estimate, resample.
@@ -322,8 +334,14 @@ class ParticleFilter(Tracker):
         """The prior proposal: eq. 4 over ``dt`` frame steps (with manoeuvres when configured)."""
         std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
         if self.manoeuvre[0] == 0.0:
+            # components without noise (std (pos, pos, vel, vel) of 0) draw nothing
+            lo = 0 if std[0] > 0.0 else 2
+            hi = 4 if std[2] > 0.0 else 2
+            noise = self._noise[lo:hi]
+            if lo < hi:
+                self.rng.standard_normal(out=noise)
             # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
-            predict(self._x, std, self.rng, dt=dt, scratch=self._noise)
+            kernels().predict(self._x, noise, std, float(dt), lo, hi)
             return
         # eq. 4 without its position noise, then that noise and the manoeuvres
         predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
@@ -356,44 +374,38 @@ class ParticleFilter(Tracker):
         log_ev, self._expected, inlier = guided_positions(
             self._x[:2], self._x[2:], self.process_noise[0], self.manoeuvre, z, sigma, self.rng, outlier=outlier, dt=dt
         )
-        joint = None
         if rest:
-            joint, lost = like(self._x[:2].T, rest, self._joint)
-            inlier = inlier or not lost
+            inlier = (not self._lost(rest)) or inlier
         if not inlier:
             self._expected = None
             self.reinitialisations += 1
             self._initialise(self._centre_of(ms))
             self._update(ms)
             return
-        logw = self._logw
         # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) prod_(other phi) p(z_phi | x_k)   (eq. 3 with the guided proposal)
-        logw += log_ev
-        if joint is not None:
-            logw += joint
-        peak = logw.max()
-        w = np.subtract(logw, peak, out=self._w)
-        np.exp(w, out=w)
-        total = w.sum()
-        # w~_i = w_i / sum_j w_j   (eq. 2)
-        w *= 1.0 / total
-        logw -= peak + math.log(total)
+        self._logw += log_ev
+        self._weighed = 1 if rest else 2
 
     def _finish(self, t: int) -> Estimate:
-        """Estimation phase, ESS and the optional resampling phase."""
-        w = self._w
+        """Weight update (eqs. 3, 2) when the step had measurements, estimation phase, ESS and resampling."""
         n = self.n_particles
-        positions = self._x[:2].T
         # guided steps estimate from E[x_k | x_(k-1), z] (Rao-Blackwellised over the proposal's components)
-        centres = positions if self._expected is None else self._expected.T
+        centres = self._x[:2] if self._expected is None else self._expected
         self._expected = None
-        u, v = self._estimate(centres, w, self.top_fraction)
-        cov = weighted_covariance(positions, w, weighted_mean(positions, w), work=self._noise)
-        # ESS = 1 / sum_i w_i^2
-        ess = 1.0 / dot_product(w, w)
+        u, v, cuu, cuv, cvv, ess = kernels().weigh(
+            self._logw, self._joint, self._weighed, self._w, self._x, centres, self._estimator_code, self._top_k
+        )
+        self._weighed = 0
+        w = self._w
         resampled = ess < self.ess_threshold * n
         if resampled:
-            idx = self._resample(w, self.rng)
+            if self.resampler == "systematic":
+                idx = self._indices
+                kernels().systematic(w, self.rng.random(), idx)
+            elif self.resampler == "residual":
+                idx = residual_trusted(w, self.rng)
+            else:
+                idx = self._resample(w, self.rng)
             self._x.take(idx, axis=1, mode="clip", out=self._spare)
             self._x, self._spare = self._spare, self._x
             # w_i = 1 / N after resampling
@@ -402,11 +414,11 @@ class ParticleFilter(Tracker):
         particles = np.ascontiguousarray(self._x[:2].T) if self.keep_particles else None
         return Estimate(
             timestamp_ns=t,
-            u=float(u),
-            v=float(v),
+            u=u,
+            v=v,
             ess=ess,
             resampled=bool(resampled),
             n_particles=n,
-            cov=cov,
+            cov=np.array([[cuu, cuv], [cuv, cvv]]),
             particles=particles,
         )

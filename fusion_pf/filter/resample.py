@@ -43,7 +43,16 @@ from fusion_pf.rng import as_rng
 #: Particle count from which residual resampling and the inverse CDF run compiled loops (if numba is installed).
 COMPILED_MIN_N = 1024
 
-__all__ = ["COMPILED_MIN_N", "RESAMPLERS", "ess", "multinomial", "residual", "stratified", "systematic"]
+__all__ = [
+    "COMPILED_MIN_N",
+    "RESAMPLERS",
+    "ess",
+    "multinomial",
+    "residual",
+    "residual_trusted",
+    "stratified",
+    "systematic",
+]
 
 
 def _checked(weights: np.ndarray) -> tuple[np.ndarray, float]:
@@ -303,6 +312,19 @@ def residual(weights: np.ndarray, rng: np.random.Generator | int | None = None) 
         # N w_i
         return _residual_numpy(w * (n / total), rng)
     return _residual_compiled(w, n / total, rng, kernels)
+
+
+def residual_trusted(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """:func:`residual` of weights known to be valid (a filter's own), without the checks.
+
+    Compiled at every N when numba is installed (the same draws and indices as
+    the numpy code, which small N otherwise takes).
+    """
+    n = w.shape[0]
+    kernels = _kernels()
+    if kernels is None:
+        return _residual_numpy(w * (n / float(w.sum())), rng)
+    return _residual_compiled(w, n / float(w.sum()), rng, kernels)
 
 
 def _residual_numpy(nw: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -113,6 +113,7 @@ from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.calibration import NoiseCalibration
 from ..filter.estimate import largest_std
+from ..filter.kernel import warm_up
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
 from ..filter.sspf import ScatterSearchPF
 from ..filter.states import (
@@ -723,6 +724,9 @@ class _FilterStage:
     """
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
+        if config.filter == "pf":
+            # the tracker is made at the first measurement: its compiled kernels are ready before any frame
+            warm_up(wait=True)
         self.config = config
         self.rng = rng
         self.tracker: Tracker | None = None

@@ -37,7 +37,14 @@ def test_filter_sections_json_and_markdown(tmp_path):
         assert r["resampled_fraction"] == 1.0  # forced resampling in every timed step
     assert [r["n"] for r in result["stonesoup_step"]] == [40, 300]
     for r in result["stonesoup_step"]:
-        _check_timing(r)
+        _check_timing(r["ours"])
+        _check_timing(r["stonesoup"])
+        assert r["speedup"] == pytest.approx(r["stonesoup"]["median_ms"] / r["ours"]["median_ms"])
+        # both filters follow the path to within a few cue sigmas (the cues' noise is 6-15 px)
+        assert set(r["rmse_px"]) == {"ours", "ours_robust_mean", "stonesoup"}
+        assert all(0.5 < e < 15.0 for e in r["rmse_px"].values())
+        assert r["rmse_gap_px"] == pytest.approx(r["rmse_px"]["ours"] - r["rmse_px"]["stonesoup"])
+        assert r["rmse_gap_se_px"] > 0.0
     for r in result["resampling"]:
         for key in (
             "ours_residual",
@@ -51,11 +58,15 @@ def test_filter_sections_json_and_markdown(tmp_path):
         assert r["ratio_vs_particles"] == pytest.approx(
             r["ours_residual"]["median_ms"] / r["particles_residual"]["median_ms"]
         )
-    # only targets whose sizes were measured are reported: here the Stone Soup speed-up
-    assert [t["target"] for t in result["targets"]] == [">= 10x faster than Stone Soup (worst N)"]
+    # only targets whose sizes were measured are reported: here the Stone Soup race
+    assert [t["target"] for t in result["targets"]] == [
+        ">= 10x faster than Stone Soup, interleaved (worst N)",
+        "estimate RMSE <= Stone Soup's at equal N (worst N: (ours - theirs) / its s.e.)",
+    ]
     md = (tmp_path / "bench.md").read_text()
     assert md == to_markdown(result)
-    assert "## PF step" in md and "| 4e+01 |" in md and "## Resampling" in md
+    assert "## PF step" in md and "## PF step vs Stone Soup, interleaved" in md and "| 4e+01 |" in md
+    assert "## Resampling" in md
 
 
 def test_robustness_section_reports_both_likelihoods():

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fusion_pf.cues import hand
 from fusion_pf.cues.base import Measurement
 from fusion_pf.cues.hand import (
     PALM_JOINTS,
@@ -286,6 +287,28 @@ def test_deterministic_across_runs_and_instances(hl):
     assert a == b == c
     p, q = hl.palms(rgb), hl.palms(rgb)
     assert p.boxes.tobytes() == q.boxes.tobytes() and p.scores.tobytes() == q.scores.tobytes()
+
+
+def test_thread_count_choice_never_changes_a_result():
+    # a 2-thread landmarker also builds 1-thread twins (in the background) and then sends each call to
+    # the faster of the two
+    two, one = HandLandmarker(num_threads=2), HandLandmarker(num_threads=1)
+    assert one._palm.twin is None and one._landmark.twin is None
+    for m in (two._palm, two._landmark):
+        assert m.twin is not None
+        m.twin.join()
+        assert len(m.interpreters) == 2
+    rgb = load("hands.jpg")
+    for _ in range(20):  # the twin's first call, then the faster one and exploration calls of the other
+        assert [o.landmarks.tobytes() for o in two.detect(rgb)] == [o.landmarks.tobytes() for o in one.detect(rgb)]
+    model = two._landmark
+    assert min(model.calls) >= 2 and all(t > 0 for t in model.mean_ns)
+    model.mean_ns = [5.0e6, 1.0e6]  # the 1-thread twin is faster now (e.g. another process holds a core)
+    picks = []
+    for _ in range(2 * hand._EXPLORE):
+        picks.append(model._pick())
+        model.calls[picks[-1]] += 1
+    assert picks.count(1) == 2 * hand._EXPLORE - 2 and picks.count(0) == 2  # the slower one is only re-timed
 
 
 def test_measurement_from_observation(hl):

