@@ -82,7 +82,8 @@ def track_targets(source: Iterable[Frame], config: TrackConfig) -> Iterator[Targ
     assert config.targets is not None
     skin = SkinCue(RgbRuleSkin(), min_area=config.cue_options.min_area)
     step = None
-    for index, frame in enumerate(source):
+    for count, frame in enumerate(source):
+        index = count if frame.index is None else frame.index
         if frame.background:
             yield TargetsResult(index, frame.timestamp_ns, True, source_frame=frame)
             continue
