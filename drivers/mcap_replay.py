@@ -583,6 +583,13 @@ class McapReplay(ReplaySource):
                     log_times = np.frombuffer(pairs, "<u8", count=len(pairs) // 8)[0::2]
                     if log_times.size and int(log_times.max()) >= _TIME_LIMIT:
                         raise _Corrupt("a message index holds a log time beyond 2**63")
+                    lo, hi = ci.message_start_time, ci.message_end_time
+                    if log_times.size and (int(log_times.min()) < lo or int(log_times.max()) > hi):
+                        # a damaged time would be taken for a frame of its own and shift the frame numbers
+                        raise _Corrupt(
+                            f"a message index of the chunk at byte {ci.chunk_start_offset} holds a log time "
+                            f"outside the chunk's {lo}..{hi} ns"
+                        )
                     times.setdefault(cid, []).append(log_times.astype(np.int64))
         except (_Corrupt, struct.error) as exc:
             return f"damaged index ({exc})"
@@ -1076,7 +1083,7 @@ class McapReplay(ReplaySource):
                 f"{self.path}: metadata {fmt.RECORDING_METADATA} {fmt.BACKGROUND_FRAMES_KEY} must be a "
                 f"non-negative integer, got {text!r}"
             )
-        self._background = min(int(text), len(self._all))
+        self._background = int(text)  # as announced: frames lost from the section still count
         self._own_sequences = self._metadata.get("writer", "").startswith("fusion-pf")
         start_ns, end_ns = self._window
         lo = 0 if start_ns is None else int(np.searchsorted(self._all, start_ns, "left"))
@@ -1320,11 +1327,15 @@ class McapReplay(ReplaySource):
         if not k or not len(src):
             return 0
         count = sum(1 for i in self._lost if i < self._unplaced and src[i] < k)
+        end = int(src[-1]) + 1  # the first index after the frames read and counted
         for loss, at in zip(self._scan_losses, self._scan_loss_at, strict=True):
             if at is None or not loss.frames or at > self._unplaced:
                 continue
             start = int(src[at]) - loss.frames if at < len(src) else int(src[-1]) + 1
             count += max(0, min(start + loss.frames, k) - start)
+            end = max(end, start + loss.frames)
+        if self._stop is not None and self._unplaced == len(src):  # a truncated tail: the rest of the section
+            count += max(0, k - end)
         return count
 
     # ------------------------------------------------------------------ public API
@@ -1509,7 +1520,7 @@ class McapReplay(ReplaySource):
             calibration_messages=len(self._cal_times),
             color_format=self._formats[0],
             depth_format=self._formats[1],
-            background_frames=self._background,
+            background_frames=min(self._background, n),
             missing_depth=missing("depth"),
             missing_skeleton=missing("skeleton"),
             ground_truth_frames=n - missing("truth"),

@@ -141,3 +141,33 @@ def test_unreadable_recording_metadata_is_a_warning_in_track(
     assert f"tracked {N} frames (0 background)" in err
     warning = [line for line in err.splitlines() if line.startswith("fusion-pf: warning:")]
     assert warning and fmt.RECORDING_METADATA in warning[-1] and expected in warning[-1]
+
+
+def test_file_cut_inside_the_background_section_counts_its_lost_background(recorded, tmp_path):
+    """A truncated tail of unknown length still says how many background frames it took (K - frames read)."""
+    frames, data, chunks, _ = recorded
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[: chunks[1].chunk_start_offset + 5])  # inside chunk 1's record header
+    with McapReplay(path) as rec:
+        out = list(rec)
+        stats = rec.stats
+    assert [f.index for f in out] == [0, 1] and all(f.background for f in out)
+    assert stats.losses[-1].tail and stats.losses[-1].frames is None
+    assert stats.lost_background == K - 2
+
+
+def test_damaged_time_in_a_message_index_does_not_shift_the_frame_numbers(recorded, tmp_path):
+    """A message index time outside its chunk would be a phantom frame before all others: the index is not trusted."""
+    frames, data, chunks, summary = recorded
+    (color,) = [cid for cid, ch in summary.channels.items() if ch.topic == fmt.COLOR_TOPIC]
+    at = chunks[3].message_index_offsets[color] + 9 + 2 + 4  # the first (log_time, offset) pair
+    buf = bytearray(data)
+    struct.pack_into("<Q", buf, at, frames[0].timestamp_ns - 10**9)
+    path = tmp_path / "index.mcap"
+    path.write_bytes(bytes(buf))
+    with McapReplay(path) as rec:
+        out = list(rec)
+        assert not rec.info().indexed
+    by_time = {f.timestamp_ns: i for i, f in enumerate(frames)}
+    assert [f.index for f in out] == [by_time[f.timestamp_ns] for f in out] == list(range(N))
+    assert [f.background for f in out] == [i < K for i in range(N)]
