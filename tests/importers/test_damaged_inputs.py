@@ -152,3 +152,20 @@ def test_unreadable_depth_image_keeps_its_frame(tmp_path, capsys):
     assert "1 depth message unreadable (frames kept without depth)" in skipped(err)
     with McapReplay(tmp_path / "out.mcap") as rec:
         assert [f.depth is None for f in rec] == [False, True, False, False]
+
+
+def test_packets_removed_inside_an_mkv_are_counted_and_leave_a_gap(tmp_path, capsys):
+    """The demuxer skips the damage without a word: the frame timestamps show the gap (a constant-rate video)."""
+    video = write_video(tmp_path / "clip.mkv")
+    where = packets(video)
+    data = video.read_bytes()
+    bad = tmp_path / "holed.mkv"
+    bad.write_bytes(data[: where[12][0]] + data[where[15][0] :])  # packets 12, 13 and 14 removed
+    table = tmp_path / "t.csv"
+    code, out, err = run(capsys, "track", bad, "-o", tmp_path / "t.mcap", "--csv", table, "--no-progress")
+    assert code == 3
+    lost = int(re.match(r"fusion-pf: warning: skipped (\d+) frames?:", skipped(err)).group(1))
+    with open(table, newline="") as fh:
+        numbers = [int(r["frame"]) for r in csv.DictReader(fh)]
+    assert len(numbers) + lost == N
+    assert numbers[:13] == [*range(12), 15]  # the frame after the hole keeps its number
