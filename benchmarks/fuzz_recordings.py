@@ -39,6 +39,12 @@ and is put in one outcome class:
     reported count (frames after a truncation whose tail cannot be counted
     excepted).
 
+``--input mkv`` / ``--input avi`` fuzz a small video instead (30 frames of
+64 x 48, FFmpeg's mpeg4 encoder through PyAV; the first six kinds) through
+``import`` and ``track``: the frames imported / tracked plus the frames the
+warning counts must be every frame of the video (``+``, an uncountable tail,
+counts as reported).
+
 Figures besides the classes: silent frames, frames whose ``index`` / CSV
 ``frame`` is not their index in the recording (misnumbered), background frames
 tracked as person frames (after a warning that the background section cannot
@@ -332,12 +338,86 @@ def check_track(path: str, truth: dict) -> dict:
     return {"class": "ok-with-report", **detail}
 
 
+def make_video(path: Path, frames: int = 30) -> dict:
+    """Write a small mpeg4 video (``.mkv``, ``.avi`` by the suffix) with PyAV; return its truth."""
+    import av
+
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        for i in range(frames):
+            img = np.zeros((48, 64, 3), np.uint8)
+            img[:, :, 0] = i * 8 % 256
+            img[10:20, 2 * i % 64 : 2 * i % 64 + 8] = 255
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    return {"frames": frames, "background": 0}
+
+
+#: ``imported 29 frames`` / ``tracked 29 frames``
+_DONE = re.compile(r"^(?:imported|tracked) (\d+) frames", re.M)
+
+
+def _counted(argv: list[str], truth: dict) -> dict:
+    """Run a command that reads a whole video; its frames done plus its frames reported must be all of them."""
+    from fusion_pf import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            code = cli.main(argv)
+    except BaseException as exc:
+        return {"class": "traceback", "detail": f"{type(exc).__name__}: {str(exc)[:300]}"}
+    text = err.getvalue()
+    lines = [line for line in text.splitlines() if line.strip()]
+    if "Traceback" in text:
+        return {"class": "traceback", "detail": text[-300:]}
+    if code == 2:
+        ok = len([line for line in lines if line.startswith("fusion-pf: error:")]) == 1
+        return {"class": "refused-one-line" if ok else "traceback", "detail": (lines or [""])[-1][:300]}
+    done = _DONE.search(out.getvalue() + text)
+    if code not in (0, 3) or done is None:
+        return {"class": "traceback", "detail": f"exit {code}: {(lines or [''])[-1][:300]}"}
+    skipped = next((m for m in map(_SKIPPED.match, lines) if m), None)
+    lost = int(skipped.group(1)) if skipped else 0
+    unknown = bool(skipped and skipped.group(2))
+    frames = int(done.group(1))
+    silent = 0 if unknown else max(0, truth["frames"] - frames - lost)
+    detail = {"frames": frames, "reported_lost": lost, "unknown": unknown, "silent": silent, "exit": code}
+    detail["summary"] = (skipped.string if skipped else "")[:300]
+    if silent:
+        return {"class": "frames-silently-missing", **detail}
+    return {"class": "ok" if code == 0 and frames >= truth["frames"] else "ok-with-report", **detail}
+
+
+def check_import(path: str, truth: dict) -> dict:
+    """``fusion-pf import VIDEO OUT.mcap``; classify."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return _counted(["import", path, str(Path(tmp) / "out.mcap"), "--no-progress"], truth)
+
+
+def check_track_video(path: str, truth: dict) -> dict:
+    """``fusion-pf track VIDEO -o OUT.mcap``; classify."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return _counted(["track", path, "-o", str(Path(tmp) / "out.mcap"), "--no-progress"], truth)
+
+
 #: The checks, by name.
 CHECKS = ("info", "replay", "track")
+#: The checks of a video (``--input mkv|avi``).
+VIDEO_CHECKS = ("import", "track-video")
 
 
 def _worker(conn: "mp.connection.Connection") -> None:
-    checks = {"info": check_info, "replay": check_replay, "track": check_track}
+    checks = {
+        "info": check_info,
+        "replay": check_replay,
+        "track": check_track,
+        "import": check_import,
+        "track-video": check_track_video,
+    }
     while True:
         task = conn.recv()
         if task is None:
@@ -391,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--track-every", type=int, default=1, metavar="N", help="run the track check on every N-th file")
     p.add_argument("--timeout", type=float, default=60.0, help="seconds per check before it counts as a hang")
     p.add_argument("--out", type=Path, help="JSON file of every outcome")
+    p.add_argument("--input", choices=("mcap", "mkv", "avi"), default="mcap", help="what to mutate")
     args = p.parse_args(argv)
     import drivers
 
@@ -399,22 +480,31 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     started = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp) / "base.mcap"
-        truth = make_recording(base, frames=args.frames, background=args.background)
+        base = Path(tmp) / f"base.{args.input}"
+        if args.input == "mcap":
+            checks = CHECKS
+            truth = make_recording(base, frames=args.frames, background=args.background)
+            about = (
+                f"{truth['background']} background in bytes {truth['first_chunk']}-{truth['bg_hi']}, "
+                f"metadata from byte {truth['bg_lo']}"
+            )
+        else:
+            checks = VIDEO_CHECKS
+            truth = make_video(base)
+            about = "mpeg4 video"
         data = base.read_bytes()
         print(
-            f"code under test: {Path(drivers.__file__).parent.parent}; recording {len(data)} bytes, "
-            f"{truth['frames']} frames ({truth['background']} background in bytes "
-            f"{truth['first_chunk']}-{truth['bg_hi']}, metadata from byte {truth['bg_lo']})",
+            f"code under test: {Path(drivers.__file__).parent.parent}; {base.name} {len(data)} bytes, "
+            f"{truth['frames']} frames ({about})",
             flush=True,
         )
         for k in range(args.mutations):
-            what, mutated = mutate(data, rng, truth)
-            path = Path(tmp) / f"m{k}.mcap"
+            what, mutated = mutate(data, rng, truth if args.input == "mcap" else None)
+            path = Path(tmp) / f"m{k}{base.suffix}"
             path.write_bytes(mutated)
             row = {"mutation": what, "kind": what.split()[0]}
-            for name in CHECKS:
-                if name != "track" or k % args.track_every == 0:
+            for name in checks:
+                if not name.startswith("track") or k % args.track_every == 0:
                     row[name] = pool.run(name, str(path), truth)
             results.append(row)
             path.unlink()
@@ -424,12 +514,12 @@ def main(argv: list[str] | None = None) -> int:
     elapsed = time.monotonic() - started
     print(f"{args.mutations} mutations (seed {args.seed}) in {elapsed:.0f} s")
     print("mutations by kind: " + ", ".join(f"{k}={n}" for k, n in sorted(Counter(r["kind"] for r in results).items())))
-    for name in CHECKS:
+    for name in checks:
         runs = [r[name] for r in results if name in r]
         counts = Counter(r["class"] for r in runs)
         print(f"{name:7s} files={len(runs)} " + "  ".join(f"{c}={counts.get(c, 0)}" for c in CLASSES))
     print("frames over the runs that read the file (not refused):")
-    for name in CHECKS:
+    for name in checks:
         runs = [r[name] for r in results if name in r and "frames" in r[name]]
         figures = {
             "runs": len(runs),
@@ -444,7 +534,7 @@ def main(argv: list[str] | None = None) -> int:
             figures["background_lost_printed"] = sum(r["background_lost_printed"] for r in runs)
         print(f"{name:7s} " + " ".join(f"{k}={v}" for k, v in figures.items()))
     background_kinds = [r for r in results if r["kind"].endswith("background")]
-    for name in CHECKS:
+    for name in checks if background_kinds else ():
         runs = [r[name] for r in background_kinds if name in r]
         counts = Counter(r["class"] for r in runs)
         silent = sum(r.get("silent", 0) for r in runs)
@@ -470,7 +560,7 @@ def main(argv: list[str] | None = None) -> int:
         r[name]["class"] in ("traceback", "hang", "frames-silently-missing")
         for r in results
         for name in r
-        if name in CHECKS
+        if name in checks
     )
     return 1 if bad else 0
 
