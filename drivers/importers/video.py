@@ -174,10 +174,11 @@ class VideoSource(ImportSource):
         skipped = 0
         refused: dict[str, int] = {}
         i = -1
-        level = av.logging.get_level()
+        level, repeated = av.logging.get_level(), av.logging.get_skip_repeated()
         av.logging.set_level(av.logging.ERROR)  # what the demuxer and decoder say about damage
+        av.logging.set_skip_repeated(False)  # a message the previous video ended with must still be seen
         try:
-            with av.logging.Capture() as logs:
+            with av.logging.Capture(local=False) as logs:  # the decoder's threads log too
                 for vf, why in self._decoded(stream):
                     i += 1
                     if vf is None:
@@ -202,6 +203,7 @@ class VideoSource(ImportSource):
                     yield Frame(t, i, vf.to_ndarray(format="rgb24"), None, self._intrinsics, index=index)
         finally:
             av.logging.set_level(level)
+            av.logging.set_skip_repeated(repeated)
         for why, n in refused.items():
             self._lose(n, why)
         if skipped:
@@ -212,6 +214,9 @@ class VideoSource(ImportSource):
             self._lose(gaps, "the video's timestamps skip frames the file does not hold (damaged data)")
         seen = i + 1 + max(gaps, 0)
         missing, total, announced = self._shortfall(stream, seen, times[-1] - times[0] if times else None)
+        if total > self.path.stat().st_size:  # not even a byte per frame: the header itself is damaged
+            self._lose(None, f"the video's header is damaged (it announces {announced})", tail=True)
+            missing = total = 0
         if missing and not any(loss.tail for loss in self.stats.losses):
             self._lose(
                 missing,
