@@ -96,6 +96,13 @@ class SourceStats:
         Malformed or unreadable optional messages left out of yielded frames, by part
         (``"depth"``, ``"skeleton"``, ``"ground truth"``): the frame was
         yielded without it.
+    lost_background : int
+        How many of the lost frames belong to the recording's leading
+        background (empty-scene) section.
+    warnings : list of str
+        Damage that cost no frame but changes what the frames are taken for,
+        e.g. an unreadable recording metadata record (the number of background
+        frames is unknown); each makes the run :attr:`partial`.
     """
 
     frames: int = 0
@@ -105,11 +112,13 @@ class SourceStats:
     notes: list[str] = field(default_factory=list)
     losses: list[FrameLoss] = field(default_factory=list)
     skipped_parts: dict[str, int] = field(default_factory=dict)
+    lost_background: int = 0
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def partial(self) -> bool:
-        """True when frames were lost or parts of frames were left out."""
-        return bool(self.dropped or self.losses or any(self.skipped_parts.values()))
+        """True when frames were lost, parts of frames were left out, or damage left a warning."""
+        return bool(self.dropped or self.losses or any(self.skipped_parts.values()) or self.warnings)
 
     def loss_summary(self) -> str:
         """One line saying what was lost and why; ``""`` when nothing was.
@@ -119,7 +128,8 @@ class SourceStats:
         ``"skipped 12 frames: chunk at byte 361 is corrupt (chunk CRC mismatch ...) (8 frames); ...
         (4 frames); 3 skeleton messages unreadable (frames kept without skeleton)"``; a count that
         cannot be known (a truncated tail) makes it ``"skipped 12 frames and an unknown number more"``
-        (``"skipped an unknown number of frames"`` when it is the only loss).
+        (``"skipped an unknown number of frames"`` when it is the only loss). The
+        :attr:`warnings` follow (alone when no frame was lost).
         """
         parts = [loss.describe() for loss in self.losses[:_LISTED_LOSSES]]
         rest = self.losses[_LISTED_LOSSES:]
@@ -130,12 +140,12 @@ class SourceStats:
             if n:
                 parts.append(f"{n} {part} message{'s' if n != 1 else ''} unreadable (frames kept without {part})")
         if not parts and not self.dropped:
-            return ""
+            return "; ".join(self.warnings)
         unknown = any(loss.frames is None for loss in self.losses)
         head = f"skipped {self.dropped} frame{'s' if self.dropped != 1 else ''}"
         if unknown:
             head = f"{head} and an unknown number more" if self.dropped else "skipped an unknown number of frames"
-        return f"{head}: " + "; ".join(parts) if parts else head
+        return f"{head}: " + "; ".join(parts + self.warnings) if parts or self.warnings else head
 
     def count(self, frame: Frame) -> Frame:
         """Count ``frame`` as yielded and return it."""

@@ -438,9 +438,11 @@ class McapReplay(ReplaySource):
     -----
     ``Frame.seq`` is the source's sequence number kept by our recorder (the
     colour message's MCAP ``sequence``, so a live source's dropped frames show
-    as gaps) in recordings written by fusion-pf, and the frame's index in the
-    whole file for other writers; the first ``background_frames`` frames of
-    the file have ``background=True``.
+    as gaps) in recordings written by fusion-pf, and ``Frame.index`` for other
+    writers. ``Frame.index`` is the frame's index in the whole recording,
+    frames lost to damage counted (estimated from the frame period in a
+    scanned file); the frames whose index is below ``background_frames`` have
+    ``background=True``.
     """
 
     def __init__(
@@ -487,6 +489,16 @@ class McapReplay(ReplaySource):
         self._cal_meta: dict[int, Intrinsics] = {}
         self._cal_meta_times = np.zeros(0, np.int64)
         self._scan_losses: list[FrameLoss] = []
+        #: Per scan loss: the readable frame (index in ``_all``) it precedes, len(_all) after the last, None unknown.
+        self._scan_loss_at: list[int | None] = []
+        #: Per frame of ``_all``: its index in the recording (frames lost in scanned gaps counted).
+        self._source_index = np.zeros(0, np.int64)
+        self._unplaced = 0
+        self._stat_start: int | None = None
+        #: Warnings for ``stats.warnings`` found while opening.
+        self._warnings: list[str] = []
+        self._meta_seen = {"recording": False, "fusion_pf": False}
+        self._meta_problems: list[str] = []
         self._lost: dict[int, tuple[str, int | None]] = {}
         self._bad_parts: dict[str, set[int]] = {}
         self._part_times: dict[str, set[int]] = {}
@@ -529,7 +541,8 @@ class McapReplay(ReplaySource):
         except BaseException:
             self.close()
             raise
-        self.stats.notes[:0] = self._notes
+        self.stats.notes[:0] = self._notes + self._warnings
+        self.stats.warnings[:] = self._warnings
         self._publish()
 
     def close(self) -> None:
@@ -636,6 +649,13 @@ class McapReplay(ReplaySource):
                     log_times = np.frombuffer(pairs, "<u8", count=len(pairs) // 8)[0::2]
                     if log_times.size and int(log_times.max()) >= _TIME_LIMIT:
                         raise _Corrupt("a message index holds a log time beyond 2**63")
+                    lo, hi = ci.message_start_time, ci.message_end_time
+                    if log_times.size and (int(log_times.min()) < lo or int(log_times.max()) > hi):
+                        # a damaged time would be taken for a frame of its own and shift the frame numbers
+                        raise _Corrupt(
+                            f"a message index of the chunk at byte {ci.chunk_start_offset} holds a log time "
+                            f"outside the chunk's {lo}..{hi} ns"
+                        )
                     times.setdefault(cid, []).append(log_times.astype(np.int64))
         except (_Corrupt, struct.error) as exc:
             return f"damaged index ({exc})"
@@ -644,6 +664,10 @@ class McapReplay(ReplaySource):
                 self._add_metadata(self._pread(mi.offset, mi.length)[9:])
             except _Corrupt as exc:
                 self._notes.append(f"skipped the metadata record at byte {mi.offset}: {exc}")
+                if mi.name == fmt.RECORDING_METADATA:
+                    self._meta_problems.append(
+                        f"the {fmt.RECORDING_METADATA} metadata record at byte {mi.offset} cannot be read ({exc})"
+                    )
         self._times = {cid: np.sort(np.concatenate(parts)) for cid, parts in times.items()}
         if summary.statistics is not None:
             self._counts = dict(summary.statistics.channel_message_counts)
@@ -679,10 +703,12 @@ class McapReplay(ReplaySource):
         """Take in a metadata record; return the fields of a ``fusion_pf.channel`` record (else None)."""
         cur = _Cursor(body, "metadata")
         name = cur.string()
+        self._meta_seen["fusion_pf"] |= name in (fmt.CHANNEL_METADATA, fmt.CALIBRATION_METADATA)
         if name == fmt.CHANNEL_METADATA:
             return cur.mapping()
         if name == fmt.RECORDING_METADATA:
             self._metadata.update(cur.mapping())
+            self._meta_seen["recording"] = True
         elif name == fmt.CALIBRATION_METADATA:
             record = cur.mapping()
             if record.get("camera") != self.camera:
@@ -725,6 +751,13 @@ class McapReplay(ReplaySource):
             pos += max(len(buf), 1)
         return None
 
+    def _damaged_metadata(self, opcode: int, pos: int) -> None:
+        """Note a damaged record at ``pos`` that still names itself a ``fusion_pf.recording`` metadata record."""
+        name = fmt.RECORDING_METADATA.encode()
+        head = os.pread(self._fd, 9 + 4 + len(name), pos)  # type: ignore[arg-type]
+        if opcode == _OP_METADATA and head[9:] == len(name).to_bytes(4, "little") + name:
+            self._meta_problems.append(f"the {fmt.RECORDING_METADATA} metadata record at byte {pos} is damaged")
+
     @staticmethod
     def _chunk_times(body: memoryview) -> tuple[int, int] | None:
         """Message start/end times from a (possibly corrupt) chunk header, when they are plausible."""
@@ -746,6 +779,7 @@ class McapReplay(ReplaySource):
         color_ids: set[int] = set()
         last_color: list[int] = []
         pos, end_seen, in_summary, stop, stop_at = 8, False, False, "", size
+        metadata_read, metadata_count = 0, 0
         cut_hint: tuple[int, int] | None = None
         distrust_summary = reason.startswith(_DAMAGED_SUMMARY)  # its statistics still count frames: lost ones show
 
@@ -771,6 +805,7 @@ class McapReplay(ReplaySource):
                 in_summary and found[0] not in (_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, *_SUMMARY_OPCODES)
             ):
                 opcode, length = _RECORD_HEADER.unpack(os.pread(self._fd, 9, pos))  # type: ignore[arg-type]
+                self._damaged_metadata(opcode, pos)
                 why = (
                     f"a record (opcode 0x{opcode:02x}) of {length} bytes that does not fit"
                     if pos + 9 + length > size
@@ -818,7 +853,12 @@ class McapReplay(ReplaySource):
                     self._profile, self._library = cur.string(), cur.string()
                 elif opcode == _OP_STATISTICS:
                     cur = _Cursor(body, "statistics")
-                    cur.take(8 + 2 + 4 * 4 + 16)
+                    cur.take(8 + 2 + 4 + 4)
+                    metadata_count = cur.uint(4)
+                    cur.take(4)
+                    start_time = cur.uint(8)
+                    cur.take(8)
+                    self._stat_start = start_time if start_time < _TIME_LIMIT else None
                     end_map = cur.pos + cur.uint(4)
                     while cur.pos < end_map:
                         cid = cur.uint(2)
@@ -828,6 +868,7 @@ class McapReplay(ReplaySource):
                 elif opcode == _OP_CHANNEL:
                     channel(_Cursor(body, "channel"))
                 elif opcode == _OP_METADATA and not in_summary:
+                    metadata_read += 1
                     fields = self._add_metadata(body)
                     if fields is not None and fields.get("id", "").isdigit():
                         spare[int(fields["id"])] = fields
@@ -861,6 +902,7 @@ class McapReplay(ReplaySource):
                         )
             except (_Corrupt, struct.error) as exc:
                 kind = "chunk" if opcode == _OP_CHUNK else f"record (opcode 0x{opcode:02x})"
+                self._damaged_metadata(opcode, pos)
                 hint = self._chunk_times(body) if opcode == _OP_CHUNK else None
                 damage.append(
                     _Damage(
@@ -901,6 +943,11 @@ class McapReplay(ReplaySource):
                 )
         self._times = {cid: np.sort(np.asarray(t, np.int64)) for cid, t in times.items()}
         self._counts = {cid: len(t) for cid, t in times.items()}
+        if metadata_count > metadata_read and not self._meta_problems:
+            self._meta_problems.append(
+                f"the summary counts {metadata_count} metadata records but {metadata_read} were read "
+                f"(a {fmt.RECORDING_METADATA} record may be among the lost)"
+            )
         self._truncated = not end_seen or (reason == "no footer" and not self._trailing)
         self._scan_damage = damage
         self._stop = (stop_at, max(last_color) if last_color else None, cut_hint) if not end_seen else None
@@ -950,7 +997,8 @@ class McapReplay(ReplaySource):
                 return None
             return max(int(round((hi - lo) / period)) + (1 if inclusive else -1), 0)
 
-        first_ns = min(self._cal_meta) if self._cal_meta else None  # our recorder: the first frame's time
+        # the first frame's time: our recorder's first calibration record, else the summary's first message
+        first_ns = min(self._cal_meta) if self._cal_meta else self._stat_start
         groups: list[list[_Damage]] = []
         for d in damage:
             if groups and groups[-1][0].before_ns == d.before_ns:
@@ -980,13 +1028,16 @@ class McapReplay(ReplaySource):
                 reason += f", and {len(group) - 1} more damaged record(s) up to byte {group[-1].offset}"
             if n != 0:
                 self._scan_losses.append(FrameLoss(n, reason, group[0].offset))
+                self._scan_loss_at.append(k)
         self._check_statistics()
         if stop is not None:
             at, last, cut = stop
             if cut is not None and period is not None and (last is None or cut[0] > last):
                 n = int(round((cut[1] - cut[0]) / period)) + 1
                 self._scan_losses.append(FrameLoss(n, f"the chunk at byte {at} is cut off by the end of the file", at))
+                self._scan_loss_at.append(len(times))
             after = f" after t={last} ns" if last is not None else ""
+            self._scan_loss_at.append(None)
             self._scan_losses.append(
                 FrameLoss(
                     None,
@@ -1017,6 +1068,7 @@ class McapReplay(ReplaySource):
             x = self._scan_losses[unknown[0]]
             self._scan_losses[unknown[0]] = FrameLoss(missing, x.reason, x.offset, x.tail)
         elif not unknown:
+            self._scan_loss_at.append(None)
             self._scan_losses.append(
                 FrameLoss(
                     missing,
@@ -1024,6 +1076,53 @@ class McapReplay(ReplaySource):
                     "or found in damaged records",
                 )
             )
+
+    def _place_frames(self) -> None:
+        """Give every readable frame its index in the recording and decide the background section by it.
+
+        A frame's index counts the frames lost in the scanned gaps before it, so
+        the frames after a gap keep their numbers and the background section
+        (the first ``background_frames`` of the recording) is not shifted onto
+        person frames. After a gap of unknown size the indexes are lower bounds;
+        if the background section may extend past such a gap it cannot be
+        placed: the frames after the gap are not taken for background, and a
+        warning says so. An unreadable ``fusion_pf.recording`` record (the
+        number of background frames unknown) is a warning too.
+        """
+        n = len(self._all)
+        shift = np.zeros(n + 1, np.int64)
+        unknown_at: int | None = None
+        for loss, at in zip(self._scan_losses, self._scan_loss_at, strict=True):
+            if at is None:
+                continue
+            if loss.frames is None:
+                unknown_at = at if unknown_at is None else min(unknown_at, at)
+            else:
+                shift[at] += loss.frames
+        self._source_index = np.arange(n, dtype=np.int64) + np.cumsum(shift)[:n]
+        k = self._background
+        self._unplaced = n
+        if (
+            unknown_at is not None
+            and unknown_at < n
+            and (unknown_at == 0 or self._source_index[unknown_at - 1] < k - 1)
+        ):
+            self._unplaced = unknown_at
+            self._warnings.append(
+                f"frames were lost in a gap of unknown size before frame {unknown_at} read, so the "
+                f"{k} background frames cannot be placed: the frames after the gap are tracked"
+            )
+        problems = list(self._meta_problems)
+        own = self._library.startswith("fusion-pf") or self._meta_seen["fusion_pf"]
+        if own and not problems and not self._meta_seen["recording"]:
+            problems.append(f"no {fmt.RECORDING_METADATA} metadata record can be read")
+        if problems:
+            known = (
+                f"background_frames={k} from another record may be out of date"
+                if self._meta_seen["recording"]
+                else "the number of background frames is unknown, so every frame is tracked"
+            )
+            self._warnings.append(f"{'; '.join(problems)}: {known}")
 
     def _topic_times(self, kind: str) -> np.ndarray:
         parts = [self._times[cid] for cid, k in self._kind.items() if k == kind and cid in self._times]
@@ -1086,13 +1185,14 @@ class McapReplay(ReplaySource):
                 f"{self.path}: metadata {fmt.RECORDING_METADATA} {fmt.BACKGROUND_FRAMES_KEY} must be a "
                 f"non-negative integer, got {text!r}"
             )
-        self._background = min(int(text), len(self._all))
+        self._background = int(text)  # as announced: frames lost from the section still count
         self._own_sequences = self._metadata.get("writer", "").startswith("fusion-pf")
         start_ns, end_ns = self._window
         lo = 0 if start_ns is None else int(np.searchsorted(self._all, start_ns, "left"))
         hi = len(self._all) if end_ns is None else int(np.searchsorted(self._all, end_ns, "left"))
         self._sel = (lo, max(lo, hi))
         self._estimate_scan_losses()
+        self._place_frames()
         self._probe()
 
     def _probe(self) -> None:
@@ -1280,18 +1380,19 @@ class McapReplay(ReplaySource):
                     self._skip_part(names[kind], index, exc)
                     value = None
                 optional[kind] = value
-        seq = seq if self._own_sequences else index
+        source = int(self._source_index[index])
         return Frame(
             t,
-            seq,
+            seq if self._own_sequences else source,
             color,
             optional["depth"],
             intrinsics,
             optional["skeleton"],
             optional["truth"],
-            background=index < self._background,
+            background=index < self._unplaced and source < self._background,
             ground_truths=truths or None,
             hands=optional["hands"],
+            index=source,
         )
 
     def _lose(self, index: int, reason: str, offset: int | None) -> None:
@@ -1320,6 +1421,24 @@ class McapReplay(ReplaySource):
             losses = list(self._scan_losses) + [FrameLoss(n, reason, offset) for (reason, offset), n in groups.items()]
             self.stats.losses = losses
             self.stats.dropped = sum(loss.frames or 0 for loss in losses)
+            self.stats.lost_background = self._lost_background()
+
+    def _lost_background(self) -> int:
+        """How many lost frames lie in the background section (by their index in the recording)."""
+        k, src = self._background, self._source_index
+        if not k or not len(src):
+            return 0
+        count = sum(1 for i in self._lost if i < self._unplaced and src[i] < k)
+        end = int(src[-1]) + 1  # the first index after the frames read and counted
+        for loss, at in zip(self._scan_losses, self._scan_loss_at, strict=True):
+            if at is None or not loss.frames or at > self._unplaced:
+                continue
+            start = int(src[at]) - loss.frames if at < len(src) else int(src[-1]) + 1
+            count += max(0, min(start + loss.frames, k) - start)
+            end = max(end, start + loss.frames)
+        if self._stop is not None and self._unplaced == len(src):  # a truncated tail: the rest of the section
+            count += max(0, k - end)
+        return count
 
     # ------------------------------------------------------------------ public API
 
@@ -1506,7 +1625,7 @@ class McapReplay(ReplaySource):
             calibration_messages=len(self._cal_times),
             color_format=self._formats[0],
             depth_format=self._formats[1],
-            background_frames=self._background,
+            background_frames=min(self._background, n),
             missing_depth=missing("depth"),
             missing_skeleton=missing("skeleton"),
             ground_truth_frames=n - missing("truth"),

@@ -296,6 +296,11 @@ class Frame:
     hands : tuple of HandObservation, or None
         Hands a hand-landmark network found; None when the source has no hand
         stream (no ``/hand/landmarks`` topic), ``()`` when it ran and saw no hand.
+    index : int or None
+        Position of the frame in its recording (0-based; background frames and
+        frames lost to damage counted, so the frames after a lost one keep
+        their numbers and the gap shows), when the source knows it; None
+        otherwise (the pipeline then numbers frames in arrival order).
 
     Notes
     -----
@@ -313,10 +318,13 @@ class Frame:
     background: bool = False
     ground_truths: Mapping[str, PalmPoint] | None = None
     hands: tuple[HandObservation, ...] | None = None
+    index: int | None = None
 
     def __post_init__(self) -> None:
-        for name in ("timestamp_ns", "seq"):
+        for name in ("timestamp_ns", "seq", "index"):
             value = getattr(self, name)
+            if value is None and name == "index":
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InputError(f"frame {name} must be a non-negative int, got {value!r}")
             object.__setattr__(self, name, int(value))

@@ -433,12 +433,18 @@ def write_recording(
 
 
 def frame_of(
-    timestamp_ns: int, seq: int, color: np.ndarray, depth: np.ndarray | None, intrinsics: Intrinsics, where: str
+    timestamp_ns: int,
+    seq: int,
+    color: np.ndarray,
+    depth: np.ndarray | None,
+    intrinsics: Intrinsics,
+    where: str,
+    index: int | None = None,
 ) -> Frame:
-    """A Frame, with a size mismatch between colour and depth reported as an InputError naming ``where``."""
+    """A Frame (``index``: its place in the source), with a colour/depth size mismatch an InputError naming ``where``."""
     if depth is not None and depth.shape != color.shape[:2]:
         raise InputError(
             f"{where}: depth is {depth.shape[1]}x{depth.shape[0]} but colour is {color.shape[1]}x{color.shape[0]}; "
             "depth must be registered to colour (same size)"
         )
-    return Frame(timestamp_ns, seq, color, depth, intrinsics)
+    return Frame(timestamp_ns, seq, color, depth, intrinsics, index=index)

@@ -15,6 +15,11 @@ for TUM RGB-D) and must be registered to colour already (same size). A folder wi
 images only gets a grey colour image rendered from the depth (near = bright, 32-255; 0 = no
 depth), said so in
 :attr:`ImportSource.report`. Frames are ``1 / fps`` apart.
+
+An image that cannot be read (damaged, truncated, not an image) does not stop the folder:
+a frame whose colour image is unreadable is skipped and counted in ``stats.losses`` (the
+other frames keep their times and ``Frame.index``, so the gap shows), one whose depth image
+is unreadable is kept without depth and counted in ``stats.skipped_parts``.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import numpy as np
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame
 
+from ..base import FrameLoss
 from .base import ImportSource, IntrinsicsOption, frame_of, parse_depth_unit, to_millimetres
 
 #: File extensions read as images.
@@ -73,11 +79,15 @@ def _image_size(path: Path) -> tuple[int, int]:
         raise InputError(f"{path} is not a readable image ({exc})") from None
 
 
-def _is_depth_image(path: Path) -> bool:
-    from PIL import Image
+def _is_depth_image(path: Path) -> bool | None:
+    """Whether ``path`` holds a 16-bit or float single-channel image; None when it cannot be read."""
+    from PIL import Image, UnidentifiedImageError
 
-    with Image.open(path) as im:
-        return im.mode in ("I;16", "I;16B", "I;16L", "I", "F")
+    try:
+        with Image.open(path) as im:
+            return im.mode in ("I;16", "I;16B", "I;16L", "I", "F")
+    except (UnidentifiedImageError, OSError):
+        return None
 
 
 def _read(path: Path, flags: int) -> np.ndarray:
@@ -151,11 +161,14 @@ class ImageFolderSource(ImportSource):
         for p in files:
             {"color": colors, "depth": depths, None: unknown}[_kind_word(p.stem)].append(p)
         by_ext: dict[str, bool] = {}
-        for p in unknown:
+        for p in unknown:  # the first readable image of each extension decides (a damaged one is skipped later)
             ext = p.suffix.lower()
             if ext not in by_ext:
-                by_ext[ext] = _is_depth_image(p)
-            (depths if by_ext[ext] else colors).append(p)
+                probe = _is_depth_image(p)
+                if probe is not None:
+                    by_ext[ext] = probe
+        for p in unknown:
+            (depths if by_ext.get(p.suffix.lower(), False) else colors).append(p)
         colors.sort(key=lambda p: natural_key(p.name))
         depths.sort(key=lambda p: natural_key(p.name))
         return colors, depths
@@ -186,7 +199,12 @@ class ImageFolderSource(ImportSource):
         for c, d in self.pairs:
             for p in (c, d):
                 if p is not None:
-                    sizes.setdefault(_image_size(p), []).append(p.name)
+                    try:
+                        sizes.setdefault(_image_size(p), []).append(p.name)
+                    except InputError:
+                        continue  # unreadable: skipped and counted when its frame is read
+        if not sizes:
+            raise InputError(f"no image in {self.path} can be read (e.g. {self.pairs[0][0] or self.pairs[0][1]})")
         if len(sizes) > 1:
             found = "; ".join(f"{w}x{h}: {len(names)} (e.g. {names[0]})" for (w, h), names in sizes.items())
             raise InputError(f"images in {self.path} differ in size ({found}); expected one size for all")
@@ -223,14 +241,38 @@ class ImageFolderSource(ImportSource):
         grey[depth_mm == 0] = 0
         return np.repeat(grey[:, :, None], 3, axis=2)
 
+    def _unreadable(self, path: Path, exc: InputError, frames: int) -> None:
+        """Count an image that cannot be read: its frame lost (``frames=1``) or kept without depth (0)."""
+        if frames:
+            self.stats.losses.append(FrameLoss(frames, str(exc)))
+            self.stats.dropped += frames
+            return
+        if not self.stats.skipped_parts.get("depth"):
+            self.stats.notes.append(f"{exc}; frames are kept without an unreadable depth")
+        self.stats.skipped_parts["depth"] = self.stats.skipped_parts.get("depth", 0) + 1
+
     def _frames(self) -> Iterator[Frame]:
         period = 1e9 / self.fps
         for i, (c, d) in enumerate(self.pairs):
             depth = None
             if d is not None:
-                raw = _read(d, cv2.IMREAD_UNCHANGED)
-                if raw.ndim != 2:
-                    raise InputError(f"depth image {d} has {raw.shape[2]} channels; expected one channel")
-                depth = to_millimetres(raw, self.mm_per_count)
-            color = cv2.cvtColor(_read(c, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB) if c is not None else self._grey(depth)
-            yield frame_of(int(round(i * period)), i, color, depth, self._intrinsics, str(c or d))
+                try:
+                    raw = _read(d, cv2.IMREAD_UNCHANGED)
+                except InputError as exc:
+                    self._unreadable(d, exc, 0 if c is not None else 1)
+                    if c is None:
+                        continue
+                else:
+                    if raw.ndim != 2:
+                        raise InputError(f"depth image {d} has {raw.shape[2]} channels; expected one channel")
+                    depth = to_millimetres(raw, self.mm_per_count)
+            if c is not None:
+                try:
+                    color = cv2.cvtColor(_read(c, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+                except InputError as exc:
+                    self._unreadable(c, exc, 1)
+                    continue
+            else:
+                assert depth is not None  # a depth-only pair whose depth could not be read was skipped
+                color = self._grey(depth)
+            yield frame_of(int(round(i * period)), i, color, depth, self._intrinsics, str(c or d), index=i)

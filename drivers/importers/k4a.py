@@ -200,7 +200,7 @@ class AzureKinectSource(ImportSource):
 
     def _scan(self, color: Any, depth: Any) -> tuple[np.ndarray, np.ndarray]:
         times: dict[int, list[int]] = {color.index: [], depth.index: []}
-        for packet in self._container.demux(color, depth):
+        for packet in self._demux(color, depth):
             if packet.size and packet.pts is not None:
                 times[packet.stream.index].append(round(packet.pts * Fraction(packet.time_base) * 1_000_000_000))
         c, d = (np.asarray(times[s.index], np.int64) for s in (color, depth))
@@ -235,7 +235,7 @@ class AzureKinectSource(ImportSource):
         container.seek(0)
         color, depth = _track(container, "COLOR"), _track(container, "DEPTH")
         ranks = {color.index: 0, depth.index: 0}
-        for packet in container.demux(color, depth):
+        for packet in self._demux(color, depth):
             if not packet.size or packet.pts is None:
                 continue
             index = packet.stream.index
@@ -244,8 +244,24 @@ class AzureKinectSource(ImportSource):
             kind = "color" if index == color.index else "depth"
             yield kind, rank, lambda packet=packet, kind=kind: self._decode(packet, kind)
 
+    def _demux(self, *streams: Any) -> Iterator[Any]:
+        """The packets of ``streams``; a container that cannot be read further is a RecordingError."""
+        import av
+
+        try:
+            yield from self._container.demux(*streams)
+        except av.FFmpegError as exc:
+            raise RecordingError(f"{self.path} cannot be read further ({exc}); the file is damaged") from None
+
     def _decode(self, packet: Any, kind: str) -> np.ndarray:
-        frames = packet.decode()
+        import av
+
+        try:
+            frames = packet.decode()
+        except av.FFmpegError as exc:
+            raise RecordingError(
+                f"{self.path}: a {kind} packet at pts {packet.pts} cannot be decoded ({exc})"
+            ) from None
         if not frames:
             raise RecordingError(f"{self.path}: a {kind} packet at pts {packet.pts} decodes to no frame")
         if kind == "color":

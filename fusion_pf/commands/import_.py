@@ -25,7 +25,9 @@ DESCRIPTION = (
     "topics chosen by type and name, aligned depth preferred, colour and depth paired by time), "
     "a ROS 1 .bag, an Azure Kinect .mkv (depth registered to the colour camera with the attached "
     "calibration), a folder of colour and/or depth images, or a video file (colour only). "
-    "What was chosen and assumed (topics, tracks, pairing, intrinsics) is printed."
+    "What was chosen and assumed (topics, tracks, pairing, intrinsics) is printed. Damaged input "
+    "(a packet the video decoder refuses, a truncated video, an unreadable image) is skipped and "
+    "counted: the frames skipped and why are printed and the exit status is 3 (partial)."
 )
 
 
@@ -175,4 +177,11 @@ def run(args: argparse.Namespace) -> int:
         f"imported {summary.frames} frames ({summary.with_depth} with depth) from {printable(args.source)} to {printable(args.output)} "
         f"in {summary.seconds:.1f} s ({summary.fps:.1f} frames/s); {summary.bytes} bytes"
     )
+    if source.stats.partial:
+        import sys
+
+        from fusion_pf.errors import PARTIAL_EXIT_CODE
+
+        print(f"fusion-pf: warning: {printable(source.stats.loss_summary())}", file=sys.stderr)
+        return PARTIAL_EXIT_CODE
     return 0

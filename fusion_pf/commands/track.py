@@ -154,6 +154,16 @@ def _recorder_options(src, args: argparse.Namespace) -> dict:
     return options
 
 
+def _tracked_line(tracked: int, n_background: int, src, args: argparse.Namespace) -> str:
+    """The summary line: frames tracked, background frames read and (when any) background frames lost."""
+    stats = getattr(src, "stats", None)
+    lost = getattr(stats, "lost_background", 0)
+    background = f"{n_background} background" + (f", {lost} background lost" if lost else "")
+    return f"tracked {tracked} frames ({background}) of {printable(args.source)} -> {printable(args.output)}" + (
+        f", {printable(args.csv)}" if args.csv is not None else ""
+    )
+
+
 def _track_targets(src, config, args: argparse.Namespace, recorder, table, background, bar) -> int:
     """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages."""
     import csv
@@ -187,11 +197,7 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, backg
         n_background += result.background
         tracked += not result.background
         bar.update(1)
-    print(
-        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
-        + (f", {printable(args.csv)}" if args.csv is not None else ""),
-        file=sys.stderr,
-    )
+    print(_tracked_line(tracked, n_background, src, args), file=sys.stderr)
     for t, c in counts.items():
         print(f"{t}: " + ", ".join(f"{n} {s}" for s, n in sorted(c.items())), file=sys.stderr)
     stats = getattr(src, "stats", None)
@@ -303,11 +309,7 @@ def run(args: argparse.Namespace) -> int:
             tracked += not result.background
             states[result.state] += not result.background
             bar.update(1)
-    print(
-        f"tracked {tracked} frames ({n_background} background) of {printable(args.source)} -> {printable(args.output)}"
-        + (f", {printable(args.csv)}" if args.csv is not None else ""),
-        file=sys.stderr,
-    )
+    print(_tracked_line(tracked, n_background, src, args), file=sys.stderr)
     print(
         f"states: {states['tracking']} tracking, {states['lost']} lost, {states['uninitialised']} uninitialised; "
         f"{track_stats.reacquisitions} re-acquisitions after {track_stats.losses} losses; "

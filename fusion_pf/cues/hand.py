@@ -705,6 +705,7 @@ class HandCue:
             return CueResult(hand_measurement(obs, "detect"), {}, time.perf_counter_ns() - t0)
         hint = None
         roi = ctx.roi
+        # no hint from a prior off the image (its window is empty)
         if ctx.prior is not None and roi is not None and not roi.empty and not ctx.search:
             hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
         obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)

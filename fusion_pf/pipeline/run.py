@@ -315,17 +315,21 @@ class TrackResult:
 
 
 def _timed(source: Iterable[Frame]) -> Iterator[tuple[int, Frame, int]]:
-    """``(index, frame, decode_ns)`` for every frame of ``source``."""
+    """``(index, frame, decode_ns)`` for every frame of ``source``.
+
+    ``index`` is the frame's own index in its recording (``Frame.index``: lost
+    frames leave gaps), else its position in the stream.
+    """
     it = iter(source)
-    index = 0
+    count = 0
     while True:
         t0 = time.perf_counter_ns()
         try:
             frame = next(it)
         except StopIteration:
             return
-        yield index, frame, time.perf_counter_ns() - t0
-        index += 1
+        yield (count if frame.index is None else frame.index), frame, time.perf_counter_ns() - t0
+        count += 1
 
 
 def _needs_background(config: TrackConfig, frame: Frame) -> bool:

@@ -417,3 +417,19 @@ def test_hand_cue_follows_two_hands_with_their_handedness(hl):
     assert len(third) == 1 and third[0].u < w and third[0].label == by_side[0].label
     # one hand asked for: the single-hand cue, no labels
     assert len(HandCue(hl).measure(_frame(rgb), CueContext()).detections) == 1
+
+
+def test_prior_off_the_image_gives_no_hint_instead_of_ending_the_run(hl):
+    """Issue 24 fuzz: an estimate drifted off a damaged video's frame made an empty window, and the hand
+    cue raised 'roi_hint must be finite ... size > 0' (exit 2 mid-run); it now searches without a hint."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import HandCue
+    from fusion_pf.cues.roi import Roi
+    from fusion_pf.frame import Frame, Intrinsics
+
+    image = load("asl_hand_000.jpg")
+    h, w = image.shape[:2]
+    frame = Frame(0, 0, image, None, Intrinsics(w, h, 500.0, 500.0, w / 2, h / 2))
+    ctx = CueContext(roi=Roi(w, h, w, h), background=None, joint="right_hand", prior=(w + 5.0, h + 5.0))
+    result = HandCue(hl).measure(frame, ctx)
+    assert result.measurement is not None  # found by detection over the frame

@@ -490,3 +490,35 @@ def test_scene_variations_change_what_they_name():
 def test_scene_variation_out_of_range_is_one_line():
     with pytest.raises(InputError, match=r"synth option hand_front must be a number in \[0.03, 0.6\], got 2"):
         SynthSource(hand_front=2)
+
+
+def test_shipped_sample_has_calibration_in_every_chunk(tmp_path):
+    """Issue 24 item 6: every chunk of the sample opens with a calibration copy, so losing chunk 0 costs only its frames."""
+    from mcap.reader import make_reader
+
+    from drivers import mcap_format as fmt
+
+    sample = ROOT / "recordings" / "sample.mcap"
+    data = sample.read_bytes()
+    with open(sample, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        calibration = {cid for cid, ch in summary.channels.items() if ch.topic == fmt.CALIBRATION_TOPIC}
+        chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        assert len(chunks) > 1
+        for chunk in chunks:
+            assert calibration & set(chunk.message_index_offsets), f"chunk at byte {chunk.chunk_start_offset}"
+    first = chunks[0]
+    damaged = bytearray(data)
+    damaged[first.chunk_start_offset + first.chunk_length // 2] ^= 0x40
+    path = tmp_path / "first_chunk_damaged.mcap"
+    path.write_bytes(bytes(damaged))
+    with McapReplay(sample) as rec:
+        times = list(rec.timestamps)
+        intrinsics = rec.frame(0).intrinsics
+    lost = [t for t in times if first.message_start_time <= t <= first.message_end_time]
+    with McapReplay(path) as rec:
+        out = list(rec)
+        assert rec.stats.dropped == len(lost) > 0
+    assert [f.timestamp_ns for f in out] == [t for t in times if t not in lost]
+    assert all(f.intrinsics == intrinsics for f in out)
