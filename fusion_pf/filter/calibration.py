@@ -19,7 +19,13 @@ independent of this frame's cue errors, and with per-axis prediction variance
 against the other cues, so two cues that are wrong the same way (colour and
 depth both pulled to the forearm) do not make a third, accurate one look noisy,
 as a comparison with the others does (fusion scene matrix, issue 23:
-skeleton-best 10.8 -> 3.1 px fused, skeleton alone 2.85).
+skeleton-best 10.8 -> 3.1 px fused, skeleton alone 2.85). Measured and not
+kept: Grubbs' three-cornered hat on the pairwise differences (each cue's
+variance from the others' disagreement without assumed noises) still assumes
+independent errors, and colour and depth errors correlate at 0.84 on
+skeleton-best-1280 (fused 5.6 -> 10.8 px there); a shrinkage target pooled over
+a source's quality bins, and fewer prior pseudo-samples, were worse on the
+tuning scenes.
 
 Leave-one-out residual (the "three-cornered hat" of clock metrology, Gray &
 Allan 1974, per frame), used while there is no prediction (before the first
