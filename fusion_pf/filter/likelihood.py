@@ -64,7 +64,7 @@ __all__ = [
 #: hand-graph-cnn dev frames 477-582), i.e. 3.5 % per axis (RMSE / sqrt 2), 0.7 px for
 #: the reference scene's 18.7 px palm; ``track`` scales every noise with the palm's
 #: apparent size and, with ``--adapt-noise``, learns each source's noise per quality
-#: band from its innovations against the filter's prediction (:mod:`fusion_pf.filter.calibration`).
+#: band from the other cues (:mod:`fusion_pf.filter.calibration`).
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0,
     "depth": 4.0,

@@ -321,8 +321,7 @@ class TrackConfig:
         True,
         kind="bool",
         help="learn each cue's noise per quality band (quarters of [0, 1]) in this recording, from "
-        "its distance to the filter's prediction while tracking, else to the other cues of the same "
-        "frame (fusion_pf/filter/calibration.py), "
+        "its distance to the other cues of the same frame (fusion_pf/filter/calibration.py), "
         "starting from --noise widened by 1/sqrt(quality); off: --noise widened by 1/sqrt(quality)",
     )
     jump_sigmas: float = option(

@@ -796,11 +796,10 @@ class _FilterStage:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
         return quality_sigma(self.config.noise_px[m.source], m)
 
-    def _calibrate(self, ms: Sequence[Measurement], trust: Mapping[str, float], timestamp_ns: int) -> None:
+    def _calibrate(self, ms: Sequence[Measurement], trust: Mapping[str, float]) -> None:
         """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
 
-        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`); the cues are learned
-        from against the prediction (variance: the last posterior spread squared) while tracking.
+        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`).
         """
         calibration, tracker = self._calibration, self.tracker
         assert calibration is not None and tracker is not None  # adapt_noise; created by _start
@@ -808,10 +807,7 @@ class _FilterStage:
         for source, sigma in sigmas.items():
             tracker.set_noise(source, sigma)
             self._var[source] = sigma * sigma
-        spread, predicted = self._spread, self.prediction(timestamp_ns)
-        calibration.update(
-            ms, sigmas, self._scale, None if spread is None or predicted is None else (*predicted, spread**2)
-        )
+        calibration.update(ms, sigmas, self._scale)
 
     def _jumped(self, m: Measurement, timestamp_ns: int) -> bool:
         """Whether a confident cue lies beyond the prediction's reach (``config.jump_sigmas`` of its noise plus the spread)."""
@@ -928,7 +924,7 @@ class _FilterStage:
         if self._observe_palm(row, ms, trust) and self.config.palm_scale and self.config.scale_noise:
             self._rescale()
         if self._calibration is not None and ms:
-            self._calibrate(ms, trust, row.timestamp_ns)
+            self._calibrate(ms, trust)
         best = min(ms, key=lambda m: trust[m.source]) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue

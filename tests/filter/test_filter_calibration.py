@@ -1,4 +1,4 @@
-"""Online noise calibration (fusion_pf/filter/calibration.py): innovations or leave-one-out residuals per quality band."""
+"""Online noise calibration (fusion_pf/filter/calibration.py): leave-one-out residuals per quality band."""
 
 import math
 
@@ -6,16 +6,7 @@ import numpy as np
 import pytest
 
 from fusion_pf.errors import InputError
-from fusion_pf.filter.calibration import (
-    FLOOR,
-    PRIOR_COUNT,
-    QUALITY_BINS,
-    QUANTILE,
-    WINDOW,
-    NoiseCalibration,
-    innovation_variance,
-    quality_bin,
-)
+from fusion_pf.filter.calibration import FLOOR, PRIOR_COUNT, QUALITY_BINS, WINDOW, NoiseCalibration, quality_bin
 from fusion_pf.frame import Measurement
 
 
@@ -118,58 +109,3 @@ def test_a_cue_below_the_floor_is_learned_at_the_floor():
 def test_bad_floor_is_named(floor):
     with pytest.raises(InputError, match="floor"):
         NoiseCalibration(lambda m: 1.0, floor=floor)
-
-
-def test_innovation_samples_recover_known_noise():
-    # known-noise simulation: cues with per-axis sigma 0.5, 3 and 9 px, a prediction 2 px off per axis;
-    # the QUANTILE of each cue's samples is its true variance (the reference: the simulation's sigmas)
-    gen = np.random.default_rng(3)
-    truth, p_sd, frames = np.array([0.5, 3.0, 9.0]), 2.0, 20000
-    palm = gen.uniform(50, 250, (frames, 1, 2))
-    z = palm + gen.normal(0.0, 1.0, (frames, 3, 2)) * truth[:, None]
-    pred = palm[:, 0] + gen.normal(0.0, p_sd, (frames, 2))
-    samples = np.array([innovation_variance(z[k], tuple(pred[k]), p_sd**2) for k in range(frames)])
-    # the quantile of |z - pred|^2 / (2 c) is sigma^2 + P: the samples' quantile is sigma^2 (within sampling error)
-    np.testing.assert_allclose(np.quantile(samples + p_sd**2, QUANTILE, axis=0), truth**2 + p_sd**2, rtol=0.05)
-    np.testing.assert_allclose(np.sqrt(np.quantile(samples[:, 1:], QUANTILE, axis=0)), truth[1:], rtol=0.05)
-    # one cue at a time gives the same samples (vectorised over cues)
-    np.testing.assert_allclose(
-        innovation_variance(z[0, 1:2], tuple(pred[0]), p_sd**2), innovation_variance(z[0], tuple(pred[0]), p_sd**2)[1:2]
-    )
-
-
-def _shared_error_frames(cal: NoiseCalibration, frames: int, with_prediction: bool) -> NoiseCalibration:
-    """Cues a and b share one 6 px error (both pulled the same way, as colour and depth to the forearm),
-    c is 1 px off; the prediction (when given) is 1 px off."""
-    gen = np.random.default_rng(5)
-    for _ in range(frames):
-        palm = gen.uniform(50, 250, 2)
-        shared = gen.normal(0, 6.0, 2)
-        ms = [
-            Measurement("a", *(palm + shared + gen.normal(0, 0.5, 2)), quality=0.9),
-            Measurement("b", *(palm + shared + gen.normal(0, 0.5, 2)), quality=0.9),
-            Measurement("c", *(palm + gen.normal(0, 1.0, 2)), quality=0.9),
-        ]
-        pred = (*(palm + gen.normal(0, 1.0, 2)), 1.0) if with_prediction else None
-        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, pred)
-    return cal
-
-
-def test_innovations_are_not_fooled_by_two_cues_wrong_the_same_way():
-    sig = {s: lambda cal, s=s: cal.sigma(Measurement(s, 0, 0, quality=0.9)) for s in "abc"}
-    innov = _shared_error_frames(NoiseCalibration(lambda m: 5.0), 400, with_prediction=True)
-    a, b, c = (sig[s](innov) for s in "abc")
-    # against the prediction: c is the accurate one (1 px, floored at 0.7), a and b near their 6 px
-    assert c < 1.5 and a > 4.0 and b > 4.0
-    # against each other (leave-one-out, no prediction), a and b agree and c takes the blame
-    loo = _shared_error_frames(NoiseCalibration(lambda m: 5.0), 400, with_prediction=False)
-    assert sig["c"](loo) > max(sig["a"](loo), sig["b"](loo))
-
-
-def test_a_lone_cue_keeps_its_prior_even_with_a_prediction():
-    # the prediction was made from that cue alone: nothing to tell its noise from the motion model's misfit
-    cal = NoiseCalibration(lambda m: 4.0)
-    m = Measurement("a", 110.0, 100.0, quality=0.8)
-    for _ in range(20):
-        cal.update([m], {"a": 4.0}, 1.0, (100.0, 100.0, 0.0))
-    assert cal.samples("a", 0.8) == 0 and cal.sigma(m) == 4.0
