@@ -495,6 +495,7 @@ class McapReplay(ReplaySource):
         self._source_index = np.zeros(0, np.int64)
         self._unplaced = 0
         self._stat_start: int | None = None
+        self._stat_end: int | None = None
         #: Warnings for ``stats.warnings`` found while opening.
         self._warnings: list[str] = []
         self._meta_seen = {"recording": False, "fusion_pf": False}
@@ -857,8 +858,9 @@ class McapReplay(ReplaySource):
                     metadata_count = cur.uint(4)
                     cur.take(4)
                     start_time = cur.uint(8)
-                    cur.take(8)
+                    end_time = cur.uint(8)
                     self._stat_start = start_time if start_time < _TIME_LIMIT else None
+                    self._stat_end = end_time if start_time <= end_time < _TIME_LIMIT else None
                     end_map = cur.pos + cur.uint(4)
                     while cur.pos < end_map:
                         cid = cur.uint(2)
@@ -972,13 +974,22 @@ class McapReplay(ReplaySource):
     def _frame_period(self) -> float | None:
         """Typical interval between consecutive frames (ns): the median of the intervals near the shortest.
 
-        Robust to lost frames (long intervals) as long as two consecutive frames were read.
+        Robust to lost frames (long intervals) as long as two consecutive frames were read. When
+        no two were (every other frame lost, say) that median is a multiple of the period: the
+        summary's span over its colour message count, when read, gives the period then.
         """
         gaps = np.diff(self._all)
         gaps = gaps[gaps > 0]
         if not len(gaps):
             return None
-        return float(np.median(gaps[gaps <= 1.5 * gaps.min()]))
+        observed = float(np.median(gaps[gaps <= 1.5 * gaps.min()]))
+        count = sum(self._stat_counts.get(cid, 0) for cid, kind in self._kind.items() if kind == "color")
+        if count >= 2 and self._stat_start is not None and self._stat_end is not None:
+            span = (self._stat_end - self._stat_start) / (count - 1)
+            ratio = observed / span if span > 0 else 0.0
+            if ratio >= 1.5 and abs(ratio - round(ratio)) < 0.1:
+                return span
+        return observed
 
     def _estimate_scan_losses(self) -> None:
         """Turn the damage a scan met into frame losses, counting the frames each gap lacks.
