@@ -334,7 +334,9 @@ def dask_client(workers: int | None, scheduler: str | None, n_tasks: int) -> Ite
                         threads_per_worker=1,
                         processes=True,
                         dashboard_address=None,
-                        silence_logs=logging.ERROR,
+                        # a worker's own log (e.g. a heartbeat cut by the cluster's closing on Ctrl-C) is not the
+                        # user's business: a failed task reaches the caller as its exception
+                        silence_logs=logging.CRITICAL,
                     )
                 client = Client(cluster)
             else:
