@@ -57,6 +57,19 @@ def workers_option(help: str) -> Any:
     )
 
 
+def scheduler_option(help: str) -> Any:
+    """The ``--scheduler`` field: an existing Dask scheduler instead of a local cluster (None)."""
+    return option(
+        None, kind="str", optional=True, metavar="tcp://HOST:PORT", show=lambda v: "a local cluster", help=help
+    )
+
+
+def check_cluster(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` with ``--scheduler`` (the local cluster's size against an existing cluster)."""
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+
+
 def fps_option(show: str, help: str) -> Any:
     """An optional frame rate in (0, 1000] frames/s; None means ``show``."""
     return option(None, kind="float", lo=0.001, hi=1000.0, optional=True, metavar="F", show=lambda v: show, help=help)

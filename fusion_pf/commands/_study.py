@@ -36,7 +36,7 @@ from typing import Any
 from fusion_pf.errors import FusionPFError, InputError
 from fusion_pf.options import option, validate
 
-from ._options import workers_option
+from ._options import check_cluster, scheduler_option, workers_option
 
 #: Columns of ``study.csv`` (and of ``study.md``).
 SUMMARY_COLUMNS = (
@@ -88,19 +88,11 @@ class StudyOptions:
     workers: int | None = workers_option(
         "study: worker processes of the local Dask cluster; 1: in this process (not with --scheduler)"
     )
-    scheduler: str | None = option(
-        None,
-        kind="str",
-        optional=True,
-        metavar="tcp://HOST:PORT",
-        show=lambda v: "a local cluster",
-        help="study: track on this existing Dask scheduler instead of a local cluster",
-    )
+    scheduler: str | None = scheduler_option("study: track on this existing Dask scheduler instead of a local cluster")
 
     def __post_init__(self) -> None:
         validate(self)
-        if self.scheduler is not None and self.workers is not None:
-            raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+        check_cluster(self.workers, self.scheduler)
 
 
 def recordings(items: list[str]) -> list[Path]:

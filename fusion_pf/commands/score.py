@@ -13,7 +13,7 @@ from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS
 from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.score.metrics import TIE_TOL_PX
 
-from ._options import counts_option, runs_option, workers_option
+from ._options import check_cluster, counts_option, runs_option, scheduler_option, workers_option
 
 NAME = "score"
 HELP = "RMSE, coverage, p95 and BestMax of a tracker output; particle-count sweeps and figures"
@@ -62,19 +62,11 @@ class ScoreOptions:
     workers: int | None = workers_option(
         "worker processes of the local Dask cluster; 1: in this process (not with --scheduler)"
     )
-    scheduler: str | None = option(
-        None,
-        kind="str",
-        optional=True,
-        metavar="tcp://HOST:PORT",
-        show=lambda v: "a local cluster",
-        help="run the sweep on this existing Dask scheduler instead of a local cluster",
-    )
+    scheduler: str | None = scheduler_option("run the sweep on this existing Dask scheduler instead of a local cluster")
 
     def __post_init__(self) -> None:
         validate(self)
-        if self.scheduler is not None and self.workers is not None:
-            raise InputError("--workers sets the local cluster's size; with --scheduler the cluster's own workers run")
+        check_cluster(self.workers, self.scheduler)
 
 
 #: The fields shown under the sweep heading of ``--help``.

@@ -50,10 +50,9 @@ from .regions import (
     clear_border,
     dilate,
     fill_holes,
-    measure,
     open_thin,
-    region_detections,
     remove_small,
+    window_regions,
 )
 from .roi import Roi, full_roi, search_step
 
@@ -189,16 +188,9 @@ class ColourCue:
         c8 = dilate(c7, self.dilate)  # I_C8 = dilation
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
         extras = {"roi": roi.as_list(), "search_step": step}
-        if candidates:  # every region; the largest first, as measure() takes it
-            found = region_detections(
-                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
-            )
-            m = found[0].measurement if found else None
-        else:
-            found = ()
-            m = measure(
-                c9, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
-            )
+        m, found = window_regions(
+            c9, roi, self.source, min_area=self.min_area, extras=extras, step=step, candidates=candidates
+        )
         if stages:
             out = {
                 "I_C1": c1.copy(),

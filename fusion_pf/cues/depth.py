@@ -76,10 +76,9 @@ from .regions import (
     dilate,
     fill_holes,
     keep_marked,
-    measure,
     open_thin,
-    region_detections,
     remove_small,
+    window_regions,
 )
 from .roi import Roi, full_roi, search_step
 
@@ -280,16 +279,9 @@ class DepthCue:
         d9 = fill_holes(keep_marked(d5, d8) if moved else d5)  # I_d9: regions of I_d5 that moved, holes filled
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
         extras = {"roi": roi.as_list(), "moved": moved, "search_step": step}
-        if candidates:  # every region; the largest first, as measure() takes it
-            found = region_detections(
-                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
-            )
-            m = found[0].measurement if found else None
-        else:
-            found = ()
-            m = measure(
-                d10, roi.offset, self.source, palm_area=roi.palm_area, min_area=self.min_area, extras=extras, step=step
-            )
+        m, found = window_regions(
+            d10, roi, self.source, min_area=self.min_area, extras=extras, step=step, candidates=candidates
+        )
         if stages:
             out = {
                 "I_d1": d1.copy(),

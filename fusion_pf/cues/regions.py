@@ -295,3 +295,17 @@ def region_detections(
         )
         out.append(Detection(m))
     return tuple(out)
+
+
+def window_regions(final: np.ndarray, roi, source: str, *, min_area: int, extras: dict, step: int, candidates: bool):
+    """A region cue's answer in ``roi``: ``(measurement, candidates)``.
+
+    The measurement is :func:`measure`'s (the largest region); with
+    ``candidates`` every region is also a :class:`Detection` (:func:`region_detections`,
+    several targets: the association picks) and the measurement is the first of them.
+    """
+    kw = {"palm_area": roi.palm_area, "min_area": min_area, "extras": extras, "step": step}
+    if not candidates:
+        return measure(final, roi.offset, source, **kw), ()
+    found = region_detections(final, roi.offset, source, **kw)
+    return (found[0].measurement if found else None), found
