@@ -244,3 +244,22 @@ def test_a_study_of_two_targets_writes_what_each_track_writes_alone_and_sums_up_
         assert int(row["tracking"]) == int(row["right_hand_tracking"]) + int(row["left_hand_tracking"])
     header = Path("out/study.md").read_text().splitlines()[4]
     assert "| right_hand_coverage |" in header and "| left_hand_reacquisitions |" in header
+
+    # scored per recording and target, and pooled per target
+    r = run_cli("score", "out", "--ground-truth", "recs")
+    assert r.returncode == 0, r.stderr
+    per = {}
+    for rec in recs:
+        one = run_cli("score", f"ref/{rec.stem}.csv", "--ground-truth", rec, "--json")
+        per[rec.stem] = json.loads(one.stdout)
+        for t, m in per[rec.stem]["targets"].items():
+            line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {rec.stem} | {t} |"))
+            assert f"| {m['rmse_px']:.2f} |" in line and f"| {m['coverage']:.3f} |" in line
+    swaps = sum(p["swaps"] for p in per.values())
+    assert f"identity swaps {swaps})" in r.stdout
+    for t in ("right_hand", "left_hand"):
+        # pooled RMSE: the frame-weighted root mean square of the recordings' RMSEs (a second computation)
+        n = {k: round(p["targets"][t]["n_reference"] * p["targets"][t]["coverage"]) for k, p in per.items()}
+        pooled = math.sqrt(sum(n[k] * per[k]["targets"][t]["rmse_px"] ** 2 for k in per) / sum(n.values()))
+        line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {t} |"))
+        assert line.split("|")[2].strip() == f"{pooled:.2f}"
