@@ -167,6 +167,12 @@ def paced(frames: Iterable[Frame]) -> Iterator[Frame]:
         yield frame
 
 
+def _px(result: TrackResult) -> str:
+    """``(u, v) px`` of the estimate of ``result``, ``-`` without one."""
+    e = result.estimate
+    return "-" if e is None else f"({e.u:.0f}, {e.v:.0f}) px"
+
+
 class LiveStatus:
     """One live status line on the terminal: fps, state, palm in pixels and millimetres.
 
@@ -182,12 +188,13 @@ class LiveStatus:
         self.extra = ""
 
     def line(self, result: TrackResult) -> str:
-        """The status text of ``result``."""
+        """The status text of ``result``; with several targets each target's state and position in px."""
         fps = (len(self._times) - 1) / (self._times[-1] - self._times[0]) if len(self._times) > 1 else 0.0
-        e = result.estimate
-        px = "palm -" if e is None else f"palm ({e.u:.0f}, {e.v:.0f}) px"
+        if result.targets:
+            where = "  ".join(f"{t} {r.state} {_px(r)}" for t, r in result.targets.items())
+            return f"frame {result.frame}  {fps:5.1f} fps  {where}{self.extra}"
         mm = "" if result.xyz_mm is None else " ({:.0f}, {:.0f}, {:.0f}) mm".format(*result.xyz_mm)
-        return f"frame {result.frame}  {fps:5.1f} fps  {result.state:<13} {px}{mm}{self.extra}"
+        return f"frame {result.frame}  {fps:5.1f} fps  {result.state:<13} palm {_px(result)}{mm}{self.extra}"
 
     def update(self, result: TrackResult) -> None:
         """Count a frame and show the line when it is time to."""
@@ -388,30 +395,50 @@ class RerunLogger:
         def rgba(name: str) -> list[int]:
             return [round(255 * c) for c in OVERLAY_COLOURS.get(name, OVERLAY_COLOURS["other"])]
 
-        if result.particles is not None:
-            rec.log("camera/particles", rr.Points2D(result.particles, radii=1.0, colors=rgba("particles")))
+        # several targets: every target's particles, cues, estimate and palm, labelled by target
+        results = result.targets or {"": result}
+        particles = [r.particles for r in results.values() if r.particles is not None]
+        if particles:
+            rec.log("camera/particles", rr.Points2D(np.concatenate(particles), radii=1.0, colors=rgba("particles")))
         else:
             rec.log("camera/particles", rr.Clear(recursive=False))
-        cues = [(s, m) for s, m in result.cues.items() if m is not None]
+
+        def label(target: str, text: str) -> str:
+            return f"{target} {text}" if target else text
+
+        cues = [(t, s, m) for t, r in results.items() for s, m in r.cues.items() if m is not None]
         rec.log(
             "camera/cues",
             rr.Points2D(
-                [(m.u, m.v) for _, m in cues] or np.empty((0, 2)),
+                [(m.u, m.v) for _, _, m in cues] or np.empty((0, 2)),
                 radii=4.0,
-                colors=[rgba(s) for s, _ in cues] or None,
-                labels=[s for s, _ in cues] or None,
+                colors=[rgba(s) for _, s, _ in cues] or None,
+                labels=[label(t, s) for t, s, _ in cues] or None,
             ),
         )
-        e = result.estimate
-        if e is None:
+        found = [(t, r, r.estimate) for t, r in results.items() if r.estimate is not None]
+        if not found:
             rec.log("camera/estimate", rr.Clear(recursive=False))
         else:
             rec.log(
-                "camera/estimate", rr.Points2D([(e.u, e.v)], radii=6.0, colors=rgba("estimate"), labels=[result.state])
+                "camera/estimate",
+                rr.Points2D(
+                    [(e.u, e.v) for _, _, e in found],
+                    radii=6.0,
+                    colors=rgba("estimate"),
+                    labels=[label(t, r.state) for t, r, _ in found],
+                ),
             )
-        if result.xyz_mm is not None:
+        palms = [(t, r.xyz_mm) for t, r in results.items() if r.xyz_mm is not None]
+        if palms:
             rec.log(
-                "camera/palm", rr.Points3D([np.asarray(result.xyz_mm) / 1000.0], radii=0.02, colors=rgba("estimate"))
+                "camera/palm",
+                rr.Points3D(
+                    [np.asarray(xyz) / 1000.0 for _, xyz in palms],
+                    radii=0.02,
+                    colors=rgba("estimate"),
+                    labels=[t for t, _ in palms] if result.targets else None,
+                ),
             )
 
     def close(self) -> None:

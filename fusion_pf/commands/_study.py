@@ -54,6 +54,8 @@ SUMMARY_COLUMNS = (
     "task_s",
     "input_sha256",
 )
+#: Per-target columns of a study of several targets (``<target>_coverage``, ...), before ``input_sha256``.
+TARGET_COLUMNS = ("coverage", "tracking", "lost", "uninitialised", "reacquisitions")
 #: Suffix of the record a finished recording leaves in DIR.
 DONE_SUFFIX = ".done.json"
 #: Options of a single run that a study sets itself, per recording.
@@ -121,30 +123,61 @@ def recordings(items: list[str]) -> list[Path]:
     return out
 
 
-def _summary_row(name: str, outputs: tuple[Path, Path], seconds: float, skipped: str, sha: str, status: str) -> dict:
-    """Frames, coverage, states, re-acquisitions, losses and time per frame of a tracked recording (from its outputs).
+def summary_columns(targets: tuple[str, ...] | None) -> tuple[str, ...]:
+    """Columns of ``study.csv``: :data:`SUMMARY_COLUMNS`, with several targets also :data:`TARGET_COLUMNS` per target."""
+    if targets is None or len(targets) < 2:
+        return SUMMARY_COLUMNS
+    per_target = tuple(f"{t}_{c}" for t in targets for c in TARGET_COLUMNS)
+    return SUMMARY_COLUMNS[:-1] + per_target + SUMMARY_COLUMNS[-1:]
 
-    ``ms_per_frame`` is the tracker's own time (decode, cues, filter: the
-    estimates' ``latency_ns["total"]``), ``task_s`` the task's wall time.
-    """
-    from drivers.tracker_topics import read_json_topic
 
-    with open(outputs[1], newline="", encoding="ascii") as fh:
-        rows = list(csv.DictReader(fh))
-    totals = [m["latency_ns"].get("total", 0) for _, m in read_json_topic(outputs[0], "/tracker/estimate")]
-    states = [r["state"] for r in rows]
+def _track_counts(states: list[str], covered: int) -> dict:
+    """Coverage (frames with an estimate / frames), frames per state, re-acquisitions and losses of one track."""
     pairs = list(zip(states, states[1:]))
-    frames = len(rows)
     return {
-        "recording": name,
-        "status": status,
-        "frames": frames,
-        "coverage": round(sum(r["u"] != "" for r in rows) / frames, 4) if frames else 0.0,
+        "coverage": round(covered / len(states), 4) if states else 0.0,
         "tracking": states.count("tracking"),
         "lost": states.count("lost"),
         "uninitialised": states.count("uninitialised"),
         "reacquisitions": pairs.count(("lost", "tracking")),
         "losses": pairs.count(("tracking", "lost")),
+    }
+
+
+def _summary_row(name: str, outputs: tuple[Path, Path], seconds: float, skipped: str, sha: str, status: str) -> dict:
+    """Frames, coverage, states, re-acquisitions, losses and time per frame of a tracked recording (from its outputs).
+
+    ``ms_per_frame`` is the tracker's own time (decode, cues, filter: the
+    estimates' ``latency_ns["total"]``), ``task_s`` the task's wall time.
+    A several-target CSV (``<target>_state`` columns) gives each target's
+    :data:`TARGET_COLUMNS` and pooled values: coverage over every target's
+    frames, state frames and re-acquisitions summed over the targets.
+    """
+    from drivers.tracker_topics import read_json_topic
+
+    with open(outputs[1], newline="", encoding="ascii") as fh:
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+        header = reader.fieldnames or []
+    totals = [m["latency_ns"].get("total", 0) for _, m in read_json_topic(outputs[0], "/tracker/estimate")]
+    targets = [c[: -len("_state")] for c in header if c.endswith("_state")]
+    if not targets:
+        pooled = _track_counts([r["state"] for r in rows], sum(r["u"] != "" for r in rows))
+        per_target = {}
+    else:
+        each = {
+            t: _track_counts([r[f"{t}_state"] for r in rows], sum(r[f"{t}_u"] != "" for r in rows)) for t in targets
+        }
+        pooled = {k: sum(c[k] for c in each.values()) for k in each[targets[0]] if k != "coverage"}
+        pooled["coverage"] = round(sum(c["coverage"] for c in each.values()) / len(targets), 4)
+        per_target = {f"{t}_{k}": c[k] for t, c in each.items() for k in TARGET_COLUMNS}
+    frames = len(rows)
+    return {
+        "recording": name,
+        "status": status,
+        "frames": frames,
+        **pooled,
+        **per_target,
         "skipped": skipped,
         "ms_per_frame": round(sum(totals) / 1e6 / max(len(totals), 1), 2),
         "task_s": round(seconds, 2),
@@ -207,27 +240,27 @@ def finished(out_dir: Path, name: str, sha: str, settings: str) -> dict | None:
     return record.get("row")
 
 
-def _study_markdown(rows: list[dict], wall: float, workers: int) -> str:
+def _study_markdown(rows: list[dict], wall: float, workers: int, columns: tuple[str, ...]) -> str:
     lines = [
         "# Study summary",
         "",
         f"{len(rows)} recordings, {sum(r.get('frames') or 0 for r in rows)} frames, "
         f"{wall:.1f} s on {workers} worker{'s' if workers != 1 else ''}.",
         "",
-        "| " + " | ".join(SUMMARY_COLUMNS[:-1]) + " |",
-        "|" + "---|" * (len(SUMMARY_COLUMNS) - 1),
+        "| " + " | ".join(columns[:-1]) + " |",
+        "|" + "---|" * (len(columns) - 1),
     ]
     for r in rows:
-        lines.append("| " + " | ".join(str(r.get(c, "")).replace("|", "/") for c in SUMMARY_COLUMNS[:-1]) + " |")
+        lines.append("| " + " | ".join(str(r.get(c, "")).replace("|", "/") for c in columns[:-1]) + " |")
     return "\n".join(lines) + "\n"
 
 
-def _write_summary(out_dir: Path, rows: list[dict], wall: float, workers: int) -> None:
-    for name, text in (("study.csv", None), ("study.md", _study_markdown(rows, wall, workers))):
+def _write_summary(out_dir: Path, rows: list[dict], wall: float, workers: int, columns: tuple[str, ...]) -> None:
+    for name, text in (("study.csv", None), ("study.md", _study_markdown(rows, wall, workers, columns))):
         tmp = out_dir / f".{name}.partial"
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
             if text is None:
-                writer = csv.DictWriter(fh, SUMMARY_COLUMNS, lineterminator="\n", extrasaction="ignore")
+                writer = csv.DictWriter(fh, columns, lineterminator="\n", extrasaction="ignore")
                 writer.writeheader()
                 writer.writerows(rows)
             else:
@@ -247,8 +280,6 @@ def run_study(args: argparse.Namespace, config) -> int:
     for name in SINGLE_ONLY:
         if getattr(args, name, None) not in (None, False):
             raise InputError(f"--{name.replace('_', '-')} is for one recording; a study writes DIR/NAME.mcap and .csv")
-    if config.targets is not None and len(config.targets) > 1:
-        raise InputError("several --targets are not supported for a study yet; track each recording with -o")
     sources = recordings([str(args.source), *args.more_sources])
     out_dir = opts.out_dir
     if opts.scheduler is not None:  # workers elsewhere: paths that do not depend on this process's directory
@@ -276,7 +307,7 @@ def run_study(args: argparse.Namespace, config) -> int:
     for leftover in out_dir.glob(".*.partial.*"):  # of tasks killed with their worker and done again since
         leftover.unlink(missing_ok=True)
     ordered = [rows[p.stem] for p in sources]
-    _write_summary(out_dir, ordered, wall, workers)
+    _write_summary(out_dir, ordered, wall, workers, summary_columns(config.targets))
     bad = [r for r in ordered if r["status"] != "done"]
     frames = sum(r.get("frames") or 0 for r in ordered)
     print(

@@ -145,15 +145,9 @@ def sweep_recording(recording: str, reference, config, counts, args, opts: Score
 
 def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
     """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
-    import math
+    from fusion_pf.score.targets import score_targets_recording, targets_markdown
 
-    from drivers.mcap_replay import McapReplay
-    from fusion_pf.score.targets import score_targets, targets_markdown, truths_by_target
-
-    truths = truths_by_target(args.ground_truth, read_topic)
-    with McapReplay(args.ground_truth) as rec:
-        w, h = rec.frame(0).size
-    result = score_targets(table, truths, math.hypot(w, h))
+    result = score_targets_recording(table, args.ground_truth, read_topic)
     errors = result.pop("errors")
     if args.plots is not None:
         from fusion_pf.score.plots import plot_targets
@@ -202,10 +196,9 @@ def run(args: argparse.Namespace) -> int:
         inputs = (args.tracked, args.ground_truth, args.recording, source, *db_files)
         check_folder_outputs(Path(args.plots), (*REPORT_FILES, TARGETS_FIGURE), inputs, "--plots")
     if args.ground_truth is not None:
-        from fusion_pf.score.targets import read_targets_csv, read_targets_topic
+        from fusion_pf.score.targets import read_targets
 
-        kind = file_kind(args.tracked)
-        table = read_targets_csv(args.tracked) if kind == "csv" else read_targets_topic(args.tracked, read_topic)
+        table = read_targets(args.tracked, read_topic)
         if table is not None:
             if counts is not None:
                 raise InputError(

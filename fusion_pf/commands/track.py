@@ -164,8 +164,12 @@ def _tracked_line(tracked: int, n_background: int, src, args: argparse.Namespace
     )
 
 
-def _track_targets(src, config, args: argparse.Namespace, recorder, table, background, bar) -> int:
-    """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages."""
+def _track_targets(src, frames, config, args: argparse.Namespace, recorder, table, background, bar, live) -> int:
+    """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages.
+
+    ``frames`` are those of ``src`` (paced with ``--realtime``); with a live view (``live``) the frame and
+    every tracker message go to it as in a one-target run.
+    """
     import csv
     import sys
 
@@ -178,15 +182,17 @@ def _track_targets(src, config, args: argparse.Namespace, recorder, table, backg
     writer = None if table is None else csv.writer(table, lineterminator="\n")
     if writer is not None:
         writer.writerow(targets_csv_columns(config.targets))
-    topics = TrackerTopics(recorder, config)
+    topics = TrackerTopics(recorder if live is None else live.tee(recorder), config)
     counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
     tracked = n_background = 0
-    for result in track(src, config, background=background):
+    for result in track(frames, config, background=background):
         with sigint_deferred():
             assert result.source_frame is not None
             if args.copy_input:
                 recorder.write(result.source_frame)
             topics.write(result)
+            if live is not None:
+                live.publish(result, result.source_frame)
             if not result.background:
                 if writer is not None:
                     writer.writerow(targets_csv_row(result))
@@ -236,8 +242,6 @@ def run(args: argparse.Namespace) -> int:
     if args.output is None:
         raise InputError("track needs -o OUT.mcap (or --out-dir DIR to track several recordings)")
     several = config.targets is not None and len(config.targets) > 1  # one target named is the single palm
-    if live_options.enabled and several:
-        raise InputError("--serve and --rerun do not show several --targets yet; track one target")
     if config.filter == "pf":
         # the particle filter's compiled kernels load while the recording opens and the cues start
         from fusion_pf.filter.kernel import warm_up
@@ -274,11 +278,11 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         live = stack.enter_context(Live(live_options)) if live_options.enabled else None
+        frames = paced(src) if live_options.realtime else src
         if several:
-            return _track_targets(src, config, args, recorder, targets_csv, background, bar)
+            return _track_targets(src, frames, config, args, recorder, targets_csv, background, bar, live)
         topics = TrackerTopics(recorder if live is None else live.tee(recorder), config)
         track_stats = TrackStats()
-        frames = paced(src) if live_options.realtime else src
         for result in track(frames, config, background=background, stats=track_stats):
             with sigint_deferred():
                 t0 = time.perf_counter_ns()

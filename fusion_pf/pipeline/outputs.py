@@ -210,7 +210,10 @@ def targets_csv_row(result: TrackResult) -> list[str]:
 
 
 def targets_json(result: TrackResult, config: TrackConfig) -> dict:
-    """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state}`` (u, v null when none)."""
+    """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state}`` (u, v null when none).
+
+    ``latency_ns`` is the frame's (``total``: decode to every target's estimate).
+    """
     return {
         "frame": result.frame,
         "timestamp_ns": result.timestamp_ns,
@@ -220,6 +223,7 @@ def targets_json(result: TrackResult, config: TrackConfig) -> dict:
         },
         "filter": config.filter,
         "likelihood_evaluations": sum(r.evaluations for r in result.targets.values()),
+        "latency_ns": {k: int(v) for k, v in result.latency_ns.items()},
     }
 
 

@@ -7,6 +7,11 @@ with :func:`~fusion_pf.score.evaluate.evaluate`; the pooled score concatenates
 the frames of every recording (per source; a source missing from a recording
 counts as missing there) and scores them with the same
 :func:`~fusion_pf.score.metrics.score`.
+
+A study of several targets (``track ... --out-dir DIR --targets ...``) is
+scored per recording with :func:`~fusion_pf.score.targets.score_targets` and
+pooled per target: the errors of every recording concatenated, the frames per
+state and the identity swaps summed.
 """
 
 from __future__ import annotations
@@ -21,8 +26,9 @@ from fusion_pf.errors import InputError
 from .evaluate import Evaluation, evaluate, read_reference
 from .inputs import TopicReader
 from .metrics import TIE_TOL_PX, Score, score
+from .targets import read_targets, score_targets_recording, target_summary
 
-__all__ = ["StudyScore", "score_study", "study_markdown", "study_outputs"]
+__all__ = ["StudyScore", "TargetsStudyScore", "score_study", "study_markdown", "study_outputs"]
 
 #: Files of an output folder that are not tracker outputs.
 _NOT_OUTPUTS = ("study.csv",)
@@ -49,26 +55,45 @@ class StudyScore:
     pooled: Score
 
 
+@dataclass(frozen=True)
+class TargetsStudyScore:
+    """Per recording (:func:`~fusion_pf.score.targets.score_targets` results) and pooled per target, several targets."""
+
+    recordings: dict[str, dict]
+    pooled: dict
+
+
 def score_study(
     out_dir: str | Path, reference_dir: str | Path, *, read_topic: TopicReader, tie_tol: float = TIE_TOL_PX
-) -> StudyScore:
+) -> StudyScore | TargetsStudyScore:
     """Score every output of ``out_dir`` against ``reference_dir/NAME.mcap``; pooled over all frames.
 
     Raises
     ------
     InputError
-        When a folder is missing or empty, or an output has no reference recording.
+        When a folder is missing or empty, an output has no reference recording, or
+        outputs of one target and of several are mixed.
     """
     out_dir, reference_dir = Path(out_dir), Path(reference_dir)
     for what, d in (("tracker output folder", out_dir), ("reference folder", reference_dir)):
         if not d.is_dir():
             raise InputError(f"{what} {d} is not a folder")
+    outputs = study_outputs(out_dir)
+    for name, tracked in outputs.items():
+        if not (reference_dir / f"{name}.mcap").is_file():
+            raise InputError(f"{tracked} has no reference recording {reference_dir / f'{name}.mcap'}")
+    tables = {name: read_targets(tracked, read_topic) for name, tracked in outputs.items()}
+    several = [name for name, table in tables.items() if table is not None]
+    if several and len(several) < len(tables):
+        one = next(name for name, table in tables.items() if table is None)
+        raise InputError(
+            f"{outputs[several[0]]} holds several targets but {outputs[one]} one; expected the outputs of one study"
+        )
+    if several:
+        return _score_targets_study(tables, reference_dir, read_topic)
     evaluations = {}
-    for name, tracked in study_outputs(out_dir).items():
-        reference = reference_dir / f"{name}.mcap"
-        if not reference.is_file():
-            raise InputError(f"{tracked} has no reference recording {reference}")
-        ref = read_reference(ground_truth=reference, read_topic=read_topic)
+    for name, tracked in outputs.items():
+        ref = read_reference(ground_truth=reference_dir / f"{name}.mcap", read_topic=read_topic)
         evaluations[name] = evaluate(tracked, ref, tie_tol=tie_tol, read_topic=read_topic)
     sources: list[str] = []
     for ev in evaluations.values():
@@ -86,12 +111,73 @@ def score_study(
     return StudyScore(evaluations, score(pooled_points, reference_uv, tie_tol=tie_tol))
 
 
+def _score_targets_study(tables: dict, reference_dir: Path, read_topic: TopicReader) -> TargetsStudyScore:
+    """Each several-target output scored against its recording; pooled per target over every recording."""
+    recordings = {
+        name: score_targets_recording(table, reference_dir / f"{name}.mcap", read_topic)
+        for name, table in tables.items()
+    }
+    targets: list[str] = []
+    for table in tables.values():
+        targets += [t for t in table.uv if t not in targets]
+    pooled: dict = {"targets": {}, "swaps": None}
+    for t in targets:
+        runs = [(r, tables[name].states[t]) for name, r in recordings.items() if t in r["targets"]]
+        pooled["targets"][t] = target_summary(
+            np.concatenate([r["errors"][t] for r, _ in runs]),
+            sum(r["targets"][t]["n_reference"] for r, _ in runs),
+            [s for _, states in runs for s in states],
+        )
+    swaps = [r["swaps"] for r in recordings.values() if r["swaps"] is not None]
+    if swaps:
+        pooled["swaps"] = sum(swaps)
+    for r in recordings.values():
+        r.pop("errors")
+    return TargetsStudyScore(recordings, pooled)
+
+
+def _targets_study_markdown(study: TargetsStudyScore, out_dir: str | Path, reference_dir: str | Path) -> str:
+    """Markdown: per recording and target RMSE, p95, coverage and identity swaps; then every target pooled."""
+    lines = [
+        f"# Study score: {out_dir} against {reference_dir}",
+        "",
+        "| recording | target | RMSE (px) | p95 (px) | coverage | identity swaps |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, r in study.recordings.items():
+        swaps = "-" if r["swaps"] is None else str(r["swaps"])
+        for t, m in r["targets"].items():
+            lines.append(
+                f"| {name} | {t} | {_cell(m['rmse_px'])} | {_cell(m['p95_px'])} | {_cell(m['coverage'], '.3f')} | {swaps} |"
+            )
+    swaps = "-" if study.pooled["swaps"] is None else str(study.pooled["swaps"])
+    lines += [
+        "",
+        f"## Pooled ({len(study.recordings)} recordings; identity swaps {swaps})",
+        "",
+        "| target | RMSE (px) | median (px) | p95 (px) | coverage | with a reference | frames per state |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for t, m in study.pooled["targets"].items():
+        states = ", ".join(f"{s} {n}" for s, n in sorted(m["states"].items()))
+        lines.append(
+            f"| {t} | {_cell(m['rmse_px'])} | {_cell(m['median_px'])} | {_cell(m['p95_px'])} | "
+            f"{_cell(m['coverage'], '.3f')} | {m['n_reference']} | {states} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def _cell(x: float, fmt: str = ".2f") -> str:
     return "-" if x is None or not np.isfinite(x) else format(x, fmt)
 
 
-def study_markdown(study: StudyScore, out_dir: str | Path, reference_dir: str | Path) -> str:
-    """Markdown: per recording the fused estimate's RMSE, p95, coverage and frames; then every source pooled."""
+def study_markdown(study: StudyScore | TargetsStudyScore, out_dir: str | Path, reference_dir: str | Path) -> str:
+    """Markdown: per recording the fused estimate's RMSE, p95, coverage and frames; then every source pooled.
+
+    Several targets: per recording and target, then per target pooled.
+    """
+    if isinstance(study, TargetsStudyScore):
+        return _targets_study_markdown(study, out_dir, reference_dir)
     lines = [
         f"# Study score: {out_dir} against {reference_dir}",
         "",

@@ -18,7 +18,7 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, TopicReader
+from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, TopicReader, file_kind
 from .metrics import rmse
 
 __all__ = [
@@ -26,7 +26,10 @@ __all__ = [
     "count_swaps",
     "read_targets_csv",
     "read_targets_topic",
+    "read_targets",
     "score_targets",
+    "score_targets_recording",
+    "target_summary",
     "targets_markdown",
     "truths_by_target",
 ]
@@ -129,6 +132,22 @@ def count_swaps(ea: np.ndarray, eb: np.ndarray, ta: np.ndarray, tb: np.ndarray, 
     return int(np.count_nonzero(flags[1:] != flags[:-1]))
 
 
+def target_summary(err: np.ndarray, n_reference: int, states: list[str]) -> dict:
+    """RMSE, median, p95 (px) of the finite errors ``err``, coverage (finite errors / ``n_reference``), frames per state."""
+    e = err[np.isfinite(err)]
+    counts: dict[str, int] = {}
+    for s in states:
+        counts[s] = counts.get(s, 0) + 1
+    return {
+        "rmse_px": rmse(e) if e.size else math.nan,
+        "median_px": float(np.median(e)) if e.size else math.nan,
+        "p95_px": float(np.percentile(e, 95)) if e.size else math.nan,
+        "coverage": float(e.size / n_reference) if n_reference else math.nan,
+        "n_reference": n_reference,
+        "states": counts,
+    }
+
+
 def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, float]]], diagonal_px: float) -> dict:
     """Per target: RMSE, median, p95 (px), coverage, frames per state; identity swaps between the two hands."""
     out: dict = {"targets": {}, "swaps": None}
@@ -138,22 +157,9 @@ def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, 
             -1, 2
         )
         aligned[t] = ref
-        has = np.isfinite(ref[:, 0])
         err = np.hypot(*(uv - ref).T)
-        ok = np.isfinite(err)
-        states: dict[str, int] = {}
-        for s in table.states[t]:
-            states[s] = states.get(s, 0) + 1
-        e = err[ok]
         out.setdefault("errors", {})[t] = err
-        out["targets"][t] = {
-            "rmse_px": rmse(e) if e.size else math.nan,
-            "median_px": float(np.median(e)) if e.size else math.nan,
-            "p95_px": float(np.percentile(e, 95)) if e.size else math.nan,
-            "coverage": float(ok.sum() / has.sum()) if has.any() else math.nan,
-            "n_reference": int(has.sum()),
-            "states": states,
-        }
+        out["targets"][t] = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), table.states[t])
     if "right_hand" in table.uv and "left_hand" in table.uv:
         out["swaps"] = count_swaps(
             table.uv["right_hand"],
@@ -163,6 +169,23 @@ def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, 
             JOINED_FRACTION * diagonal_px,
         )
     return out
+
+
+def score_targets_recording(table: TargetsTable, recording: str | Path, read_topic: TopicReader) -> dict:
+    """:func:`score_targets` of ``table`` against the ground truth of the multi-target ``recording``."""
+    from drivers.mcap_replay import McapReplay
+
+    truths = truths_by_target(str(recording), read_topic)
+    with McapReplay(Path(recording)) as rec:
+        w, h = rec.frame(0).size
+    return score_targets(table, truths, math.hypot(w, h))
+
+
+def read_targets(path: str | Path, read_topic: TopicReader) -> TargetsTable | None:
+    """The multi-target output at ``path`` (CSV or MCAP, by its content), or None when it is of one target."""
+    if file_kind(path) == "csv":
+        return read_targets_csv(path)
+    return read_targets_topic(str(path), read_topic)
 
 
 def targets_markdown(result: dict, tracked: str, reference: str) -> str:

@@ -119,3 +119,30 @@ def test_rerun_without_a_viewer_is_a_one_line_error(fusion_pf, tmp_path):
     port = live_serve.free_port()
     r = fusion_pf("track", SOURCE, "-o", tmp_path / "o.mcap", "--rerun", f"rerun+http://127.0.0.1:{port}/proxy")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no Rerun viewer" in r.stderr, r.stderr
+
+
+def test_several_targets_stream_every_target_estimate_of_the_output(tmp_path):
+    """``--targets``: the same live view, whose ``/tracker/estimate`` messages are those of the output MCAP."""
+    port = live_serve.free_port()
+    targets = "right_hand,left_hand"
+    proc = _serve(tmp_path, port, "--targets", targets, source="synth:seed=1,frames=60,size=320x200,hands=2")
+    client = live_serve.FoxgloveClient(port, ["/camera/color", "/tracker/estimate"]).start()
+    _, err = proc.communicate(timeout=120)
+    client.stop()
+    assert proc.returncode == 0, err
+    assert client.error is None, client.error
+    assert {"/camera/color", "/tracker/overlay", "/tracker/particles"} <= set(client.channels)
+    assert len(client.messages["/camera/color"]) >= 20, err
+    in_file = {m["frame"]: m for _, m in read_json_topic(tmp_path / "out.mcap", "/tracker/estimate")}
+    with open(tmp_path / "out.csv", newline="") as fh:
+        rows = {int(r["frame"]): r for r in csv.DictReader(fh)}
+    estimates = client.messages["/tracker/estimate"]
+    assert len(estimates) >= 20, err
+    for log_time, payload in estimates:
+        live = json.loads(payload)
+        assert live == in_file[live["frame"]] and live["timestamp_ns"] == log_time
+        assert list(live["targets"]) == targets.split(",")
+        for t, m in live["targets"].items():
+            assert m["state"] == rows[live["frame"]][f"{t}_state"]
+    assert any(all(m["u"] is not None for m in json.loads(p)["targets"].values()) for _, p in estimates)
+    assert "live view: " in err and "right_hand: " in err and "left_hand: " in err

@@ -203,3 +203,63 @@ def test_a_worker_killed_mid_task_is_retried_and_leaves_no_half_written_output(t
     for rec in recs:
         _same_as_reference(out, Path("ref"), rec.stem)
     assert not list(out.glob(".*"))
+
+
+def test_a_study_of_two_targets_writes_what_each_track_writes_alone_and_sums_up_each_target(tmp_path):
+    os.chdir(tmp_path)
+    Path("recs").mkdir()
+    recs = []
+    for s in (1, 2):
+        rec = Path(f"recs/two{s}.mcap")
+        r = run_cli("synth", rec, "--frames", 15, "--seed", s, "--size", "320x200", "--hands", 2, "--no-progress")
+        assert r.returncode == 0, r.stderr
+        recs.append(rec)
+    targets = ("--targets", "right_hand,left_hand")
+    Path("ref").mkdir()
+    for rec in recs:
+        ref = Path("ref", rec.stem)
+        r = run_cli(
+            "track", rec, "-o", ref.with_suffix(".mcap"), "--csv", ref.with_suffix(".csv"), *targets, "--no-progress"
+        )
+        assert r.returncode == 0, r.stderr
+    r = run_cli("track", *recs, "--out-dir", "out", "--workers", 1, *targets)
+    assert r.returncode == 0, r.stderr
+    rows = _rows(Path("out/study.csv"))
+    for rec in recs:
+        _same_as_reference(Path("out"), Path("ref"), rec.stem)
+        with open(f"ref/{rec.stem}.csv", newline="") as fh:
+            table = list(csv.DictReader(fh))
+        row = rows[rec.stem]
+        assert row["status"] == "done" and int(row["frames"]) == len(table) == 15
+        assert float(row["ms_per_frame"]) > 0
+        covered = 0
+        for t in ("right_hand", "left_hand"):
+            states = [x[f"{t}_state"] for x in table]
+            n = sum(x[f"{t}_u"] != "" for x in table)
+            covered += n
+            assert float(row[f"{t}_coverage"]) == round(n / 15, 4) > 0
+            assert int(row[f"{t}_tracking"]) == states.count("tracking")
+            assert int(row[f"{t}_lost"]) == states.count("lost")
+        assert float(row["coverage"]) == pytest.approx(covered / 30, abs=1e-4)
+        assert int(row["tracking"]) == int(row["right_hand_tracking"]) + int(row["left_hand_tracking"])
+    header = Path("out/study.md").read_text().splitlines()[4]
+    assert "| right_hand_coverage |" in header and "| left_hand_reacquisitions |" in header
+
+    # scored per recording and target, and pooled per target
+    r = run_cli("score", "out", "--ground-truth", "recs")
+    assert r.returncode == 0, r.stderr
+    per = {}
+    for rec in recs:
+        one = run_cli("score", f"ref/{rec.stem}.csv", "--ground-truth", rec, "--json")
+        per[rec.stem] = json.loads(one.stdout)
+        for t, m in per[rec.stem]["targets"].items():
+            line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {rec.stem} | {t} |"))
+            assert f"| {m['rmse_px']:.2f} |" in line and f"| {m['coverage']:.3f} |" in line
+    swaps = sum(p["swaps"] for p in per.values())
+    assert f"identity swaps {swaps})" in r.stdout
+    for t in ("right_hand", "left_hand"):
+        # pooled RMSE: the frame-weighted root mean square of the recordings' RMSEs (a second computation)
+        n = {k: round(p["targets"][t]["n_reference"] * p["targets"][t]["coverage"]) for k, p in per.items()}
+        pooled = math.sqrt(sum(n[k] * per[k]["targets"][t]["rmse_px"] ** 2 for k in per) / sum(n.values()))
+        line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {t} |"))
+        assert line.split("|")[2].strip() == f"{pooled:.2f}"

@@ -1,12 +1,17 @@
 """drivers/live.py helpers: ``--realtime`` pacing, the live status line, addresses."""
 
 import io
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
+import rerun as rr
 
 from drivers import open_source
-from drivers.live import LiveOptions, LiveStatus, paced, parse_address
+from drivers.live import LiveOptions, LiveStatus, RerunLogger, _Item, paced, parse_address
 from fusion_pf.errors import InputError
 from fusion_pf.pipeline import TrackConfig, track
 
@@ -69,3 +74,38 @@ def test_loopback_needs_no_flag_and_other_hosts_do():
     with pytest.raises(InputError, match="--allow-remote"):
         LiveOptions(serve="10.0.0.2:8765")
     assert LiveOptions(serve="10.0.0.2:8765", allow_remote=True).serve == "10.0.0.2:8765"
+
+
+def test_the_status_line_of_several_targets_shows_each_target_state_and_px():
+    status = LiveStatus(io.StringIO())
+    config = TrackConfig(targets=("right_hand", "left_hand"))
+    with open_source("synth:seed=1,frames=4,size=320x200,hands=2") as src:
+        result = list(track(src, config))[-1]
+    line = status.line(result)
+    for t in ("right_hand", "left_hand"):
+        r = result.targets[t]
+        px = "-" if r.estimate is None else f"({r.estimate.u:.0f}, {r.estimate.v:.0f}) px"
+        assert f"{t} {r.state} {px}" in line
+    assert any(r.estimate is not None for r in result.targets.values())
+
+
+def test_rerun_gets_every_target_estimate_labelled_by_target_and_state(tmp_path):
+    """The Rerun logger of several targets, saved to an .rrd and read back by Rerun's own ``rerun rrd print``."""
+    config = TrackConfig(targets=("right_hand", "left_hand"))
+    with open_source("synth:seed=1,frames=4,size=320x200,hands=2") as src:
+        results = list(track(src, config))
+    logger = RerunLogger("rerun+http://127.0.0.1:9876/proxy")
+    logger.rec = rr.RecordingStream("fusion-pf")  # the viewer replaced by a file
+    logger.rec.save(tmp_path / "live.rrd")
+    for r in results:
+        logger.publish(_Item(r.source_frame, [], r))
+    logger.close()
+    env = {**os.environ, "HOME": str(tmp_path), "RERUN_TELEMETRY_ENABLED": "false"}
+    rerun = Path(sys.executable).parent / "rerun"
+    text = subprocess.run(
+        [str(rerun), "rrd", "print", "-vvv", str(tmp_path / "live.rrd")], env=env, capture_output=True, text=True
+    ).stdout
+    for r in results:
+        labels = ", ".join(f"{t} {x.state}" for t, x in r.targets.items() if x.estimate is not None)
+        assert labels and f"[{labels}]" in text
+    assert "[right_hand, left_hand]" in text  # the 3-D palms
