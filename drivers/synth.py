@@ -180,6 +180,13 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   confidence ``0.9 - 0.6 w``.
 * No motion blur (two layers moving differently are not modelled); the depth
   and colour noise are the one-hand scene's.
+* Every scene variation applies: ``skin_tone`` to both hands, forearms, the
+  face and neck, ``clothing`` to the shirt and both sleeves, ``hand_front`` puts
+  both palms ``hand_front + 0.06`` m in front of the torso
+  (:data:`drivers.synth_scene.WASH_EXTRA_FRONT`; 0.28 m by default),
+  ``skeleton_bias`` scales ``w`` of both hands and wrists (jitter; the pull and
+  the confidence drop saturate at ``w = 1``), ``clutter``, ``lighting`` and
+  ``depth_noise`` as for one hand.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
 Scene variations
@@ -199,13 +206,27 @@ values are written to the metadata.
   differs little from the navy shirt;
 * ``skeleton_bias``: factor on the occlusion weight ``w`` of the skeleton's
   hand and wrist (bias and jitter; the confidence and depth pull saturate at
-  ``w = 1``), 0-5: 0 is a skeleton that never fails.
+  ``w = 1``), 0-5: 0 is a skeleton that never fails;
+* ``clothing``: the shirt's colour, an index into
+  :data:`drivers.synth_scene.CLOTHING_PALETTE` (0 navy, 1 skin-like beige, 2
+  wood-like brown, 3 red, 4 light grey, 5 dark green; a fraction blends the two
+  neighbours): a beige or brown shirt is skin to a colour rule, and the palms
+  over the torso lose their colour contrast;
+* ``clutter``: that many static objects (boxes and round shapes, 0-30) in the
+  room (:func:`drivers.synth_scene.add_clutter`): every third is skin-coloured
+  (a random tone), every second stands at hand depth (1.0-1.4 m) beside the
+  person at hand height, the others in front of the wall (2.0-2.8 m); they
+  are part of the empty scene, so a background model learns them, but the
+  colour and depth cues see them in every frame. ``clutter = N + k`` keeps the
+  first ``N`` objects of ``clutter = N``. An object at hand depth may hide
+  part of an arm that passes behind it (never a palm).
 
 Determinism
 -----------
 The scene (background textures, motion parameters) comes from
 ``SeedSequence(seed, spawn_key=(0,))``, the sleeve and the illumination drift
-from ``spawn_key=(3,)``; frame ``i``'s image noise, flicker and depth artefacts from
+from ``spawn_key=(3,)``, the two-hand motion from ``spawn_key=(4,)``, the clutter
+from ``spawn_key=(5,)``; frame ``i``'s image noise, flicker and depth artefacts from
 ``spawn_key=(1, i)`` and its skeleton noise from ``spawn_key=(2, i)``. So frame
 ``i`` depends only on ``(seed, i, size, background_frames)`` and random access
 equals iteration. The motion (and so the motion blur) is a function of the
