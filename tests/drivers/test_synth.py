@@ -524,6 +524,13 @@ def test_clutter_adds_static_objects_some_skin_coloured_some_at_hand_depth():
     assert np.array_equal(ma["palm"], mb["palm"]) and fa.ground_truths == fb.ground_truths and fa.joints == fb.joints
 
 
+def test_rig_refuses_clutter_in_one_line():
+    from drivers.synth_rig import SynthRig
+
+    with pytest.raises(InputError, match=r"synth option clutter must be 0 with cameras >= 2 .*got 3"):
+        SynthRig(2, frames=2, size=(64, 40), clutter=3)
+
+
 def test_variations_apply_to_the_two_hand_scene():
     """Skin tone (both hands, face), clothing, hand distance to the torso and skeleton failure: hands=2 too."""
     idx = 75  # joined
