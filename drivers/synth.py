@@ -180,6 +180,13 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   confidence ``0.9 - 0.6 w``.
 * No motion blur (two layers moving differently are not modelled); the depth
   and colour noise are the one-hand scene's.
+* Every scene variation applies: ``skin_tone`` to both hands, forearms, the
+  face and neck, ``clothing`` to the shirt and both sleeves, ``hand_front`` puts
+  both palms ``hand_front + 0.06`` m in front of the torso
+  (:data:`drivers.synth_scene.WASH_EXTRA_FRONT`; 0.28 m by default),
+  ``skeleton_bias`` scales ``w`` of both hands and wrists (jitter; the pull and
+  the confidence drop saturate at ``w = 1``), ``clutter``, ``lighting`` and
+  ``depth_noise`` as for one hand.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
 Scene variations
@@ -199,13 +206,27 @@ values are written to the metadata.
   differs little from the navy shirt;
 * ``skeleton_bias``: factor on the occlusion weight ``w`` of the skeleton's
   hand and wrist (bias and jitter; the confidence and depth pull saturate at
-  ``w = 1``), 0-5: 0 is a skeleton that never fails.
+  ``w = 1``), 0-5: 0 is a skeleton that never fails;
+* ``clothing``: the shirt's colour, an index into
+  :data:`drivers.synth_scene.CLOTHING_PALETTE` (0 navy, 1 skin-like beige, 2
+  wood-like brown, 3 red, 4 light grey, 5 dark green; a fraction blends the two
+  neighbours): a beige or brown shirt is skin to a colour rule, and the palms
+  over the torso lose their colour contrast;
+* ``clutter``: that many static objects (boxes and round shapes, 0-30) in the
+  room (:func:`drivers.synth_scene.add_clutter`): every third is skin-coloured
+  (a random tone), every second stands at hand depth (1.0-1.4 m) beside the
+  person at hand height, the others in front of the wall (2.0-2.8 m); they
+  are part of the empty scene, so a background model learns them, but the
+  colour and depth cues see them in every frame. ``clutter = N + k`` keeps the
+  first ``N`` objects of ``clutter = N``. An object at hand depth may hide
+  part of an arm that passes behind it (never a palm).
 
 Determinism
 -----------
 The scene (background textures, motion parameters) comes from
 ``SeedSequence(seed, spawn_key=(0,))``, the sleeve and the illumination drift
-from ``spawn_key=(3,)``; frame ``i``'s image noise, flicker and depth artefacts from
+from ``spawn_key=(3,)``, the two-hand motion from ``spawn_key=(4,)``, the clutter
+from ``spawn_key=(5,)``; frame ``i``'s image noise, flicker and depth artefacts from
 ``spawn_key=(1, i)`` and its skeleton noise from ``spawn_key=(2, i)``. So frame
 ``i`` depends only on ``(seed, i, size, background_frames)`` and random access
 equals iteration. The motion (and so the motion blur) is a function of the
@@ -307,6 +328,8 @@ VARIATIONS = {
     "lighting": (1.0, 0.0, 10.0),
     "skin_tone": (0.0, 0.0, 1.0),
     "skeleton_bias": (1.0, 0.0, 5.0),
+    "clothing": (0.0, 0.0, float(len(sc.CLOTHING_PALETTE) - 1)),
+    "clutter": (0, 0, 30),
 }
 _OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands", *VARIATIONS)
 #: Ground-truth targets of the two-hand scene, the primary one first.
@@ -419,6 +442,8 @@ class SynthSource(ReplaySource):
         lighting: float = VARIATIONS["lighting"][0],
         skin_tone: float = VARIATIONS["skin_tone"][0],
         skeleton_bias: float = VARIATIONS["skeleton_bias"][0],
+        clothing: float = VARIATIONS["clothing"][0],
+        clutter: int = int(VARIATIONS["clutter"][0]),
     ) -> None:
         super().__init__()
         self.depth_noise = _variation("depth_noise", depth_noise)
@@ -426,7 +451,11 @@ class SynthSource(ReplaySource):
         self.lighting = _variation("lighting", lighting)
         self.skin_tone = _variation("skin_tone", skin_tone)
         self.skeleton_bias = _variation("skeleton_bias", skeleton_bias)
+        self.clothing = _variation("clothing", clothing)
+        _, lo, hi = VARIATIONS["clutter"]
+        self.clutter = _int_option("synth option clutter", clutter, int(lo), int(hi))
         self._skin = sc.skin_rgb(self.skin_tone)
+        self._shirt = sc.clothing_rgb(self.clothing)
         self.hands = _int_option("synth option hands", hands, 1, 2)
         self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
@@ -441,6 +470,8 @@ class SynthSource(ReplaySource):
         scene_rng = self._rng(0)
         self._motion = dataclasses.replace(sc.motion_parameters(scene_rng), hand_front=self.hand_front)
         self._background = sc.render_background(self.intrinsics, scene_rng)
+        if self.clutter:
+            self._background = sc.add_clutter(self.intrinsics, self._background, self._rng(5), self.clutter)
         self._bg_depth_valid = self._stereo_valid(self._background.depth_m)
         a = sc.appearance_parameters(self._rng(3))
         self._appearance = dataclasses.replace(
@@ -665,12 +696,14 @@ class SynthSource(ReplaySource):
             p = getattr(pose, name)
             u, v = sc.project(intr, p)
             ww = w if name in ("right_hand", "left_hand") else 0.5 * w if name.endswith("wrist") else 0.0
+            ww *= self.skeleton_bias
             sigma_px = (2.0 + 10.0 * ww) * k
             # joined hands: each joint is pulled half-way to the pair's middle
-            u += 0.5 * ww * (mid[0] - u) + sigma_px * noise[j, 0]
-            v += 0.5 * ww * (mid[1] - v) + sigma_px * noise[j, 1]
+            pull = 0.5 * min(ww, 1.0)
+            u += pull * (mid[0] - u) + sigma_px * noise[j, 0]
+            v += pull * (mid[1] - v) + sigma_px * noise[j, 1]
             z_mm = p[2] * 1000.0 + 15.0 * (1.0 + 2.0 * ww) * noise[j, 2]
-            conf = 0.9 - 0.6 * ww + conf_noise[j]
+            conf = 0.9 - 0.6 * min(ww, 1.0) + conf_noise[j]
             out[name] = Joint(u, v, max(z_mm, 0.0), min(max(conf, 0.0), 1.0))
         return out
 
@@ -826,11 +859,11 @@ class SynthSource(ReplaySource):
             labels = np.zeros(depth_m.shape, np.uint8)
             valid = self._bg_depth_valid
         elif self._wash is not None:
-            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction)
+            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
             color_f, depth_m, labels = sc.composite(bg, parts)
             valid = self._stereo_valid(depth_m)
         else:
-            parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin)
+            parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
             color_f, depth_m, labels = sc.composite(bg, parts, self.blur_kernel(index))
             valid = self._stereo_valid(depth_m)
         color = self._color_image(color_f, index, rng)

@@ -243,6 +243,10 @@ class SynthRig:
         if board:  # the calibration sequence: the board in the empty room
             scene["background_frames"] = scene.get("frames", _SCENE_FRAMES)
         probe = SynthSource(**scene)
+        if probe.clutter:
+            raise InputError(
+                f"synth option clutter must be 0 with cameras >= 2 (the rig renders its own room), got {probe.clutter}"
+            )
         self.poses = rig_poses(self.cameras, probe._rng(11))
         tex = _Textures(probe._rng(10))
         pyramid = None

@@ -41,6 +41,29 @@ HAIR_RGB = (46.0, 34.0, 28.0)
 SKIN_RGB = (218.0, 168.0, 142.0)
 #: The darkest skin tone of the ``skin_tone`` scene option (1.0); 0.0 is :data:`SKIN_RGB`.
 DARK_SKIN_RGB = (92.0, 60.0, 44.0)
+#: Shirt colours of the ``clothing`` scene option (index 0, the default, is :data:`SHIRT_RGB`;
+#: a fractional index blends the two neighbours): navy, a skin-like beige, a wood-like
+#: brown, red, light grey, dark green. Beige and brown are the hard cases for skin cues.
+CLOTHING_PALETTE = (
+    SHIRT_RGB,
+    (214.0, 170.0, 138.0),
+    (150.0, 100.0, 62.0),
+    (158.0, 36.0, 40.0),
+    (196.0, 198.0, 200.0),
+    (40.0, 84.0, 52.0),
+)
+#: Colours of the ``clutter`` objects that are not skin-coloured: wood, light wood, white,
+#: red, blue, green, yellow, black.
+CLUTTER_PALETTE = (
+    (128.0, 84.0, 52.0),
+    (196.0, 152.0, 106.0),
+    (232.0, 232.0, 228.0),
+    (176.0, 40.0, 36.0),
+    (40.0, 70.0, 150.0),
+    (60.0, 130.0, 70.0),
+    (220.0, 190.0, 60.0),
+    (30.0, 30.0, 32.0),
+)
 #: Pale box colours on the shelves (kept away from skin tones on purpose).
 BOX_PALETTE = (
     (226.0, 226.0, 222.0),
@@ -592,15 +615,71 @@ def skin_rgb(tone: float) -> tuple[float, float, float]:
     return tuple(float(a + tone * (b - a)) for a, b in zip(SKIN_RGB, DARK_SKIN_RGB))  # type: ignore[return-value]
 
 
+def clothing_rgb(index: float) -> tuple[float, float, float]:
+    """Shirt colour of ``index`` in ``[0, len(CLOTHING_PALETTE) - 1]``: a palette entry, fractions blend linearly."""
+    i = min(int(index), len(CLOTHING_PALETTE) - 2)
+    t = index - i
+    if t == 0.0:
+        return CLOTHING_PALETTE[i]
+    return tuple(float(a + t * (b - a)) for a, b in zip(CLOTHING_PALETTE[i], CLOTHING_PALETTE[i + 1]))  # type: ignore[return-value]
+
+
+def add_clutter(intr: Intrinsics, bg: Background, rng: np.random.Generator, count: int) -> Background:
+    """``bg`` with ``count`` static objects (boxes and round shapes) standing in the room.
+
+    Every third object (the first included) is skin-coloured (a tone drawn from
+    :func:`skin_rgb`), the others from :data:`CLUTTER_PALETTE`. Even-numbered
+    objects stand at hand depth (1.0-1.4 m) beside the person (normalised
+    ``x`` 0.33-0.5 either side of the person's centre, at hand height); the others
+    are anywhere in front of the wall (2.0-2.8 m). Each has a smooth shading
+    texture; all are drawn nearest last, behind the person.
+    """
+    h, w = intr.height, intr.width
+    xn = ((np.arange(w, dtype=np.float32) - intr.cx) / intr.fx)[None, :]
+    yn = ((np.arange(h, dtype=np.float32) - intr.cy) / intr.fy)[:, None]
+    xn, yn = np.broadcast_to(xn, (h, w)), np.broadcast_to(yn, (h, w))
+    objects = []
+    for k in range(count):
+        u = rng.uniform
+        if k % 3 == 0:
+            rgb = skin_rgb(float(u(0.0, 1.0)))
+        else:
+            rgb = CLUTTER_PALETTE[int(rng.integers(len(CLUTTER_PALETTE)))]
+        if k % 2 == 0:
+            z = float(u(1.0, 1.4))
+            cx = 0.08 + float(rng.choice((-1.0, 1.0))) * float(u(0.33, 0.5))
+            cy = float(u(0.0, 0.3))
+        else:
+            z = float(u(2.0, 2.8))
+            cx, cy = float(u(-0.8, 0.8)), float(u(-0.4, 0.5))
+        half_w, half_h = (float(u(0.04, 0.12)) / z * 1.2 for _ in range(2))
+        round_shape = bool(rng.random() < 0.4)
+        shade = 1.0 + 0.08 * _smooth_field(rng, (h, w), (3, 3))
+        objects.append((z, cx, cy, half_w, half_h, round_shape, np.asarray(rgb, np.float32), shade))
+    color, depth = bg.color.copy(), bg.depth_m.copy()
+    for z, cx, cy, half_w, half_h, round_shape, rgb, shade in sorted(objects, key=lambda o: -o[0]):
+        if round_shape:
+            mask = ((xn - cx) / half_w) ** 2 + ((yn - cy) / half_h) ** 2 <= 1.0
+        else:
+            mask = _box(xn, yn, cx - half_w, cx + half_w, cy - half_h, cy + half_h)
+        color[mask] = rgb * (shade[mask] * bg.vignette[mask, 0])[:, None]
+        depth[mask] = z
+    return Background(color, depth, bg.vignette)
+
+
 def person_parts(
-    intr: Intrinsics, pose: Pose, sleeve_fraction: float, skin: tuple[float, float, float] = SKIN_RGB
+    intr: Intrinsics,
+    pose: Pose,
+    sleeve_fraction: float,
+    skin: tuple[float, float, float] = SKIN_RGB,
+    shirt: tuple[float, float, float] = SHIRT_RGB,
 ) -> list[Part]:
     """Every body part of ``pose``, rasterised (parts outside the image omitted).
 
     The right sleeve is pushed up: the forearm is bare skin from the wrist to
     ``sleeve_fraction`` of its length toward the elbow. The right forearm
     (sleeve and skin) and palm are the ``moving`` parts, last in the list.
-    Skin (face, neck, hands, bare forearm) has colour ``skin``.
+    Skin (face, neck, hands, bare forearm) has colour ``skin``, the shirt ``shirt``.
     """
     x, z, dy = pose.torso[0], pose.torso[2], _drop(pose)
     parts = []
@@ -610,14 +689,14 @@ def person_parts(
             for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
         ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
-    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, shirt, LABEL_CLOTH))
     parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, skin, LABEL_SKIN))
     parts.append(
         _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
     )
     parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2, 0.07, skin, LABEL_SKIN))
-    parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, shirt, LABEL_CLOTH))
+    parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, shirt, LABEL_CLOTH))
     parts.append(
         _ellipse_part(
             intr,
@@ -630,10 +709,10 @@ def person_parts(
             LABEL_SKIN,
         )
     )
-    parts.append(_capsule_part(intr, pose.right_shoulder, pose.right_elbow, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH))
+    parts.append(_capsule_part(intr, pose.right_shoulder, pose.right_elbow, UPPER_ARM_RADIUS, shirt, LABEL_CLOTH))
     sleeve_edge = pose.right_wrist + sleeve_fraction * (pose.right_elbow - pose.right_wrist)
     arm = [
-        _capsule_part(intr, pose.right_elbow, sleeve_edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
+        _capsule_part(intr, pose.right_elbow, sleeve_edge, FOREARM_RADIUS, shirt, LABEL_CLOTH),
         _capsule_part(intr, sleeve_edge, pose.right_wrist, BARE_FOREARM_RADIUS, skin, LABEL_SKIN, round_start=False),
         _ellipse_part(
             intr,
@@ -751,6 +830,9 @@ WASH_KEYS: tuple[tuple[float, float, float], ...] = (
     (285.0, -0.04, 0.0),
     (300.0, -0.30, 0.0),
 )
+#: How much farther in front of the torso than the one-hand scene's ``hand_front`` the
+#: washing palms are (m): 0.22 + 0.06 = 0.28 m by default.
+WASH_EXTRA_FRONT = 0.06
 #: Length of one cycle (frames); odd cycles are mirrored (``d -> -d``), so the motion is continuous.
 WASH_PERIOD = WASH_KEYS[-1][0]
 
@@ -805,7 +887,8 @@ def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
 
     The torso sways as in :func:`pose_at`; the palms are ``d`` apart
     horizontally and ``dy`` vertically (:func:`wash_schedule`) around a centre
-    that drifts slowly, 0.28-0.31 m in front of the torso; while joined they rub
+    that drifts slowly, ``hand_front + 0.06`` m (:data:`WASH_EXTRA_FRONT`; 0.28 by
+    default) in front of the torso, the right palm 0.03 m more while crossing; while joined they rub
     (anti-phase oscillation of ``rub_amp``). Both arms follow by two-link
     inverse kinematics.
     """
@@ -823,8 +906,9 @@ def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
     rub = joined * w.rub_amp * math.sin(two_pi * t / w.rub_period)
     cx = tx + w.centre_amp * math.sin(two_pi * t / w.centre_period + w.centre_phase)
     cy = w.height + w.bob_amp * math.sin(two_pi * t / w.bob_period + w.bob_phase)
-    r_palm = np.array([cx - d / 2.0 + rub, cy - dy / 2.0 - rub, tz - 0.28 - 0.03 * crossing])
-    l_palm = np.array([cx + d / 2.0 - rub, cy + dy / 2.0 + rub, tz - 0.28])
+    front = m.hand_front + WASH_EXTRA_FRONT
+    r_palm = np.array([cx - d / 2.0 + rub, cy - dy / 2.0 - rub, tz - front - 0.03 * crossing])
+    l_palm = np.array([cx + d / 2.0 - rub, cy + dy / 2.0 + rub, tz - front])
     hands = []
     for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
         to_palm = palm - sh
@@ -862,12 +946,19 @@ def face_centre(pose: Pose) -> np.ndarray:
     return pose.head + np.array([0.0, 0.012, -0.02])
 
 
-def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Part]:
+def wash_parts(
+    intr: Intrinsics,
+    pose: Pose,
+    sleeve_fraction: float,
+    skin: tuple[float, float, float] = SKIN_RGB,
+    shirt: tuple[float, float, float] = SHIRT_RGB,
+) -> list[Part]:
     """Every body part of a two-hand ``pose``, rasterised.
 
     Both sleeves are pushed up to ``sleeve_fraction`` of the forearm, both
     palms are ``LABEL_PALM``; the nearer arm is drawn last (on top). Nothing is
-    ``moving`` (the two-hand scene has no motion blur).
+    ``moving`` (the two-hand scene has no motion blur). Skin has colour ``skin``,
+    the shirt ``shirt``.
     """
     x, z, dy = pose.torso[0], pose.torso[2], _drop(pose)
     parts = []
@@ -877,12 +968,12 @@ def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Par
             for dx, y in ((0.02, HIP_Y - 0.02), (0.175, HIP_Y - 0.02), (0.15, 1.2), (0.03, 1.2))
         ]
         parts.append(_polygon_part(intr, leg, x + side * 0.095, 0.08, 0.06, TROUSERS_RGB, LABEL_CLOTH))
-    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, SHIRT_RGB, LABEL_CLOTH))
-    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, SKIN_RGB, LABEL_SKIN))
+    parts.append(_polygon_part(intr, torso_outline(pose), x, 0.21, 0.10, shirt, LABEL_CLOTH))
+    parts.append(_polygon_part(intr, _neck_outline(pose), x, 0.06, 0.02, skin, LABEL_SKIN))
     parts.append(
         _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
     )
-    parts.append(_ellipse_part(intr, face_centre(pose), 0.074, 0.1, math.pi / 2, 0.07, SKIN_RGB, LABEL_SKIN))
+    parts.append(_ellipse_part(intr, face_centre(pose), 0.074, 0.1, math.pi / 2, 0.07, skin, LABEL_SKIN))
     arms = []
     for sh, el, wr, hand in (
         (pose.right_shoulder, pose.right_elbow, pose.right_wrist, pose.right_hand),
@@ -893,9 +984,9 @@ def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Par
             (
                 float(hand[2]),
                 [
-                    _capsule_part(intr, sh, el, UPPER_ARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-                    _capsule_part(intr, el, edge, FOREARM_RADIUS, SHIRT_RGB, LABEL_CLOTH),
-                    _capsule_part(intr, edge, wr, BARE_FOREARM_RADIUS, SKIN_RGB, LABEL_SKIN, round_start=False),
+                    _capsule_part(intr, sh, el, UPPER_ARM_RADIUS, shirt, LABEL_CLOTH),
+                    _capsule_part(intr, el, edge, FOREARM_RADIUS, shirt, LABEL_CLOTH),
+                    _capsule_part(intr, edge, wr, BARE_FOREARM_RADIUS, skin, LABEL_SKIN, round_start=False),
                     _ellipse_part(
                         intr,
                         hand,
@@ -903,7 +994,7 @@ def wash_parts(intr: Intrinsics, pose: Pose, sleeve_fraction: float) -> list[Par
                         PALM_HALF_LENGTH,
                         _hand_angle(intr, wr, hand),
                         PALM_THICKNESS,
-                        SKIN_RGB,
+                        skin,
                         LABEL_PALM,
                         on_top=True,
                     ),

@@ -123,6 +123,23 @@ class SynthOptions:
         help="factor on the skeleton hand's failure (bias toward the torso and jitter) while the palm "
         "is over the body; 0: a skeleton that never fails",
     )
+    clothing: float = option(
+        _SCENE["clothing"],
+        kind="float",
+        lo=VARIATIONS["clothing"][1],
+        hi=VARIATIONS["clothing"][2],
+        help="shirt colour: 0 navy, 1 skin-like beige, 2 wood-like brown, 3 red, 4 light grey, 5 dark green; "
+        "fractions blend the two neighbours",
+    )
+    clutter: int = option(
+        _SCENE["clutter"],
+        kind="int",
+        lo=int(VARIATIONS["clutter"][1]),
+        hi=int(VARIATIONS["clutter"][2]),
+        metavar="N",
+        help="static objects in the room (boxes and round shapes; every third skin-coloured, every second "
+        "at hand depth beside the person), placed from the seed",
+    )
     cameras: int = option(
         1,
         kind="int",

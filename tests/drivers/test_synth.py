@@ -485,6 +485,78 @@ def test_scene_variations_change_what_they_name():
     joints = {b: scene(skeleton_bias=b).joints(occluded)["right_hand"] for b in (0.0, 1.0)}
     errs = {b: np.hypot(j.u - g.u, j.v - g.v) for b, j in joints.items()}
     assert errs[0.0] < 4.0 and errs[1.0] > 10.0  # 1 px noise at 320 px width; bias 12-28 px
+    # clothing: the shirt (person, not skin) takes the palette colour; 1 is skin-like beige
+    shirt = masks["person"] & ~masks["skin"] & (np.arange(200)[:, None] < 120)  # above the trousers
+    beige, bmasks = scene(clothing=1.0).render(idx)
+    assert np.array_equal(bmasks["person"], masks["person"])
+    rgb = {c: f.color[shirt].mean(axis=0) for c, f in ((0, frame), (1, beige))}
+    assert rgb[0][2] > rgb[0][0] + 20 and rgb[1][0] > rgb[1][2] + 40 and rgb[1].mean() > rgb[0].mean() + 100
+    face = cv2.erode(masks["skin"].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & (
+        np.arange(200)[:, None] < 40
+    )
+    assert face.sum() > 30 and np.abs(beige.color[face].astype(int) - frame.color[face]).max() == 0  # skin untouched
+
+
+def test_clutter_adds_static_objects_some_skin_coloured_some_at_hand_depth():
+    """clutter=N: N objects in the empty room, placed from the seed; the person and noise are unchanged."""
+
+    def empty(**kw):
+        return SynthSource(frames=2, seed=4, size=(320, 200), background_frames=2, **kw)._background
+
+    plain, busy = empty(), empty(clutter=9)
+    assert np.array_equal(empty(clutter=9).color, busy.color)  # deterministic from the seed
+    assert not np.array_equal(
+        empty(clutter=9).color, SynthSource(frames=2, seed=5, clutter=9, size=(320, 200))._background.color
+    )
+    moved = np.abs(busy.depth_m - plain.depth_m) > 1e-6
+    assert 0.02 < moved.mean() < 0.5
+    near = moved & (busy.depth_m >= 1.0) & (busy.depth_m <= 1.4)  # at hand depth
+    assert near.sum() > 200
+    # every third object is skin-coloured: some new pixels lie between the light and the dark skin tone
+    lo, hi = np.minimum(sc.SKIN_RGB, sc.DARK_SKIN_RGB), np.maximum(sc.SKIN_RGB, sc.DARK_SKIN_RGB)
+    rgb = busy.color / busy.vignette
+    tone = (rgb >= lo - 12).all(axis=2) & (rgb <= hi + 12).all(axis=2) & (rgb[..., 0] > rgb[..., 2] + 25)
+    assert (tone & moved).sum() > 100 and (tone & ~moved).sum() < 0.2 * (tone & moved).sum()
+    # the person frames keep the body, their skeleton and ground truth
+    a, b = (SynthSource(frames=40, seed=4, size=(320, 200), hands=2, **kw) for kw in ({}, {"clutter": 9}))
+    fa, ma = a.render(30)
+    fb, mb = b.render(30)
+    assert np.array_equal(ma["palm"], mb["palm"]) and fa.ground_truths == fb.ground_truths and fa.joints == fb.joints
+
+
+def test_rig_refuses_clutter_in_one_line():
+    from drivers.synth_rig import SynthRig
+
+    with pytest.raises(InputError, match=r"synth option clutter must be 0 with cameras >= 2 .*got 3"):
+        SynthRig(2, frames=2, size=(64, 40), clutter=3)
+
+
+def test_variations_apply_to_the_two_hand_scene():
+    """Skin tone (both hands, face), clothing, hand distance to the torso and skeleton failure: hands=2 too."""
+    idx = 75  # joined
+
+    def scene(**kw):
+        return SynthSource(frames=120, seed=2, size=(320, 200), hands=2, **kw)
+
+    plain = scene()
+    frame, masks = plain.render(idx)
+    dark, dmasks = scene(skin_tone=1.0).render(idx)
+    assert np.array_equal(masks["skin"], dmasks["skin"])
+    face = masks["skin"] & ~masks["palm"] & (np.arange(200)[:, None] < 60)
+    for region in (masks["palm"], face):
+        assert region.sum() > 50 and dark.color[region].mean() < frame.color[region].mean() - 60
+    shirt = masks["person"] & ~masks["skin"] & (np.arange(200)[:, None] < 120)
+    assert scene(clothing=1.0).render(idx)[0].color[shirt].mean() > frame.color[shirt].mean() + 100
+    for front in (0.05, 0.4):
+        p = scene(hand_front=front).pose(idx)
+        assert p.torso[2] - p.right_hand[2] == pytest.approx(front + sc.WASH_EXTRA_FRONT)
+        assert p.torso[2] - p.left_hand[2] == pytest.approx(front + sc.WASH_EXTRA_FRONT)
+    assert plain.palm_overlap(idx) > 0.4
+    truth = plain.ground_truths(idx)
+    for bias, lo, hi in ((0.0, 0.0, 4.0), (1.0, 6.0, 100.0)):
+        j = scene(skeleton_bias=bias).joints(idx)
+        err = max(np.hypot(j[n].u - truth[n].u, j[n].v - truth[n].v) for n in ("right_hand", "left_hand"))
+        assert lo <= err <= hi, (bias, err)
 
 
 def test_scene_variation_out_of_range_is_one_line():
