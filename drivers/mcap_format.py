@@ -110,6 +110,7 @@ _JPEG_FORMATS = {"jpeg", "jpg", "image/jpeg"}
 _PNG_FORMATS = {"png", "image/png"}
 
 _NUMBER = {"type": "number"}
+_NUMBER_OR_NULL = {"type": ["number", "null"]}
 _UV_QUALITY = {
     "type": ["object", "null"],
     "required": ["u", "v", "quality"],
@@ -217,21 +218,34 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     ESTIMATE_SCHEMA: {
         "$schema": _DRAFT,
         "title": ESTIMATE_SCHEMA,
-        "description": "Tracker palm estimate of one frame.",
+        "description": "Tracker palm estimate of one frame: u, v (null without an estimate), or per target under "
+        "`targets` when several targets are tracked.",
         "type": "object",
-        "required": ["frame", "timestamp_ns", "u", "v"],
+        "required": ["frame", "timestamp_ns"],
         "properties": {
             "frame": {"type": "integer", "minimum": 0},
             "timestamp_ns": {"type": "integer", "minimum": 0},
-            "u": _NUMBER,
-            "v": _NUMBER,
+            "u": _NUMBER_OR_NULL,
+            "v": _NUMBER_OR_NULL,
             "xyz_mm": {"type": ["array", "null"], "items": _NUMBER, "minItems": 3, "maxItems": 3},
-            "ess": _NUMBER,
-            "resampled": {"type": "boolean"},
+            "sigma_px": _NUMBER_OR_NULL,
+            "sigma_mm": _NUMBER_OR_NULL,
+            "ess": _NUMBER_OR_NULL,
+            "resampled": {"type": ["boolean", "null"]},
             "n_particles": {"type": "integer", "minimum": 0},
+            "state": {"type": "string"},
+            "likelihood_evaluations": {"type": "integer", "minimum": 0},
             "filter": {"type": "string"},
             "likelihood": {"type": "string"},
             "latency_ns": {"type": "object", "additionalProperties": {"type": "integer"}},
+            "targets": {
+                "type": "object",
+                "additionalProperties": {
+                    "type": "object",
+                    "required": ["u", "v", "state"],
+                    "properties": {"u": _NUMBER_OR_NULL, "v": _NUMBER_OR_NULL, "state": {"type": "string"}},
+                },
+            },
         },
     },
     CUES_SCHEMA: {
@@ -246,6 +260,8 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "colour": _UV_QUALITY,
             "depth": _UV_QUALITY,
             "skeleton": _UV_QUALITY,
+            "roi": {"type": "array", "items": {"type": "integer"}, "minItems": 4, "maxItems": 4},
+            "targets": {"type": "object", "additionalProperties": {"type": "object"}},
         },
     },
 }
