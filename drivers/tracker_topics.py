@@ -83,6 +83,14 @@ def read_topic(path: str | Path, kind: str) -> list[tuple[int, dict]]:
     return read_json_topic(path, TOPICS[kind])
 
 
+def frame_size(path: str | Path) -> tuple[int, int]:
+    """Image size ``(width, height)`` of the recording at ``path`` (its first frame): the scorer's size reader."""
+    from drivers.mcap_replay import McapReplay
+
+    with McapReplay(Path(path)) as rec:
+        return rec.frame(0).size
+
+
 def recording_metadata(path: str | Path) -> dict[str, str]:
     """The ``fusion_pf.recording`` metadata of an MCAP file (later records override earlier keys; {} if none)."""
     with McapTopics(path) as rec:

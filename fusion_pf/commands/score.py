@@ -145,9 +145,10 @@ def sweep_recording(recording: str, reference, config, counts, args, opts: Score
 
 def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
     """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
+    from drivers.tracker_topics import frame_size
     from fusion_pf.score.targets import score_targets_recording, targets_markdown
 
-    result = score_targets_recording(table, args.ground_truth, read_topic)
+    result = score_targets_recording(table, args.ground_truth, read_topic, frame_size)
     errors = result.pop("errors")
     if args.plots is not None:
         from fusion_pf.score.plots import plot_targets
@@ -170,7 +171,11 @@ def _score_study(args: argparse.Namespace, opts: ScoreOptions, read_topic) -> in
             f"{args.tracked} is a folder: score a study with --ground-truth REF_DIR (no --reference, --sweep, "
             "--plots or --json)"
         )
-    study = score_study(args.tracked, args.ground_truth, read_topic=read_topic, tie_tol=opts.tie_tol)
+    from drivers.tracker_topics import frame_size
+
+    study = score_study(
+        args.tracked, args.ground_truth, read_topic=read_topic, frame_size=frame_size, tie_tol=opts.tie_tol
+    )
     print(study_markdown(study, args.tracked, args.ground_truth), end="")
     return 0
 

@@ -39,6 +39,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -249,6 +250,8 @@ def read_tracker_csv(path: str | Path) -> TrackTable:
 #: ``"estimate"``, ``"cues"`` or ``"ground_truth"``: how MCAP topics are read
 #: (``drivers.tracker_topics.read_topic``); the scorer never opens MCAP files.
 TopicReader = Callable[[str, str], "list[tuple[int, dict]]"]
+#: ``frame_size(recording) -> (width, height)``: the image size of a recording, read by the caller.
+FrameSize = Callable[[Any], tuple[int, int]]
 
 
 def _need_reader(path: str, read_topic: TopicReader | None) -> TopicReader:

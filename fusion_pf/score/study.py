@@ -24,7 +24,7 @@ import numpy as np
 from fusion_pf.errors import InputError
 
 from .evaluate import Evaluation, evaluate, read_reference
-from .inputs import TopicReader
+from .inputs import FrameSize, TopicReader
 from .metrics import TIE_TOL_PX, Score, score
 from .targets import read_targets, score_targets_recording, target_summary
 
@@ -64,9 +64,16 @@ class TargetsStudyScore:
 
 
 def score_study(
-    out_dir: str | Path, reference_dir: str | Path, *, read_topic: TopicReader, tie_tol: float = TIE_TOL_PX
+    out_dir: str | Path,
+    reference_dir: str | Path,
+    *,
+    read_topic: TopicReader,
+    frame_size: FrameSize,
+    tie_tol: float = TIE_TOL_PX,
 ) -> StudyScore | TargetsStudyScore:
     """Score every output of ``out_dir`` against ``reference_dir/NAME.mcap``; pooled over all frames.
+
+    ``frame_size(recording)`` gives a recording's image size (several targets' swap distance).
 
     Raises
     ------
@@ -90,7 +97,7 @@ def score_study(
             f"{outputs[several[0]]} holds several targets but {outputs[one]} one; expected the outputs of one study"
         )
     if several:
-        return _score_targets_study(tables, reference_dir, read_topic)
+        return _score_targets_study(tables, reference_dir, read_topic, frame_size)
     evaluations = {}
     for name, tracked in outputs.items():
         ref = read_reference(ground_truth=reference_dir / f"{name}.mcap", read_topic=read_topic)
@@ -111,10 +118,12 @@ def score_study(
     return StudyScore(evaluations, score(pooled_points, reference_uv, tie_tol=tie_tol))
 
 
-def _score_targets_study(tables: dict, reference_dir: Path, read_topic: TopicReader) -> TargetsStudyScore:
+def _score_targets_study(
+    tables: dict, reference_dir: Path, read_topic: TopicReader, frame_size: FrameSize
+) -> TargetsStudyScore:
     """Each several-target output scored against its recording; pooled per target over every recording."""
     recordings = {
-        name: score_targets_recording(table, reference_dir / f"{name}.mcap", read_topic)
+        name: score_targets_recording(table, reference_dir / f"{name}.mcap", read_topic, frame_size)
         for name, table in tables.items()
     }
     targets: list[str] = []

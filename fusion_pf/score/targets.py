@@ -18,7 +18,7 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, TopicReader, file_kind
+from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, FrameSize, TopicReader, file_kind
 from .metrics import rmse
 
 __all__ = [
@@ -171,13 +171,15 @@ def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, 
     return out
 
 
-def score_targets_recording(table: TargetsTable, recording: str | Path, read_topic: TopicReader) -> dict:
-    """:func:`score_targets` of ``table`` against the ground truth of the multi-target ``recording``."""
-    from drivers.mcap_replay import McapReplay
+def score_targets_recording(
+    table: TargetsTable, recording: str | Path, read_topic: TopicReader, frame_size: FrameSize
+) -> dict:
+    """:func:`score_targets` of ``table`` against the ground truth of the multi-target ``recording``.
 
+    ``frame_size(recording)`` gives its image size (the caller's reader: this package opens no files).
+    """
     truths = truths_by_target(str(recording), read_topic)
-    with McapReplay(Path(recording)) as rec:
-        w, h = rec.frame(0).size
+    w, h = frame_size(recording)
     return score_targets(table, truths, math.hypot(w, h))
 
 
