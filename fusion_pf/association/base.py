@@ -19,7 +19,11 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    between targets at similar distances and cannot pull a target across the
    image; a target without a prediction (uninitialised or lost: acquisition)
    takes a detection no predicted target wants, at the cost of a full gate;
-3. sharing: a target in the ``combined`` state (paper 004: two joined hands
+3. a region detection that spans several targets (its ``bbox`` extra holds the
+   predictions of two targets that are not combined with each other: one blob
+   bridging two hands through the body, or a hand and the torso) measures none
+   of them and is given to none; a combined pair shares it (rule 4);
+4. sharing: a target in the ``combined`` state (paper 004: two joined hands
    make one blob) that got nothing from a source takes its partner's
    detection of that source. No other detection is given to two targets.
 
@@ -32,6 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -116,6 +121,21 @@ def _merge(detections: Sequence[Detection], merge_px: float) -> list[Detection]:
     return out
 
 
+def _spanned(
+    detection: Detection,
+    targets: Sequence[str],
+    predictions: Sequence[tuple[float, float] | None],
+    partners: Mapping[str, str],
+) -> bool:
+    """Whether ``detection``'s region (its ``bbox`` extra) holds the predictions of two targets not combined with each other."""
+    box = detection.measurement.extras.get("bbox")
+    if box is None:
+        return False
+    x, y, w, h = cast("Sequence[float]", box)  # a region cue's [x, y, w, h], full-frame px
+    inside = [t for t, p in zip(targets, predictions) if p is not None and x <= p[0] <= x + w and y <= p[1] <= y + h]
+    return any(partners.get(a) != b for n, a in enumerate(inside) for b in inside[n + 1 :])
+
+
 def associate(
     targets: Sequence[str],
     predictions: Sequence[tuple[float, float] | None],
@@ -162,10 +182,11 @@ def associate(
     for source in sources:
         dets = _merge([d for d in detections if d.source == source], merge_px)
         cost = np.full((k, len(dets)), _FORBIDDEN)
+        spans = [_spanned(d, targets, predictions, partners) for d in dets]
         for i, t in enumerate(targets):
             p = predictions[i]
             for j, d in enumerate(dets):
-                if not compatible(t, d):
+                if not compatible(t, d) or spans[j]:
                     continue
                 if d.label == t and d.label_score >= 1.0:
                     cost[i, j] = 0.0  # a certain label needs no gate

@@ -1038,7 +1038,8 @@ class _Targets:
         config = StateConfig(merge_px=COMBINE_PX * s, split_px=SEPARATE_PX * s, image_size=size)
         positions = [None if (e := results[t].estimate) is None else (e.u, e.v) for t in self.names]
         before = [f.status for f in stages]
-        after = combine_states(before, positions, config)
+        labels = [_label_position(rows[t]) for t in self.names]
+        after = combine_states(before, positions, config, labels)
         for k, (b, a) in enumerate(zip(before, after)):
             t = self.names[k]
             if a.state == TrackState.COMBINED and b.state != TrackState.COMBINED and a.partner is not None:

@@ -75,6 +75,20 @@ def test_one_detection_is_shared_only_by_combined_targets():
     assert picked(joined)["right_hand"] == picked(joined)["left_hand"] == [("colour", 100, 0), ("depth", 101, 0)]
 
 
+def test_a_region_spanning_two_targets_measures_neither_unless_they_are_combined():
+    # hands 100 px apart near the body: one colour region bridges them through the torso (its box holds
+    # both predictions, its centroid lies between them); a small region holds the left hand only
+    bridge = Detection(Measurement("colour", 150, 100, 0.1, {"bbox": [90, 80, 120, 40]}))
+    hand = Detection(Measurement("colour", 198, 101, 0.5, {"bbox": [185, 90, 25, 25]}))
+    preds = [(100.0, 100.0), (200.0, 100.0)]
+    out = associate(HANDS, preds, [bridge, hand, det("depth", 101, 99)], gates=[120, 120])
+    assert picked(out) == {"right_hand": [("depth", 101, 99)], "left_hand": [("colour", 198, 101)]}
+    # joined hands are one region holding both: the combined pair shares it (paper 004)
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    out = associate(HANDS, [(140.0, 100.0), (160.0, 100.0)], [bridge], gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("colour", 150, 100)], "left_hand": [("colour", 150, 100)]}
+
+
 def test_the_head_never_takes_a_hand_detection():
     hand = det("hand", 50, 50)
     labelled = det("colour", 50, 50, "left_hand", 0.9)
