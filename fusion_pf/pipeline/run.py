@@ -1022,13 +1022,14 @@ class _Targets:
 
     def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
         results = {t: f(rows[t]) for t, f in self.stages.items()}
-        first = results[self.names[0]]
-        first.target = self.names[0]
         if len(self.names) == 1:
+            first = results[self.names[0]]
+            first.target = self.names[0]
             return first
         self._supervise(rows, results, size)
         for t, r in results.items():
             r.target = t
+        first = results[self.names[0]]  # after _supervise: a separation may have swapped the results
         first.targets = results
         return first
 
