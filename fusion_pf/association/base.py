@@ -24,8 +24,11 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    bridging two hands through the body, or a hand and the torso) measures none
    of them and is given to none; a combined pair shares it (rule 4);
 4. sharing: a target in the ``combined`` state (paper 004: two joined hands
-   make one blob) that got nothing from a source takes its partner's
-   detection of that source. No other detection is given to two targets.
+   make one blob) takes its partner's detection of a source when it got
+   none of that source or its own lies farther from its prediction (the
+   Hungarian gives each of the pair a detection; the blob they share is the
+   nearer one, not a distractor farther out). No other detection is given
+   to two targets.
 
 Detections of one source closer than ``merge_px`` are one detection (the
 windows of two nearby targets see the same region).
@@ -206,9 +209,16 @@ def associate(
         for i, j in zip(rows, cols):
             if cost[i, j] < _FORBIDDEN:
                 got[targets[i]] = dets[j]
+        own = dict(got)
         for t, q in partners.items():
-            if t in out and t not in got and q in got and compatible(t, got[q]):
-                got[t] = got[q]
+            if t not in out or q not in own or not compatible(t, own[q]):
+                continue
+            p = predictions[targets.index(t)]
+            if t not in own or (
+                p is not None
+                and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])
+            ):
+                got[t] = own[q]
         for t, d in got.items():
             out[t].append(d)
     return out

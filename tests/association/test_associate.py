@@ -89,6 +89,19 @@ def test_a_region_spanning_two_targets_measures_neither_unless_they_are_combined
     assert picked(out) == {"right_hand": [("colour", 150, 100)], "left_hand": [("colour", 150, 100)]}
 
 
+def test_a_combined_pair_shares_its_blob_rather_than_take_a_distractor():
+    # joined hands: one blob between the two predictions, a wood-coloured object 90 px out; the
+    # one-to-one assignment gives each of the pair one of them, the pair shares the nearer blob
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    dets = [det("colour", 363, 262), det("colour", 439, 220), det("depth", 350, 270), det("depth", 380, 268)]
+    out = associate(HANDS, [(356.0, 268.0), (372.0, 268.0)], dets, gates=[120, 120], partners=partners)
+    # separating hands keep their own detections (each nearer its own prediction)
+    assert picked(out) == {
+        "right_hand": [("colour", 363, 262), ("depth", 350, 270)],
+        "left_hand": [("colour", 363, 262), ("depth", 380, 268)],
+    }
+
+
 def test_the_head_never_takes_a_hand_detection():
     hand = det("hand", 50, 50)
     labelled = det("colour", 50, 50, "left_hand", 0.9)
