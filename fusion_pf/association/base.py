@@ -22,7 +22,10 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
 3. a region detection that spans several targets (its ``bbox`` extra holds the
    predictions of two targets that are not combined with each other: one blob
    bridging two hands through the body, or a hand and the torso) measures none
-   of them and is given to none; a combined pair shares it (rule 4);
+   of them and is given to none, and the targets it holds take no other
+   detection of that source (the cue saw them only merged into it; another of
+   its regions is something else, e.g. clutter); a combined pair shares it
+   (rule 4);
 4. sharing: a target in the ``combined`` state (paper 004: two joined hands
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the
@@ -129,14 +132,15 @@ def _spanned(
     targets: Sequence[str],
     predictions: Sequence[tuple[float, float] | None],
     partners: Mapping[str, str],
-) -> bool:
-    """Whether ``detection``'s region (its ``bbox`` extra) holds the predictions of two targets not combined with each other."""
+) -> set[str]:
+    """The targets whose predictions ``detection``'s region (its ``bbox`` extra) holds when it holds two not combined with each other (else none)."""
     box = detection.measurement.extras.get("bbox")
     if box is None:
-        return False
+        return set()
     x, y, w, h = cast("Sequence[float]", box)  # a region cue's [x, y, w, h], full-frame px
     inside = [t for t, p in zip(targets, predictions) if p is not None and x <= p[0] <= x + w and y <= p[1] <= y + h]
-    return any(partners.get(a) != b for n, a in enumerate(inside) for b in inside[n + 1 :])
+    spans = any(partners.get(a) != b for n, a in enumerate(inside) for b in inside[n + 1 :])
+    return set(inside) if spans else set()
 
 
 def associate(
@@ -186,10 +190,11 @@ def associate(
         dets = _merge([d for d in detections if d.source == source], merge_px)
         cost = np.full((k, len(dets)), _FORBIDDEN)
         spans = [_spanned(d, targets, predictions, partners) for d in dets]
+        blind = set().union(*spans)  # this source saw these targets only inside a spanning region
         for i, t in enumerate(targets):
             p = predictions[i]
             for j, d in enumerate(dets):
-                if not compatible(t, d) or spans[j]:
+                if not compatible(t, d) or spans[j] or t in blind:
                     continue
                 if d.label == t and d.label_score >= 1.0:
                     cost[i, j] = 0.0  # a certain label needs no gate

@@ -77,12 +77,17 @@ def test_one_detection_is_shared_only_by_combined_targets():
 
 def test_a_region_spanning_two_targets_measures_neither_unless_they_are_combined():
     # hands 100 px apart near the body: one colour region bridges them through the torso (its box holds
-    # both predictions, its centroid lies between them); a small region holds the left hand only
+    # both predictions, its centroid lies between them); a wood-coloured object beside the right hand
     bridge = Detection(Measurement("colour", 150, 100, 0.1, {"bbox": [90, 80, 120, 40]}))
-    hand = Detection(Measurement("colour", 198, 101, 0.5, {"bbox": [185, 90, 25, 25]}))
+    clutter = Detection(Measurement("colour", 130, 60, 0.5, {"bbox": [120, 50, 20, 20]}))
     preds = [(100.0, 100.0), (200.0, 100.0)]
-    out = associate(HANDS, preds, [bridge, hand, det("depth", 101, 99)], gates=[120, 120])
-    assert picked(out) == {"right_hand": [("depth", 101, 99)], "left_hand": [("colour", 198, 101)]}
+    out = associate(HANDS, preds, [bridge, clutter, det("depth", 101, 99)], gates=[120, 120])
+    # neither takes the bridge nor, seen by the colour cue only inside it, the clutter; depth is its own
+    assert picked(out) == {"right_hand": [("depth", 101, 99)], "left_hand": []}
+    # a region holding one target's prediction only is that target's; the other keeps its own region
+    hand = Detection(Measurement("colour", 260, 100, 0.5, {"bbox": [250, 90, 20, 20]}))
+    out = associate(HANDS, [(100.0, 100.0), (262.0, 100.0)], [bridge, hand], gates=[120, 120])
+    assert picked(out) == {"right_hand": [("colour", 150, 100)], "left_hand": [("colour", 260, 100)]}
     # joined hands are one region holding both: the combined pair shares it (paper 004)
     partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
     out = associate(HANDS, [(140.0, 100.0), (160.0, 100.0)], [bridge], gates=[120, 120], partners=partners)
