@@ -19,9 +19,19 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    between targets at similar distances and cannot pull a target across the
    image; a target without a prediction (uninitialised or lost: acquisition)
    takes a detection no predicted target wants, at the cost of a full gate;
-3. sharing: a target in the ``combined`` state (paper 004: two joined hands
-   make one blob) that got nothing from a source takes its partner's
-   detection of that source. No other detection is given to two targets.
+3. a region detection that spans several targets (its ``bbox`` extra holds the
+   predictions of two targets that are not combined with each other: one blob
+   bridging two hands through the body, or a hand and the torso) measures none
+   of them and is given to none, and the targets it holds take no other
+   detection of that source (the cue saw them only merged into it; another of
+   its regions is something else, e.g. clutter); a combined pair shares it
+   (rule 4);
+4. sharing: a target in the ``combined`` state (paper 004: two joined hands
+   make one blob) takes its partner's detection of a source when it got
+   none of that source or its own lies farther from its prediction (the
+   Hungarian gives each of the pair a detection; the blob they share is the
+   nearer one, not a distractor farther out). No other detection is given
+   to two targets.
 
 Detections of one source closer than ``merge_px`` are one detection (the
 windows of two nearby targets see the same region).
@@ -32,6 +42,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -116,6 +127,22 @@ def _merge(detections: Sequence[Detection], merge_px: float) -> list[Detection]:
     return out
 
 
+def _spanned(
+    detection: Detection,
+    targets: Sequence[str],
+    predictions: Sequence[tuple[float, float] | None],
+    partners: Mapping[str, str],
+) -> set[str]:
+    """The targets whose predictions ``detection``'s region (its ``bbox`` extra) holds when it holds two not combined with each other (else none)."""
+    box = detection.measurement.extras.get("bbox")
+    if box is None:
+        return set()
+    x, y, w, h = cast("Sequence[float]", box)  # a region cue's [x, y, w, h], full-frame px
+    inside = [t for t, p in zip(targets, predictions) if p is not None and x <= p[0] <= x + w and y <= p[1] <= y + h]
+    spans = any(partners.get(a) != b for n, a in enumerate(inside) for b in inside[n + 1 :])
+    return set(inside) if spans else set()
+
+
 def associate(
     targets: Sequence[str],
     predictions: Sequence[tuple[float, float] | None],
@@ -162,10 +189,12 @@ def associate(
     for source in sources:
         dets = _merge([d for d in detections if d.source == source], merge_px)
         cost = np.full((k, len(dets)), _FORBIDDEN)
+        spans = [_spanned(d, targets, predictions, partners) for d in dets]
+        blind = set().union(*spans)  # this source saw these targets only inside a spanning region
         for i, t in enumerate(targets):
             p = predictions[i]
             for j, d in enumerate(dets):
-                if not compatible(t, d):
+                if not compatible(t, d) or spans[j] or t in blind:
                     continue
                 if d.label == t and d.label_score >= 1.0:
                     cost[i, j] = 0.0  # a certain label needs no gate
@@ -185,9 +214,16 @@ def associate(
         for i, j in zip(rows, cols):
             if cost[i, j] < _FORBIDDEN:
                 got[targets[i]] = dets[j]
+        own = dict(got)
         for t, q in partners.items():
-            if t in out and t not in got and q in got and compatible(t, got[q]):
-                got[t] = got[q]
+            if t not in out or q not in own or not compatible(t, own[q]):
+                continue
+            p = predictions[targets.index(t)]
+            if t not in own or (
+                p is not None
+                and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])
+            ):
+                got[t] = own[q]
         for t, d in got.items():
             out[t].append(d)
     return out

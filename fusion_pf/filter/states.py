@@ -211,7 +211,10 @@ def step_state(status: TrackStatus, evidence: Evidence, config: StateConfig) -> 
 
 
 def combine_states(
-    statuses: Sequence[TrackStatus], positions: Sequence[tuple[float, float] | None], config: StateConfig
+    statuses: Sequence[TrackStatus],
+    positions: Sequence[tuple[float, float] | None],
+    config: StateConfig,
+    labels: Sequence[tuple[float, float] | None] | None = None,
 ) -> list[TrackStatus]:
     """The ``combined`` transitions between targets (paper 004 §5.2), after :func:`step_state`.
 
@@ -223,12 +226,21 @@ def combine_states(
     :func:`reassign_identities`). A combined target whose partner is lost
     becomes ``tracking`` again.
 
+    ``labels``: where each target's own labelled evidence (its skeleton joint)
+    puts it this frame. Two targets whose labels are both known and farther
+    than ``split_px`` apart are apart whatever their estimates say (two
+    estimates held together by one shared blob): a combined pair separates,
+    and such a pair does not combine (nor does a pair in the frame it
+    separated).
+
     Parameters
     ----------
     statuses : sequence of TrackStatus, length K
     positions : sequence of (u, v) or None, length K
         This frame's estimates.
     config : StateConfig
+    labels : sequence of (u, v) or None, length K, optional
+        This frame's label positions (None: no label evidence).
 
     Returns
     -------
@@ -239,9 +251,16 @@ def combine_states(
     out = list(statuses)
     k = len(out)
 
-    def dist(i: int, j: int) -> float:
-        a, b = positions[i], positions[j]
+    if labels is not None and len(labels) != k:
+        raise InputError(f"statuses and labels must have the same length, got {k} and {len(labels)}")
+
+    def dist(i: int, j: int, at: Sequence[tuple[float, float] | None] = positions) -> float:
+        a, b = at[i], at[j]
         return math.inf if a is None or b is None else math.hypot(a[0] - b[0], a[1] - b[1])
+
+    def apart(i: int, j: int) -> bool:
+        """Whether the labels of ``i`` and ``j`` are both known and farther than ``split_px`` apart."""
+        return labels is not None and dist(i, j, labels) < math.inf and dist(i, j, labels) > config.split_px
 
     for i in range(k):
         s = out[i]
@@ -250,14 +269,21 @@ def combine_states(
         j = s.partner
         if j is None or out[j].state == TrackState.LOST or positions[i] is None:
             out[i] = replace(s, state=TrackState.TRACKING, partner=None)
-        elif dist(i, j) > config.split_px:
+        elif dist(i, j) > config.split_px or apart(i, j):
             out[i] = replace(s, state=TrackState.UNLABELLED, partner=None)
     active = (TrackState.TRACKING, TrackState.UNLABELLED)
+    separated = {
+        i for i in range(k) if statuses[i].state == TrackState.COMBINED and out[i].state != TrackState.COMBINED
+    }
     pairs = sorted(
         (dist(i, j), i, j)
         for i in range(k)
         for j in range(i + 1, k)
-        if out[i].state in active and out[j].state in active and dist(i, j) < config.merge_px
+        if out[i].state in active
+        and out[j].state in active
+        and dist(i, j) < config.merge_px
+        and not apart(i, j)
+        and not {i, j} <= separated
     )
     for _, i, j in pairs:
         if out[i].state in active and out[j].state in active:

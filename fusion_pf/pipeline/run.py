@@ -1022,13 +1022,14 @@ class _Targets:
 
     def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
         results = {t: f(rows[t]) for t, f in self.stages.items()}
-        first = results[self.names[0]]
-        first.target = self.names[0]
         if len(self.names) == 1:
+            first = results[self.names[0]]
+            first.target = self.names[0]
             return first
         self._supervise(rows, results, size)
         for t, r in results.items():
             r.target = t
+        first = results[self.names[0]]  # after _supervise: a separation may have swapped the results
         first.targets = results
         return first
 
@@ -1038,7 +1039,8 @@ class _Targets:
         config = StateConfig(merge_px=COMBINE_PX * s, split_px=SEPARATE_PX * s, image_size=size)
         positions = [None if (e := results[t].estimate) is None else (e.u, e.v) for t in self.names]
         before = [f.status for f in stages]
-        after = combine_states(before, positions, config)
+        labels = [_label_position(rows[t]) for t in self.names]
+        after = combine_states(before, positions, config, labels)
         for k, (b, a) in enumerate(zip(before, after)):
             t = self.names[k]
             if a.state == TrackState.COMBINED and b.state != TrackState.COMBINED and a.partner is not None:

@@ -75,6 +75,38 @@ def test_one_detection_is_shared_only_by_combined_targets():
     assert picked(joined)["right_hand"] == picked(joined)["left_hand"] == [("colour", 100, 0), ("depth", 101, 0)]
 
 
+def test_a_region_spanning_two_targets_measures_neither_unless_they_are_combined():
+    # hands 100 px apart near the body: one colour region bridges them through the torso (its box holds
+    # both predictions, its centroid lies between them); a wood-coloured object beside the right hand
+    bridge = Detection(Measurement("colour", 150, 100, 0.1, {"bbox": [90, 80, 120, 40]}))
+    clutter = Detection(Measurement("colour", 130, 60, 0.5, {"bbox": [120, 50, 20, 20]}))
+    preds = [(100.0, 100.0), (200.0, 100.0)]
+    out = associate(HANDS, preds, [bridge, clutter, det("depth", 101, 99)], gates=[120, 120])
+    # neither takes the bridge nor, seen by the colour cue only inside it, the clutter; depth is its own
+    assert picked(out) == {"right_hand": [("depth", 101, 99)], "left_hand": []}
+    # a region holding one target's prediction only is that target's; the other keeps its own region
+    hand = Detection(Measurement("colour", 260, 100, 0.5, {"bbox": [250, 90, 20, 20]}))
+    out = associate(HANDS, [(100.0, 100.0), (262.0, 100.0)], [bridge, hand], gates=[120, 120])
+    assert picked(out) == {"right_hand": [("colour", 150, 100)], "left_hand": [("colour", 260, 100)]}
+    # joined hands are one region holding both: the combined pair shares it (paper 004)
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    out = associate(HANDS, [(140.0, 100.0), (160.0, 100.0)], [bridge], gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("colour", 150, 100)], "left_hand": [("colour", 150, 100)]}
+
+
+def test_a_combined_pair_shares_its_blob_rather_than_take_a_distractor():
+    # joined hands: one blob between the two predictions, a wood-coloured object 90 px out; the
+    # one-to-one assignment gives each of the pair one of them, the pair shares the nearer blob
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    dets = [det("colour", 363, 262), det("colour", 439, 220), det("depth", 350, 270), det("depth", 380, 268)]
+    out = associate(HANDS, [(356.0, 268.0), (372.0, 268.0)], dets, gates=[120, 120], partners=partners)
+    # separating hands keep their own detections (each nearer its own prediction)
+    assert picked(out) == {
+        "right_hand": [("colour", 363, 262), ("depth", 350, 270)],
+        "left_hand": [("colour", 363, 262), ("depth", 380, 268)],
+    }
+
+
 def test_the_head_never_takes_a_hand_detection():
     hand = det("hand", 50, 50)
     labelled = det("colour", 50, 50, "left_hand", 0.9)

@@ -79,6 +79,22 @@ def test_combine_then_separate():
     assert s[0].state == TrackState.TRACKING
 
 
+def test_labels_apart_separate_a_pair_one_shared_blob_holds_together():
+    c = [TrackStatus(TrackState.COMBINED, partner=1), TrackStatus(TrackState.COMBINED, partner=0)]
+    together = [(100.0, 100.0), (102.0, 100.0)]  # both estimates on the blob shared by the combination
+    s = combine_states(c, together, CFG, [(90.0, 100.0), (115.0, 100.0)])  # joints within split_px
+    assert [x.state for x in s] == [TrackState.COMBINED] * 2
+    s = combine_states(c, together, CFG, [(80.0, 100.0), (120.0, 100.0)])  # joints 40 px > split_px apart
+    assert [x.state for x in s] == [TrackState.UNLABELLED] * 2  # separated, not combined again at once
+    # a pair whose joints are apart does not combine, one without both joints does
+    t = [TrackStatus(TrackState.TRACKING)] * 2
+    assert combine_states(t, together, CFG, [(80.0, 100.0), (120.0, 100.0)]) == t
+    s = combine_states(t, together, CFG, [(80.0, 100.0), None])
+    assert [x.state for x in s] == [TrackState.COMBINED] * 2
+    with pytest.raises(InputError, match="labels"):
+        combine_states(t, together, CFG, [None])
+
+
 def test_state_machine_for_three_targets():
     fsm = TrackStateMachine(["right_hand", "left_hand", "head"], CFG)
     ev = {

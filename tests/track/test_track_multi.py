@@ -137,3 +137,16 @@ def test_one_target_named_is_the_single_palm(scene_frames):
     for a, r in zip(single, named):
         b = r.estimate
         assert (a is None) == (b is None) and (a is None or (a.u, a.v) == (b.u, b.v))
+
+
+def test_hands_near_the_body_keep_off_the_region_bridging_them():
+    """Palms 10 % in front of the body (320 x 200): after the crossing, colour and depth see one region
+    from hand to hand through the torso; no estimate may follow its centroid between the hands."""
+    with SynthSource(seed=1024, frames=330, size=(320, 200), hands=2, background_frames=30, hand_front=0.1) as src:
+        frames = list(src)
+    est, _, truth = _run(frames, TrackConfig(targets=HANDS))
+    apart = np.hypot(*(truth["right_hand"] - truth["left_hand"]).T) > 40.0
+    assert apart.sum() > 50
+    for t in HANDS:
+        err = np.hypot(*(est[t] - truth[t]).T)
+        assert np.isfinite(err).all() and err[apart].max() < 15.0, (t, float(err[apart].max()))
