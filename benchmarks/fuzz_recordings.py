@@ -183,6 +183,15 @@ def _reported(stats: object) -> tuple[int, bool]:
     return int(getattr(stats, "dropped", 0)), any("truncated" in note for note in notes)
 
 
+def _skipped_counts(skipped: re.Match | None) -> tuple[int, bool]:
+    """Frames the loss line counts, and whether it says an unknown number more were lost."""
+    if skipped is None:
+        return 0, False
+    if not skipped.group(1).isdigit():
+        return 0, True
+    return int(skipped.group(1)), bool(skipped.group(2))
+
+
 def _unaccounted(truth: dict, read: set[int], lost: int, unknown: bool) -> int:
     """Frames neither read nor within the reported count ``lost``; with an uncountable tail, frames after the last read one are covered."""
     missing = set(range(truth["frames"])) - read
@@ -271,8 +280,9 @@ def check_info(path: str, truth: dict) -> dict:
 
 #: ``tracked 34 frames (4 background, 2 background lost) of ...``
 _TRACKED = re.compile(r"^tracked (\d+) frames \((\d+) background(?:, (\d+) background lost)?\)")
-#: ``fusion-pf: warning: skipped 2+ frames: ...``
-_SKIPPED = re.compile(r"^fusion-pf: warning: skipped (\d+)(\+?) frames?")
+#: ``fusion-pf: warning: skipped 2 frames and an unknown number more: ...`` (``skipped an unknown number of
+#: frames`` when that is all)
+_SKIPPED = re.compile(r"^fusion-pf: warning: skipped (\d+|an unknown number of) frames?( and an unknown number more)?")
 
 
 def check_track(path: str, truth: dict) -> dict:
@@ -308,8 +318,7 @@ def check_track(path: str, truth: dict) -> dict:
     skipped = next((m for m in map(_SKIPPED.match, lines) if m), None)
     if head is None or int(head.group(1)) != len(rows):
         return {"class": "traceback", "detail": f"summary line missing or wrong: {lines[:3]}"}
-    lost = int(skipped.group(1)) if skipped else 0
-    unknown = bool(skipped and skipped.group(2))
+    lost, unknown = _skipped_counts(skipped)
     try:  # which frames the file still holds (the recording's own times identify them)
         with McapReplay(path) as replay:
             read = {by_time[f.timestamp_ns] for f in replay}
@@ -381,8 +390,7 @@ def _counted(argv: list[str], truth: dict) -> dict:
     if code not in (0, 3) or done is None:
         return {"class": "traceback", "detail": f"exit {code}: {(lines or [''])[-1][:300]}"}
     skipped = next((m for m in map(_SKIPPED.match, lines) if m), None)
-    lost = int(skipped.group(1)) if skipped else 0
-    unknown = bool(skipped and skipped.group(2))
+    lost, unknown = _skipped_counts(skipped)
     frames = int(done.group(1))
     silent = 0 if unknown else max(0, truth["frames"] - frames - lost)
     detail = {"frames": frames, "reported_lost": lost, "unknown": unknown, "silent": silent, "exit": code}
