@@ -285,31 +285,45 @@ _TRACKED = re.compile(r"^tracked (\d+) frames \((\d+) background(?:, (\d+) backg
 _SKIPPED = re.compile(r"^fusion-pf: warning: skipped (\d+|an unknown number of) frames?( and an unknown number more)?")
 
 
+def _run_cli(argv: list[str]) -> tuple[dict | None, int, str, str, list[str]]:
+    """``cli.main(argv)`` with its output captured: ``(outcome, exit, stdout, stderr, non-blank stderr lines)``.
+
+    ``outcome`` is the class when that is already decided (a traceback, or a refusal
+    in one line or more), else None.
+    """
+    from fusion_pf import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            code = cli.main(argv)
+    except BaseException as exc:
+        return {"class": "traceback", "detail": f"{type(exc).__name__}: {str(exc)[:300]}"}, -1, "", "", []
+    text = err.getvalue()
+    lines = [line for line in text.splitlines() if line.strip()]
+    if "Traceback" in text:
+        return {"class": "traceback", "detail": text[-300:]}, code, out.getvalue(), text, lines
+    if code == 2:
+        ok = len([line for line in lines if line.startswith("fusion-pf: error:")]) == 1
+        outcome = {"class": "refused-one-line" if ok else "traceback", "detail": (lines or [""])[-1][:300]}
+        return outcome, code, out.getvalue(), text, lines
+    return None, code, out.getvalue(), text, lines
+
+
 def check_track(path: str, truth: dict) -> dict:
     """``fusion-pf track PATH -o OUT --csv OUT.csv`` through ``cli.main``; count silent frames; classify."""
     from drivers.mcap_replay import McapReplay
-    from fusion_pf import cli
     from fusion_pf.errors import FusionPFError
 
     by_time = {t: i for i, t in enumerate(truth["times"])}
     k = truth["background"]
-    out, err = io.StringIO(), io.StringIO()
     with tempfile.TemporaryDirectory() as tmp:
         table = Path(tmp) / "out.csv"
-        try:
-            with redirect_stdout(out), redirect_stderr(err):
-                code = cli.main(
-                    ["track", path, "-o", str(Path(tmp) / "out.mcap"), "--csv", str(table), "--no-progress"]
-                )
-        except BaseException as exc:
-            return {"class": "traceback", "detail": f"{type(exc).__name__}: {str(exc)[:300]}"}
-        text = err.getvalue()
-        lines = [line for line in text.splitlines() if line.strip()]
-        if "Traceback" in text:
-            return {"class": "traceback", "detail": text[-300:]}
-        if code == 2:
-            ok = len([line for line in lines if line.startswith("fusion-pf: error:")]) == 1
-            return {"class": "refused-one-line" if ok else "traceback", "detail": (lines or [""])[-1][:300]}
+        failed, code, _out, text, lines = _run_cli(
+            ["track", path, "-o", str(Path(tmp) / "out.mcap"), "--csv", str(table), "--no-progress"]
+        )
+        if failed is not None:
+            return failed
         if code not in (0, 3):
             return {"class": "traceback", "detail": f"exit {code}: {(lines or [''])[-1][:300]}"}
         with open(table, newline="") as fh:
@@ -371,22 +385,10 @@ _DONE = re.compile(r"^(?:imported|tracked) (\d+) frames", re.M)
 
 def _counted(argv: list[str], truth: dict) -> dict:
     """Run a command that reads a whole video; its frames done plus its frames reported must be all of them."""
-    from fusion_pf import cli
-
-    out, err = io.StringIO(), io.StringIO()
-    try:
-        with redirect_stdout(out), redirect_stderr(err):
-            code = cli.main(argv)
-    except BaseException as exc:
-        return {"class": "traceback", "detail": f"{type(exc).__name__}: {str(exc)[:300]}"}
-    text = err.getvalue()
-    lines = [line for line in text.splitlines() if line.strip()]
-    if "Traceback" in text:
-        return {"class": "traceback", "detail": text[-300:]}
-    if code == 2:
-        ok = len([line for line in lines if line.startswith("fusion-pf: error:")]) == 1
-        return {"class": "refused-one-line" if ok else "traceback", "detail": (lines or [""])[-1][:300]}
-    done = _DONE.search(out.getvalue() + text)
+    failed, code, out, text, lines = _run_cli(argv)
+    if failed is not None:
+        return failed
+    done = _DONE.search(out + text)
     if code not in (0, 3) or done is None:
         return {"class": "traceback", "detail": f"exit {code}: {(lines or [''])[-1][:300]}"}
     skipped = next((m for m in map(_SKIPPED.match, lines) if m), None)
