@@ -52,6 +52,8 @@ HAND_TOPIC = "/hand/landmarks"
 ESTIMATE_TOPIC = "/tracker/estimate"
 #: JSON fusion_pf.Cues, written by ``fusion-pf track -o``.
 CUES_TOPIC = "/tracker/cues"
+#: JSON fusion_pf.WorldEstimate: the multi-camera (world) tracker's targets, one message per instant.
+WORLD_ESTIMATE_TOPIC = "/tracker/world"
 #: foxglove.ImageAnnotations, written by ``fusion-pf track -o``.
 OVERLAY_TOPIC = "/tracker/overlay"
 #: foxglove.PointCloud, written by ``fusion-pf track -o``.
@@ -99,6 +101,8 @@ WORLD_POINT_SCHEMA = "fusion_pf.TargetWorldPoint"
 VISIBILITY_SCHEMA = "fusion_pf.Visibility"
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
+#: The world tracker's estimate of one instant (every target: world position, state, cameras, pixels).
+WORLD_ESTIMATE_SCHEMA = "fusion_pf.WorldEstimate"
 CUES_SCHEMA = "fusion_pf.Cues"
 
 #: Colour formats the recorder writes: raw rgb8, JPEG or PNG.
@@ -231,6 +235,40 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "visible": {
                 "type": "object",
                 "additionalProperties": {"type": "array", "items": {"type": "string", "minLength": 1}},
+            },
+        },
+    },
+    WORLD_ESTIMATE_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": WORLD_ESTIMATE_SCHEMA,
+        "description": "Multi-camera tracker output of one instant: per target its world position (mm), state, "
+        "uncertainty, the cameras that measured it and its pixel in each camera (null: not in that image).",
+        "type": "object",
+        "required": ["timestamp_ns", "targets"],
+        "properties": {
+            "timestamp_ns": {"type": "integer", "minimum": 0},
+            "targets": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "required": ["target"],
+                    "properties": {
+                        "target": {"type": "string", "minLength": 1},
+                        "state": {"type": ["string", "null"]},
+                        "position_mm": {"type": ["array", "null"], "items": _NUMBER, "minItems": 3, "maxItems": 3},
+                        "sigma_mm": _NUMBER_OR_NULL,
+                        "cameras": {"type": "array", "items": {"type": "string"}},
+                        "pixels": {
+                            "type": "object",
+                            "additionalProperties": {
+                                "type": ["array", "null"],
+                                "items": _NUMBER,
+                                "minItems": 2,
+                                "maxItems": 2,
+                            },
+                        },
+                    },
+                },
             },
         },
     },

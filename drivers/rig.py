@@ -24,7 +24,7 @@ import dataclasses
 import heapq
 import json
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -275,7 +275,7 @@ class RigReplay:
             (or several different ones) on ``/tf``, or a camera's topics break the convention.
         """
         with McapTopics(self.path) as topics:
-            found = sorted(m.group(1) for t in topics.topics if (m := _CAMERA_COLOR.match(t)))
+            found = colour_cameras(topics.topics)
             if not found:
                 listed = ", ".join(sorted(topics.topics)) or "none"
                 raise RecordingError(
@@ -299,11 +299,7 @@ class RigReplay:
         self.replays = {}
 
     def _read_poses(self, topics: McapTopics) -> dict[str, CameraPose]:
-        seen: dict[str, set[CameraPose]] = {}
-        for t, _encoding, data in topics.messages(fmt.TF_TOPIC):
-            parent, child, pose = fmt.decode_transform(data, f"{fmt.TF_TOPIC} at t={t} ns")
-            if parent == WORLD_FRAME and child in self.cameras:
-                seen.setdefault(child, set()).add(pose)
+        seen = tf_poses(topics)
         poses = {}
         meta = topics.metadata()
         for name in self.cameras:
@@ -346,6 +342,11 @@ class RigReplay:
             for t, _encoding, data in messages
             for where in [f"{fmt.VISIBILITY_TOPIC} at t={t} ns"]
         }
+
+    @property
+    def world_truth(self) -> dict[int, dict[str, np.ndarray]] | None:
+        """Per instant (ns), the world ground truth (mm) per target; None when the recording has none."""
+        return self._truth
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -423,7 +424,22 @@ class RigReplay:
 def is_rig(path: str | Path) -> bool:
     """Whether ``path`` is a multi-camera recording (has a ``/<camera>/camera/color`` topic)."""
     with McapTopics(path) as topics:
-        return any(_CAMERA_COLOR.match(t) for t in topics.topics)
+        return bool(colour_cameras(topics.topics))
+
+
+def colour_cameras(topics: Iterable[str]) -> list[str]:
+    """The cameras (sorted) that have a ``/<camera>/camera/color`` topic among ``topics``."""
+    return sorted(m.group(1) for t in topics if (m := _CAMERA_COLOR.match(t)))
+
+
+def tf_poses(topics: McapTopics) -> dict[str, set[CameraPose]]:
+    """Every pose from ``world`` on ``/tf`` of an open file, per camera (child frame)."""
+    seen: dict[str, set[CameraPose]] = {}
+    for t, _encoding, data in topics.messages(fmt.TF_TOPIC):
+        parent, child, pose = fmt.decode_transform(data, f"{fmt.TF_TOPIC} at t={t} ns")
+        if parent == WORLD_FRAME:
+            seen.setdefault(child, set()).add(pose)
+    return seen
 
 
 # --------------------------------------------------------------------------- merging
