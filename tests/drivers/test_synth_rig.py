@@ -164,31 +164,40 @@ def _window(img, u, v, r=3):
     return img[v - r : v + r + 1, u - r : u + r + 1]
 
 
-def test_a_card_hides_a_hand_from_one_camera_during_its_period_only():
-    scene = dict(frames=9, seed=41, size=(320, 200), background_frames=1, hands=2, depth_model="basic")
-    hidden = SynthRig(3, occlude="cam1:right_hand:3-5", **scene)
+@pytest.mark.parametrize(
+    "hands, camera, target, joints",
+    [
+        (2, "cam1", "right_hand", ("right_hand", "right_wrist")),
+        (1, "cam1", "right_hand", ("right_hand", "right_wrist")),  # the one-hand scene: the card over the motion blur
+        (2, "cam0", "head", ("head",)),
+    ],
+)
+def test_a_card_hides_a_target_from_one_camera_during_its_period_only(hands, camera, target, joints):
+    scene = dict(frames=9, seed=41, size=(320, 200), background_frames=1, hands=hands, depth_model="basic")
+    hidden = SynthRig(3, occlude=f"{camera}:{target}:3-5", **scene)
     plain = SynthRig(3, **scene)
     for i in range(1, 9):
         (frames, visible), base = hidden.render(i), plain.frames(i)
-        xyz = hidden.truth_mm(i)["right_hand"]
+        truth = hidden.truth_mm(i)
+        xyz = truth[target]
         during = 3 <= i <= 5
         for name, frame in frames.items():
             cam = hidden.poses[name].to_camera(xyz[None])
             u, v = _project(frame.intrinsics, cam)[0]
-            assert 10 <= u < 310 and 10 <= v < 190, (name, i)  # the palm is inside every image
+            assert 10 <= u < 310 and 10 <= v < 190, (name, i)  # the target is inside every image
             skin = _window(base[name].color, u, v).reshape(-1, 3).mean(axis=0)
-            assert skin[0] - skin[2] > 40, (name, i)  # without a card every camera shows the palm's skin
-            if name == "cam1" and during:
+            assert skin[0] - skin[2] > 40, (name, i)  # without a card every camera shows the target's skin
+            if name == camera and during:
                 seen = _window(frame.color, u, v).reshape(-1, 3).mean(axis=0)
                 assert abs(seen[0] - seen[2]) < 25 and np.abs(seen - skin).max() > 60, i  # the card, not skin
                 depth = _window(frame.depth, u, v).astype(float)
-                assert np.median(depth[depth > 0]) < 0.6 * cam[0, 2], i  # the card is nearer than the palm
-                assert "right_hand" not in frame.joints and "right_wrist" not in frame.joints
-                assert "right_hand" not in visible[name] and "left_hand" in visible[name]
+                assert np.median(depth[depth > 0]) < 0.6 * cam[0, 2], i  # the card is nearer than the target
+                assert not set(joints) & set(frame.joints) and set(frame.joints) < set(base[name].joints)
+                assert visible[name] == tuple(t for t in truth if t != target), i  # the others stay visible
             else:
                 assert np.array_equal(frame.color, base[name].color) and np.array_equal(frame.depth, base[name].depth)
                 assert frame.joints == base[name].joints
-                assert "right_hand" in visible[name], (name, i)
+                assert visible[name] == tuple(truth), (name, i)
 
 
 def test_occlusions_are_recorded_with_the_visibility_and_auto_follows_the_seed(tmp_path, fusion_pf):
