@@ -222,3 +222,24 @@ def test_images_from_input_when_the_source_is_gone(scene, tmp_path, capsys):
     first = cv2.imread(str(tmp_path / "a.png"))
     assert main(["render", str(tracked), "--sheet", str(tmp_path / "b.png")]) == 0
     assert np.array_equal(first, cv2.imread(str(tmp_path / "b.png")))
+
+
+def test_every_json_message_matches_its_stored_schema(scene):
+    """The recording's visibility and the fixture's world estimates, read with ``mcap``, checked with ``jsonschema``."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    rec, tracked, _ = scene
+    seen: dict[str, int] = {}
+    for path in (rec, tracked):
+        with open(path, "rb") as fh:
+            for schema, channel, message in make_reader(fh).iter_messages():
+                if channel.message_encoding == "json":
+                    doc = json.loads(schema.data)
+                    jsonschema.validators.validator_for(doc)(doc).validate(json.loads(message.data))
+                    seen[channel.topic] = seen.get(channel.topic, 0) + 1
+    assert seen[fmt.VISIBILITY_TOPIC] == seen[fmt.WORLD_ESTIMATE_TOPIC] == 6
+    with pytest.raises(jsonschema.ValidationError):  # the schema does check the fields
+        doc = fmt.JSON_SCHEMAS[fmt.WORLD_ESTIMATE_SCHEMA]
+        bad = {"timestamp_ns": 1, "targets": [{"target": "head", "pixels": {"cam0": [1.0]}}]}
+        jsonschema.validators.validator_for(doc)(doc).validate(bad)
