@@ -29,6 +29,7 @@ from fusion_pf.frame import Frame
 
 from . import mcap_format as fmt
 from .mcap_replay import McapReplay, McapTopics
+from .rig import colour_cameras
 from .tracker_topics import find_source
 
 #: Colours (RGB) of the known sources; other sources take :data:`EXTRA_COLOURS` in sorted order.
@@ -162,10 +163,11 @@ def read_tracker_topics(path: Path) -> dict[int, TrackerFrame]:
     return out
 
 
-def image_recording(tracked: Path, input_path: Path | None) -> Path:
+def image_recording(tracked: Path, input_path: Path | None, *, rig: bool = False) -> Path:
     """The recording that holds the colour images: ``input_path``, else ``tracked`` when it
-    has ``/camera/color`` messages, else the recording named by its metadata ``source``
-    (:func:`~drivers.tracker_topics.find_source`: as stored, else from the output's folder).
+    has ``/camera/color`` messages (``rig``: ``/<camera>/camera/color``), else the recording named
+    by its metadata ``source`` (:func:`~drivers.tracker_topics.find_source`: as stored, else from
+    the output's folder).
 
     Raises
     ------
@@ -177,13 +179,14 @@ def image_recording(tracked: Path, input_path: Path | None) -> Path:
             raise InputError(f"--input {input_path} does not exist; expected the recording that was tracked")
         return input_path
     with McapTopics(tracked) as rec:
-        if fmt.COLOR_TOPIC in rec.topics:
+        if colour_cameras(rec.topics) if rig else fmt.COLOR_TOPIC in rec.topics:
             return tracked
         metadata = rec.metadata()
     source = find_source(tracked, metadata)
     if source is None or not source.is_file():
+        images = "/<camera>" + fmt.COLOR_TOPIC if rig else fmt.COLOR_TOPIC
         raise InputError(
-            f"{tracked} has no {fmt.COLOR_TOPIC} images and its metadata source {metadata.get('source')!r} is "
+            f"{tracked} has no {images} images and its metadata source {metadata.get('source')!r} is "
             "not a file (nor next to it); pass --input REC.mcap (the recording that was tracked)"
         )
     return source
@@ -350,6 +353,56 @@ def contact_sheet(tiles: list[np.ndarray], columns: int, tile_width: int) -> np.
     return sheet
 
 
+class Outputs:
+    """Where a render's drawings go: the video (every drawing) and the contact sheet (every ``every``-th).
+
+    Counts the drawings in ``result`` (``frames``, ``size``, ``sheet_tiles``); :meth:`close` ends the
+    video and writes the sheet.
+    """
+
+    def __init__(
+        self, video: Path | None, sheet: Path | None, every: int, columns: int, tile_width: int, fps: float
+    ) -> None:
+        self.video, self.sheet, self.every = video, sheet, every
+        self.columns, self.tile_width, self.fps = columns, tile_width, fps
+        self.result = Rendered()
+        self._writer: VideoWriter | None = None
+        self._tiles: list[np.ndarray] = []
+
+    def add(self, img: np.ndarray, tracked: bool) -> None:
+        """One drawing (RGB); ``tracked``: it has tracker output."""
+        self.result.size = (img.shape[1], img.shape[0])
+        if self.video is not None:
+            if self._writer is None:
+                self._writer = VideoWriter(self.video, self.fps)
+            self._writer.write(img)
+        if self.sheet is not None and self.result.frames % self.every == 0:
+            self._tiles.append(img)
+        self.result.frames += 1
+        self.result.tracked += tracked
+
+    def close(self) -> None:
+        """End the video (safe after an error: what was written stays playable)."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def write_sheet(self) -> Rendered:
+        """Write the contact sheet (when asked for and anything was drawn); returns the counts."""
+        if self.sheet is not None and self._tiles:
+            sheet_img = contact_sheet(self._tiles, self.columns, self.tile_width)
+            if not cv2.imwrite(str(self.sheet), cv2.cvtColor(sheet_img, cv2.COLOR_RGB2BGR)):
+                raise InputError(f"cannot write the contact sheet {self.sheet}")
+            self.result.sheet_tiles = len(self._tiles)
+        return self.result
+
+
+def frame_rate(times: np.ndarray) -> float:
+    """Video frame rate from frame times (ns): the median period's, 30 when unknown."""
+    period = float(np.median(np.diff(times))) if times.size > 1 else 0.0
+    return 1e9 / period if period > 0 else 30.0
+
+
 def render(
     tracked: Path,
     *,
@@ -386,9 +439,6 @@ def render(
     sources: list[str] = []
     for item in outputs.values():
         sources += [s for s in item.cues if s not in sources]
-    result = Rendered()
-    writer: VideoWriter | None = None
-    tiles: list[np.ndarray] = []
     with McapReplay(image_recording(tracked, input_path)) as replay:
         times = np.asarray(replay.timestamps, dtype=np.int64)
         if not set(times.tolist()) & set(outputs):
@@ -396,28 +446,11 @@ def render(
                 f"{tracked}: no tracker message has the time of a frame of {replay.path}; "
                 "pass --input with the recording that was tracked"
             )
-        if fps is None:
-            period = float(np.median(np.diff(times))) if times.size > 1 else 0.0
-            fps = 1e9 / period if period > 0 else 30.0
+        sink = Outputs(video, sheet, every, columns, tile_width, frame_rate(times) if fps is None else fps)
         try:
             for frame in replay:
                 out = outputs.get(frame.timestamp_ns)
-                img = draw(frame, out, sources, draw_scale(frame.color.shape[1]))
-                result.size = (img.shape[1], img.shape[0])
-                if video is not None:
-                    if writer is None:
-                        writer = VideoWriter(video, fps)
-                    writer.write(img)
-                if sheet is not None and result.frames % every == 0:
-                    tiles.append(img)
-                result.frames += 1
-                result.tracked += out is not None
+                sink.add(draw(frame, out, sources, draw_scale(frame.color.shape[1])), out is not None)
         finally:
-            if writer is not None:
-                writer.close()
-    if sheet is not None and tiles:
-        sheet_img = contact_sheet(tiles, columns, tile_width)
-        if not cv2.imwrite(str(sheet), cv2.cvtColor(sheet_img, cv2.COLOR_RGB2BGR)):
-            raise InputError(f"cannot write the contact sheet {sheet}")
-        result.sheet_tiles = len(tiles)
-    return result
+            sink.close()
+    return sink.write_sheet()

@@ -10,7 +10,10 @@ from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.text import printable
 
 NAME = "render"
-HELP = "draw a tracked recording (image, cue points, particles, estimate, state) as MP4 and/or PNG sheet"
+HELP = (
+    "draw a tracked recording (image, cue points, particles, estimate, state; several cameras: every view "
+    "and a top view) as MP4 and/or PNG sheet"
+)
 DESCRIPTION = (
     "Draw every frame of TRACKED.mcap (the output of fusion-pf track -o): the colour image, the "
     "cue point of every source in /tracker/cues (one colour per source, listed top right; ': -' "
@@ -18,7 +21,11 @@ DESCRIPTION = (
     "(red circle) and, when the estimate has one, the track state. -o writes an H.264 MP4 of every "
     "frame; --sheet a PNG contact sheet of every K-th frame (--every). Images narrower than 640 px "
     "are scaled up by an integer factor. The images come from TRACKED.mcap, or, when it has no "
-    "colour topic, from the recording named in its metadata 'source', or from --input."
+    "colour topic, from the recording named in its metadata 'source', or from --input. A multi-camera "
+    "tracker output (/tracker/world) is drawn as one grid per instant: every camera's image with each "
+    "target's pixel in it (a ring in the target's colour, thick where that camera measured it, and its "
+    "state), and a top view of the rig (world x-z: the cameras from /tf, each target with its trail, "
+    "the recording's ground truth as white crosses)."
 )
 
 
@@ -66,6 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Render TRACKED.mcap; returns the exit status."""
     from drivers.render import image_recording, render
+    from drivers.render_rig import has_world, render_rig
     from fusion_pf.errors import InputError
 
     from ._paths import check_distinct, check_output
@@ -76,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.tracked} does not exist; expected the output of fusion-pf track -o")
     opts = from_args(RenderOptions, args)
     every = opts.every
-    images = image_recording(args.tracked, args.input)
+    world = has_world(args.tracked)
+    images = image_recording(args.tracked, args.input, rig=world)
     for what, out, suffix in (("output", args.output, ".mp4"), ("--sheet", args.sheet, ".png")):
         if out is None:
             continue
@@ -84,21 +93,16 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{what} {out} must end in {suffix}")
         check_output(out, force=args.force, what=what, inputs=(args.tracked, args.input, images))
     check_distinct([("-o", args.output), ("--sheet", args.sheet)])
-    done = render(
-        args.tracked,
-        video=args.output,
-        sheet=args.sheet,
-        every=every,
-        columns=opts.columns,
-        tile_width=opts.tile_width,
-        fps=opts.fps,
-        input_path=images,
+    drawing = dict(
+        video=args.output, sheet=args.sheet, every=every, columns=opts.columns, tile_width=opts.tile_width, fps=opts.fps
     )
+    done = render_rig(args.tracked, images, **drawing) if world else render(args.tracked, input_path=images, **drawing)
     w, h = done.size
     parts = []
     if args.output is not None:
         parts.append(f"{printable(args.output)} ({done.frames} frames, {w}x{h}, H.264)")
     if args.sheet is not None:
         parts.append(f"{printable(args.sheet)} ({done.sheet_tiles} tiles, every {every}th frame)")
-    print(f"rendered {done.frames} frames ({done.tracked} with tracker output) -> {', '.join(parts)}")
+    unit = "instants" if world else "frames"
+    print(f"rendered {done.frames} {unit} ({done.tracked} with tracker output) -> {', '.join(parts)}")
     return 0
