@@ -142,9 +142,10 @@ class EventConfig:
         later, the separation is decided with what is known.
     still : float
         A hand moving less than this (palm lengths per frame) is still: outside
-        a separation's decision, a hand takes an object only while still (the
-        climax point of a pick-up, §7.3.1), so a hand passing an object is not
-        carrying it.
+        a separation's decision, a hand takes or leaves an object only while
+        still (the climax point of a pick-up or put-down, §7.3.1), so a hand
+        passing an object does not take it and a moving hand whose object is
+        hidden for a few frames does not put it down.
     """
 
     persist: int = 2
@@ -428,7 +429,8 @@ class EventDetector:
             last, self._last[h] = self._last.get(h), pos
             still = last is not None and math.hypot(pos[0] - last[0], pos[1] - last[1]) < cfg.still * palm
             deciding = any(h in pair for pair in self._pending)
-            if p.update(bool(modes) and (p.value or still or deciding), frame):
+            # outside a decision, a hand takes or leaves an object only while still (the climax point)
+            if (still or deciding) and p.update(bool(modes), frame):
                 self._hue[h] = self._candidate_hue[h] if p.value else None
                 changed[h] = p.onset
         decided: set[str] = set()

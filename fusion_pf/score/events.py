@@ -9,12 +9,14 @@ the closest in time first. Issue 26's target: every true event matched
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import csv
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["DEFAULT_TOLERANCE", "EventScore", "match_events"]
+__all__ = ["DEFAULT_TOLERANCE", "EventScore", "events_json", "match_events", "parse_events_cell", "read_events"]
 
 #: Frames a reported event may be from the true one (issue 26).
 DEFAULT_TOLERANCE = 5
@@ -99,3 +101,52 @@ def match_events(
     missed = [dict(t) for i, t in enumerate(truth) if i not in used_t]
     false = [dict(r) for j, r in enumerate(reported) if j not in used_r]
     return EventScore(matched, missed, false)
+
+
+def parse_events_cell(frame: int, cell: str) -> list[dict]:
+    """The events of one CSV ``events`` cell (``event:target+target;...``) of frame ``frame``."""
+    out = []
+    for part in filter(None, cell.split(";")):
+        name, sep, targets = part.partition(":")
+        if not sep or not name or not targets:
+            raise InputError(f"CSV events cell of frame {frame} must be 'event:target+target;...', got {cell!r}")
+        out.append({"frame": frame, "event": name, "targets": targets.split("+")})
+    return out
+
+
+def read_events(
+    path: str | Path, kind: str, read_topic: Callable[[str | Path, str], list[tuple[int, dict]]]
+) -> list[dict] | None:
+    """The events of a tracker output or a recording; None when it holds none of that kind.
+
+    ``kind`` is ``"events"`` (a tracker output: its ``/tracker/events`` MCAP
+    topic, or its CSV's ``events`` column) or ``"true_events"`` (a scripted
+    recording's ``/ground_truth/events``); ``read_topic(path, kind)`` reads
+    MCAP topics (``drivers.tracker_topics.read_topic``).
+    """
+    from .inputs import file_kind
+
+    if file_kind(path) == "csv":
+        if kind != "events":
+            return None
+        with open(path, newline="", encoding="ascii") as fh:
+            reader = csv.DictReader(fh)
+            if "events" not in (reader.fieldnames or ()):
+                return None
+            return [e for row in reader for e in parse_events_cell(int(row["frame"]), row["events"] or "")]
+    messages = read_topic(path, kind)
+    return [m for _, m in messages] if messages else None
+
+
+def events_json(score: EventScore, tolerance: int) -> dict:
+    """The events part of ``fusion-pf score --json``."""
+    return {
+        "tolerance_frames": tolerance,
+        "matched": [
+            {"event": t["event"], "targets": t["targets"], "frame": t["frame"], "offset": o}
+            for t, _, o in score.matched
+        ],
+        "missed": score.missed,
+        "false": score.false,
+        "perfect": score.perfect,
+    }
