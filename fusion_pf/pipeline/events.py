@@ -119,6 +119,10 @@ class EventConfig:
     ----------
     persist : int
         Consecutive frames a condition must hold before it is an event (>= 1).
+    carry_persist : int
+        Consecutive still frames with (without) an object before a hand
+        picks it up (puts it down) outside a join: a small object's colour
+        region flickers more than a track state.
     contact_on, contact_off : float
         A hand closer to the head than ``contact_on`` palm lengths touches it;
         the contact ends beyond ``contact_off``.
@@ -149,6 +153,7 @@ class EventConfig:
     """
 
     persist: int = 2
+    carry_persist: int = 4
     contact_on: float = 1.3
     contact_off: float = 1.8
     region: float = 1.1
@@ -162,8 +167,10 @@ class EventConfig:
     still: float = 0.15
 
     def __post_init__(self) -> None:
-        if isinstance(self.persist, bool) or not isinstance(self.persist, int) or self.persist < 1:
-            raise InputError(f"event persist must be an int >= 1 frame, got {self.persist!r}")
+        for name in ("persist", "carry_persist", "decision_frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise InputError(f"event {name} must be an int >= 1 frame, got {value!r}")
         if not 0.0 < self.contact_on <= self.contact_off:
             raise InputError(
                 f"event contact_on must be > 0 and <= contact_off ({self.contact_off}), got {self.contact_on}"
@@ -217,14 +224,17 @@ def object_modes(
     palm_px: float,
     z_mm: float | None,
     config: EventConfig,
+    clothing_hue: float | None = None,
 ) -> list[tuple[float, int]]:
     """The colour modes around a hand that are not its skin (paper 004 §7.2.1-7.2.2).
 
     The circle of radius ``config.region * palm_px`` around ``centre`` is
     selected; pixels farther than ``depth_tolerance_mm`` from the hand's depth
-    ``z_mm`` (when there is depth), without a reliable hue (saturation, value)
-    or with the hand's own hue (the median hue of the palm's centre,
-    ``skin_hue_deg``) are removed. The hue histogram of the rest (2-degree
+    ``z_mm`` (when there is depth; pixels without depth are kept: a small
+    object's depth is mostly holes and flying pixels at its edges), without a reliable hue (saturation, value)
+    or with the hand's own hue (the median hue of the palm's centre) or the
+    clothing's (``clothing_hue``, e.g. the hue at the skeleton's torso joint:
+    sleeves) within ``skin_hue_deg`` are removed. The hue histogram of the rest (2-degree
     bins) is smoothed with a Gaussian kernel (kernel density estimation) and
     its local maxima are the modes; a mode is kept when the pixels within 8
     degrees of it form one connected region of at least ``min_area``
@@ -250,11 +260,13 @@ def object_modes(
     mask = (dist2 <= r * r) & (hsv[..., 1] >= config.min_saturation) & (hsv[..., 2] >= config.min_value)
     if depth is not None and z_mm is not None:
         d = depth[y0:y1, x0:x1].astype(np.float64)
-        mask &= (d > 0) & (np.abs(d - z_mm) <= config.depth_tolerance_mm)
+        mask &= (d == 0) | (np.abs(d - z_mm) <= config.depth_tolerance_mm)  # no depth (holes at edges): kept
     inner = dist2 <= (0.25 * palm_px) ** 2
     if inner.any():
         skin = float(np.median(hue[inner]))
         mask &= _hue_distance(hue, skin) > config.skin_hue_deg
+    if clothing_hue is not None:
+        mask &= _hue_distance(hue, clothing_hue) > config.skin_hue_deg
     min_pixels = max(10, int(config.min_area * palm_px * palm_px))
     if int(mask.sum()) < min_pixels:
         return []
@@ -278,7 +290,7 @@ class _Pending:
 
     before: dict[str, float | None]
     frame: int
-    seen: dict[str, int]
+    samples: dict[str, list[float | None]] | None = None
 
 
 class EventDetector:
@@ -303,7 +315,7 @@ class EventDetector:
         pairs = [(a, b) for i, a in enumerate(self.hands) for b in self.hands[i + 1 :]]
         self._joined = {p: Persist(n, False) for p in pairs}
         self._contact = {h: Persist(n, False) for h in self.hands} if HEAD in self.targets else {}
-        self._carry = {h: Persist(n, False) for h in self.hands}
+        self._carry = {h: Persist(self.config.carry_persist, False) for h in self.hands}
         self._hue: dict[str, float | None] = {h: None for h in self.hands}
         self._candidate_hue: dict[str, float | None] = {h: None for h in self.hands}
         self._palm_px: dict[str, float] = {}
@@ -380,12 +392,12 @@ class EventDetector:
             if p.update(partners.get(a) == b, frame):
                 if p.value:
                     emit("join", pair, p.onset)
-                    self._pending[pair] = _Pending({h: self._hue[h] for h in pair}, frame, {})
+                    self._pending[pair] = _Pending({h: self._hue[h] for h in pair}, frame)
                 else:
                     emit("separate", pair, p.onset)
                     pending = self._pending.get(pair)
                     if pending is not None:
-                        pending.frame, pending.seen = frame, {h: 0 for h in pair}
+                        pending.frame, pending.samples = frame, {h: [] for h in pair}
         head = positions.get(HEAD) if states.get(HEAD) in _HOLDING else None
         for h, p in self._contact.items():
             pos = positions.get(h) if states.get(h) in _HOLDING else None
@@ -411,6 +423,7 @@ class EventDetector:
     def _objects(self, states, positions, partners, image: Frame, depths_mm, frame: int, emit) -> None:
         """Carried objects (§7.2) and the decisions of separated pairs (§7.3.1)."""
         cfg = self.config
+        clothing = _clothing_hue(image)
         changed: dict[str, int] = {}
         for h in self.hands:
             pos, palm = positions.get(h), self._palm_px.get(h)
@@ -419,55 +432,75 @@ class EventDetector:
             others = [positions.get(o) for o in self.hands if o != h]
             if any(o is not None and math.hypot(o[0] - pos[0], o[1] - pos[1]) < cfg.apart * palm for o in others):
                 continue
-            modes = object_modes(image.color, image.depth, pos, palm, depths_mm.get(h), cfg)
-            for pending in self._pending.values():
-                if h in pending.seen:
-                    pending.seen[h] += 1
-            p = self._carry[h]
-            if modes:
-                self._candidate_hue[h] = modes[0][0]
+            modes = object_modes(image.color, image.depth, pos, palm, depths_mm.get(h), cfg, clothing)
+            hue = modes[0][0] if modes else None
             last, self._last[h] = self._last.get(h), pos
+            waiting = [q.samples for pair, q in self._pending.items() if h in pair and q.samples is not None]
+            if waiting:
+                waiting[0][h].append(hue)  # the second decision point collects, the Persist waits
+                continue
+            if any(h in pair for pair in self._pending):
+                continue  # joined (the first decision point is taken)
+            p = self._carry[h]
+            if hue is not None:
+                self._candidate_hue[h] = hue
             still = last is not None and math.hypot(pos[0] - last[0], pos[1] - last[1]) < cfg.still * palm
-            deciding = any(h in pair for pair in self._pending)
-            # outside a decision, a hand takes or leaves an object only while still (the climax point)
-            if (still or deciding) and p.update(bool(modes), frame):
+            # a hand takes or leaves an object only while still (the climax point of a pick-up or put-down)
+            if still and p.update(hue is not None, frame):
                 self._hue[h] = self._candidate_hue[h] if p.value else None
                 changed[h] = p.onset
-        decided: set[str] = set()
         for pair, pending in list(self._pending.items()):
-            if not pending.seen or self._joined[pair].value:
+            if pending.samples is None:
                 continue
-            ready = all(n >= cfg.persist for n in pending.seen.values())
+            ready = all(len(v) >= cfg.persist for v in pending.samples.values())
             if not ready and frame - pending.frame < cfg.decision_frames:
-                decided.update(pair)  # undecided: no pick-up / put-down of these hands yet
                 continue
             del self._pending[pair]
-            a, b = pair
-            before, after = pending.before, {h: self._hue[h] for h in pair}
-            for giver, taker in ((a, b), (b, a)):
-                if (
-                    before[giver] is not None
-                    and after[giver] is None
-                    and after[taker] is not None
-                    and before[taker] is None
-                ):
-                    emit("exchange", (giver, taker), pending.frame, hue_deg=round(float(after[taker]), 1))
-                    decided.update(pair)
+            after = {h: _majority(v) for h, v in pending.samples.items()}
             for h in pair:
-                if h in decided:
-                    continue
-                decided.add(h)
-                if before[h] is None and after[h] is not None:
-                    emit("pick_up", (h,), pending.frame, hue_deg=round(float(after[h]), 1))
+                self._hue[h] = after[h]
+                self._carry[h] = Persist(cfg.carry_persist, after[h] is not None)
+            a, b = pair
+            before = pending.before
+            exchanged = False
+            for giver, taker in ((a, b), (b, a)):
+                got, had = after[taker], before[giver]
+                if had is not None and got is not None and after[giver] is None and before[taker] is None:
+                    emit("exchange", (giver, taker), pending.frame, hue_deg=round(float(got), 1))
+                    exchanged = True
+            for h in () if exchanged else pair:
+                if before[h] is None and (now := after[h]) is not None:
+                    emit("pick_up", (h,), pending.frame, hue_deg=round(float(now), 1))
                 elif before[h] is not None and after[h] is None:
                     emit("put_down", (h,), pending.frame)
         for h, onset in changed.items():
-            if h in decided or any(h in pair for pair in self._pending):
-                continue
             if self._carry[h].value:
                 emit("pick_up", (h,), onset, hue_deg=round(float(self._hue[h] or 0.0), 1))
             else:
                 emit("put_down", (h,), onset)
+
+
+def _majority(samples: Sequence[float | None]) -> float | None:
+    """A hand's carrier state from its samples after a separation: the object's hue when at least half saw one."""
+    hues = [x for x in samples if x is not None]
+    if not samples or 2 * len(hues) < len(samples):
+        return None
+    return float(np.median(hues))
+
+
+def _clothing_hue(image: Frame) -> float | None:
+    """The hue of the person's clothing: the median hue around the skeleton's torso joint (None without one)."""
+    joint = None if image.joints is None else image.joints.get("torso")
+    if joint is None:
+        return None
+    h, w = image.color.shape[:2]
+    r = max(2, int(0.02 * w))
+    u, v = int(round(joint.u)), int(round(joint.v))
+    patch = image.color[max(v - r, 0) : min(v + r + 1, h), max(u - r, 0) : min(u + r + 1, w)]
+    if patch.size == 0:
+        return None
+    hsv = cv2.cvtColor(np.ascontiguousarray(patch), cv2.COLOR_RGB2HSV_FULL)
+    return float(np.median(hsv[..., 0])) * 360.0 / 256.0
 
 
 def _pair_combined(states: Mapping[str, str], positions: Mapping[str, tuple[float, float] | None]) -> dict[str, str]:
