@@ -189,6 +189,21 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   ``depth_noise`` as for one hand.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
+Scripted events (``hands=2, script="events"``)
+----------------------------------------------
+The two-hand person acts a script (:data:`drivers.synth_scene.SCRIPT_KEYS`,
+:func:`drivers.synth_scene.script_pose_at`; 300 nominal person frames, every
+interval stretched 0.85-1.15 and the places moved a few centimetres per seed,
+``spawn_key=(6,)``): the right hand reaches a dark green ball (7 cm, resting
+beside the person at hand depth, drawn in colour and depth) and picks it up,
+brings it home, the hands join and the ball moves from the right hand to the
+left, the hands separate, the right hand goes to the right cheek and back, and
+the hands join and separate again (the left hand keeps the ball). The palms
+cross no threshold slowly: every approach lasts 10-14 frames. The true events
+(:meth:`SynthSource.true_events`, :func:`drivers.synth_scene.script_events`)
+are written to ``/ground_truth/events`` by ``fusion-pf synth``; skeleton,
+per-target ground truth and noise are the two-hand scene's.
+
 Scene variations
 ----------------
 Keyword arguments (:data:`VARIATIONS`) that change one property of the scene
