@@ -98,3 +98,19 @@ def test_true_events_follow_the_seed_and_the_script_needs_two_hands(fusion_pf, t
     r = fusion_pf("synth", tmp_path / "x.mcap", "--script", "events")
     assert r.returncode == 2 and "--script events is a single-camera two-hand scene" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_one_palm_leaving_and_coming_back_disappears_and_reappears_once(tmp_path, capsys):
+    from .test_track_faults import disc_frames, run_track, write
+
+    n = 70
+    centres = [None if 20 <= i < 40 else (80.0, 60.0) for i in range(n)]  # gone in frames 20-39
+    rec = write(tmp_path / "away.mcap", disc_frames(n, centres))
+    code, table, err = run_track(tmp_path, capsys, rec, "--cues", "depth")
+    assert code == 0, err
+    events = [(int(r["frame"]), r["events"]) for r in table if r["events"]]
+    assert [e for _, e in events] == ["disappear:right_hand", "reappear:right_hand"], events
+    (lost, _), (back, _) = events
+    # lost once the cue has been silent for the supervision's 10 frames (+1 to confirm); back within 5 frames
+    assert 20 <= lost <= 20 + 10 + 1 and 40 <= back <= 45
+    assert "events: 1 disappear, 1 reappear" in err
