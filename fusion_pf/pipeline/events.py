@@ -213,7 +213,7 @@ class Persist:
 
 def _hue_distance(a: np.ndarray | float, b: float) -> np.ndarray:
     """Circular distance of hues in degrees."""
-    d = np.abs(np.asarray(a, dtype=np.float64) - b) % 360.0
+    d = np.abs(np.asarray(a) - np.float32(b)) % np.float32(360.0)
     return np.minimum(d, 360.0 - d)
 
 
@@ -254,13 +254,15 @@ def object_modes(
         return []
     patch = np.ascontiguousarray(color[y0:y1, x0:x1])
     hsv = cv2.cvtColor(patch, cv2.COLOR_RGB2HSV_FULL)
-    hue = hsv[..., 0].astype(np.float64) * (360.0 / 256.0)
-    yy, xx = np.mgrid[y0:y1, x0:x1]
+    hue = hsv[..., 0].astype(np.float32) * np.float32(360.0 / 256.0)
+    yy, xx = np.ogrid[y0:y1, x0:x1]
     dist2 = (xx - u) ** 2 + (yy - v) ** 2
     mask = (dist2 <= r * r) & (hsv[..., 1] >= config.min_saturation) & (hsv[..., 2] >= config.min_value)
     if depth is not None and z_mm is not None:
-        d = depth[y0:y1, x0:x1].astype(np.float64)
-        mask &= (d == 0) | (np.abs(d - z_mm) <= config.depth_tolerance_mm)  # no depth (holes at edges): kept
+        d = depth[y0:y1, x0:x1].astype(np.float32)
+        mask &= (d == 0) | (
+            np.abs(d - np.float32(z_mm)) <= config.depth_tolerance_mm
+        )  # no depth (holes at edges): kept
     inner = dist2 <= (0.25 * palm_px) ** 2
     if inner.any():
         skin = float(np.median(hue[inner]))
@@ -272,7 +274,9 @@ def object_modes(
         return []
     hist = np.bincount((hue[mask] / 2.0).astype(np.int64) % 180, minlength=180).astype(np.float64)
     smooth = cv2.GaussianBlur(np.tile(hist, 3)[None, :], (0, 0), 2.0, borderType=cv2.BORDER_REPLICATE)[0, 180:360]
-    peaks = np.flatnonzero((smooth > np.roll(smooth, 1)) & (smooth >= np.roll(smooth, -1)) & (smooth > 0))
+    # pixels within 8 degrees (4 bins) of each bin: a mode with fewer cannot hold a large enough region
+    window = np.convolve(np.tile(hist, 3), np.ones(9), mode="same")[180:360]
+    peaks = np.flatnonzero((smooth > np.roll(smooth, 1)) & (smooth >= np.roll(smooth, -1)) & (window >= min_pixels))
     modes = []
     for p in peaks:
         hue_deg = 2.0 * p + 1.0
