@@ -47,14 +47,14 @@ def _ints(text: str) -> list[int]:
     return [int(x) for x in text.split(",") if x]
 
 
-def main() -> None:
-    """Print one row per size and seed, then the totals."""
+def main(argv: list[str] | None = None) -> int:
+    """Print one row per size and seed, then the totals; 0 when every run is perfect, else 1."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="0,1,2,3,4,5")
     ap.add_argument("--sizes", default="320x200,640x400")
     ap.add_argument("--tuned", default="0,1", help="seeds the thresholds were tuned on (marked in the table)")
     ap.add_argument("--frames", type=int, default=FRAMES)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     tuned = set(_ints(args.tuned))
     print("| size | seed | set | matched | missed | false | max abs offset | offsets (event: frames) | s |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -85,7 +85,8 @@ def main() -> None:
         f"\n{totals['perfect']}/{totals['runs']} runs perfect; {totals['matched']} matched, "
         f"{totals['missed']} missed, {totals['false']} false"
     )
+    return 0 if totals["perfect"] == totals["runs"] else 1
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
