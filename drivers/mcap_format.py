@@ -58,6 +58,10 @@ WORLD_ESTIMATE_TOPIC = "/tracker/world"
 OVERLAY_TOPIC = "/tracker/overlay"
 #: foxglove.PointCloud, written by ``fusion-pf track -o``.
 PARTICLES_TOPIC = "/tracker/particles"
+#: JSON fusion_pf.Event, one message per interaction event, written by ``fusion-pf track -o``.
+EVENTS_TOPIC = "/tracker/events"
+#: JSON fusion_pf.Event: the true events of a scripted synthetic recording (``synth --script events``).
+GROUND_TRUTH_EVENTS_TOPIC = "/ground_truth/events"
 
 #: Topics :meth:`McapRecorder.write` fills from a frame.
 FRAME_TOPICS = (CALIBRATION_TOPIC, COLOR_TOPIC, DEPTH_TOPIC, SKELETON_TOPIC, GROUND_TRUTH_TOPIC, HAND_TOPIC)
@@ -104,6 +108,7 @@ ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 #: The world tracker's estimate of one instant (every target: world position, state, cameras, pixels).
 WORLD_ESTIMATE_SCHEMA = "fusion_pf.WorldEstimate"
 CUES_SCHEMA = "fusion_pf.Cues"
+EVENT_SCHEMA = "fusion_pf.Event"
 
 #: Colour formats the recorder writes: raw rgb8, JPEG or PNG.
 COLOR_FORMATS = ("raw", "jpeg", "png")
@@ -302,6 +307,26 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
                     "required": ["u", "v", "state"],
                     "properties": {"u": _NUMBER_OR_NULL, "v": _NUMBER_OR_NULL, "state": {"type": "string"}},
                 },
+            },
+        },
+    },
+    EVENT_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": EVENT_SCHEMA,
+        "description": "One interaction event (paper 004 §7): join, separate, contact, disappear, reappear, "
+        "pick_up, put_down or exchange, with the targets involved.",
+        "type": "object",
+        "required": ["timestamp_ns", "frame", "event", "targets"],
+        "properties": {
+            "timestamp_ns": {"type": "integer", "minimum": 0},
+            "frame": {"type": "integer", "minimum": 0},
+            "event": {
+                "enum": ["join", "separate", "contact", "disappear", "reappear", "pick_up", "put_down", "exchange"]
+            },
+            "targets": {"type": "array", "items": {"type": "string", "minLength": 1}, "minItems": 1, "maxItems": 2},
+            "detail": {
+                "type": "object",
+                "properties": {"onset_frame": {"type": "integer", "minimum": 0}, "hue_deg": _NUMBER},
             },
         },
     },

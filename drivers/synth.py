@@ -189,6 +189,21 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   ``depth_noise`` as for one hand.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
 
+Scripted events (``hands=2, script="events"``)
+----------------------------------------------
+The two-hand person acts a script (:data:`drivers.synth_scene.SCRIPT_KEYS`,
+:func:`drivers.synth_scene.script_pose_at`; 300 nominal person frames, every
+interval stretched 0.85-1.15 and the places moved a few centimetres per seed,
+``spawn_key=(6,)``): the right hand reaches a dark green ball (7 cm, resting
+beside the person at hand depth, drawn in colour and depth) and picks it up,
+brings it home, the hands join and the ball moves from the right hand to the
+left, the hands separate, the right hand goes to the right cheek and back, and
+the hands join and separate again (the left hand keeps the ball). The palms
+cross no threshold slowly: every approach lasts 10-14 frames. The true events
+(:meth:`SynthSource.true_events`, :func:`drivers.synth_scene.script_events`)
+are written to ``/ground_truth/events`` by ``fusion-pf synth``; skeleton,
+per-target ground truth and noise are the two-hand scene's.
+
 Scene variations
 ----------------
 Keyword arguments (:data:`VARIATIONS`) that change one property of the scene
@@ -331,7 +346,21 @@ VARIATIONS = {
     "clothing": (0.0, 0.0, float(len(sc.CLOTHING_PALETTE) - 1)),
     "clutter": (0, 0, 30),
 }
-_OPTIONS = ("seed", "frames", "size", "fps", "background_frames", "start_ns", "depth_model", "hands", *VARIATIONS)
+_OPTIONS = (
+    "seed",
+    "frames",
+    "size",
+    "fps",
+    "background_frames",
+    "start_ns",
+    "depth_model",
+    "hands",
+    "script",
+    *VARIATIONS,
+)
+#: Scripted scenes (``script``): ``none`` (the motion of ``hands``) or ``events`` (two hands that
+#: join twice, a hand at the head, a ball picked up and passed; see "Scripted events").
+SCRIPTS = ("none", "events")
 #: Ground-truth targets of the two-hand scene, the primary one first.
 TARGETS = ("right_hand", "left_hand", "head")
 #: Most frames a synthetic recording may have.
@@ -437,6 +466,7 @@ class SynthSource(ReplaySource):
         start_ns: int = 1_700_000_000_000_000_000,
         depth_model: str = "realistic",
         hands: int = 1,
+        script: str = "none",
         depth_noise: float = VARIATIONS["depth_noise"][0],
         hand_front: float = VARIATIONS["hand_front"][0],
         lighting: float = VARIATIONS["lighting"][0],
@@ -457,6 +487,11 @@ class SynthSource(ReplaySource):
         self._skin = sc.skin_rgb(self.skin_tone)
         self._shirt = sc.clothing_rgb(self.clothing)
         self.hands = _int_option("synth option hands", hands, 1, 2)
+        if script not in SCRIPTS:
+            raise InputError(f"synth option script must be one of {', '.join(SCRIPTS)}, got {script!r}")
+        if script != "none" and self.hands != 2:
+            raise InputError(f"synth option script {script!r} needs hands 2 (both hands act in it), got {self.hands}")
+        self.script = script
         self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
         self.size = _size_option(size)
@@ -480,6 +515,7 @@ class SynthSource(ReplaySource):
             gradient_amp=self.lighting * a.gradient_amp,
         )
         self._wash = sc.wash_parameters(self._rng(4)) if self.hands == 2 else None
+        self._script = sc.script_parameters(self._rng(6)) if script == "events" else None
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
 
@@ -517,7 +553,7 @@ class SynthSource(ReplaySource):
 
     def describe(self) -> str:
         w, h = self.size
-        hands = " hands=2" if self.hands == 2 else ""
+        hands = (" hands=2" if self.hands == 2 else "") + (f" script={self.script}" if self._script else "")
         varied = "".join(f" {k}={v:g}" for k, v in self.variations().items())
         return (
             f"synth seed={self.seed} frames={self._n} {w}x{h} background_frames={self.background_frames}{hands}"
@@ -559,6 +595,8 @@ class SynthSource(ReplaySource):
         """Key/values for the recording's ``fusion_pf.recording`` metadata record."""
         w, h = self.size
         extra = {"hands": "2", "targets": ",".join(TARGETS)} if self.hands == 2 else {}
+        if self._script is not None:
+            extra["script"] = self.script
         return {
             "generator": "fusion_pf.synth",
             "generator_version": __version__,
@@ -596,6 +634,8 @@ class SynthSource(ReplaySource):
         index = self._check_index(index)
         if index < self.background_frames:
             return None
+        if self._script is not None:
+            return sc.script_pose_at(self._motion, self._script, float(index - self.background_frames))[0]
         if self._wash is not None:
             return sc.wash_pose_at(self._motion, self._wash, float(index - self.background_frames))
         return sc.pose_at(self._motion, float(index - self.background_frames))
@@ -641,6 +681,28 @@ class SynthSource(ReplaySource):
             name: PalmPoint(*sc.project(intr, p), occluded=joined and name != "head")
             for name, p in zip(TARGETS, points)
         }
+
+    def object_centre(self, index: int) -> np.ndarray | None:
+        """Scripted scene: the ball's 3-D centre (m) at frame ``index``; None otherwise or for a background frame."""
+        index = self._check_index(index)
+        if self._script is None or index < self.background_frames:
+            return None
+        return sc.script_pose_at(self._motion, self._script, float(index - self.background_frames))[1]
+
+    def true_events(self) -> list[dict]:
+        """Scripted scene: its true events (``/ground_truth/events`` messages), in frame order; [] otherwise.
+
+        Each is ``{"frame", "timestamp_ns", "event", "targets"}`` with ``frame``
+        the recording's frame index (background frames counted);
+        :func:`drivers.synth_scene.script_events` defines them.
+        """
+        if self._script is None:
+            return []
+        k = self.background_frames
+        return [
+            {"frame": t + k, "timestamp_ns": self.timestamp_ns(t + k), "event": event, "targets": list(targets)}
+            for t, event, targets in sc.script_events(self._motion, self._script, self._n - k)
+        ]
 
     def joints(self, index: int) -> dict[str, Joint]:
         """The skeleton stream of frame ``index`` (``{}`` for a background frame)."""
@@ -837,6 +899,9 @@ class SynthSource(ReplaySource):
         """The noise-free colour, true depth (m) and labels of person frame ``index`` (:func:`sc.composite`)."""
         if self._wash is not None:
             parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
+            ball = self.object_centre(index)
+            if ball is not None and (part := sc.object_part(self.intrinsics, ball)) is not None:
+                parts.append(part)
             return sc.composite(self._background, parts)
         parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
         return sc.composite(self._background, parts, self.blur_kernel(index))

@@ -1036,3 +1036,175 @@ def wash_parts(
     for _, arm in sorted(arms, key=lambda a: -a[0]):
         parts.extend(arm)
     return [p for p in parts if p is not None]
+
+
+# -- scripted interactions (``script="events"``): joins, a hand at the head, an object passed ------
+
+#: Colour of the carried ball (RGB): a dark saturated green, far in hue from skin (~20 deg) and the
+#: navy shirt (~230 deg), and far in brightness from the wall so the skin cues do not take it.
+OBJECT_RGB = (30.0, 120.0, 40.0)
+#: Radius of the carried ball (m).
+OBJECT_RADIUS = 0.035
+#: Where a held ball is relative to the holding palm's centre (m): below it and slightly in front.
+GRIP_OFFSET = (0.0, 0.075, -0.01)
+#: Truth thresholds (3-D distances between centres, m): palms closer than this are joined ...
+JOIN_M = 0.10
+#: ... and a palm closer than this to the face centre touches the head.
+CONTACT_M = 0.15
+
+#: Key frames of the script (nominal person frames, stretched per seed): ``(frame, right, left, holder)``
+#: with ``right``/``left`` the palm's place (``"home"``, ``"object"``: at the ball's resting place,
+#: ``"meet"``: 2 cm right/left of the pair's meeting point, ``"head"``: at the right cheek) and
+#: ``holder`` the hand holding the ball from that key frame on (None: the ball rests).
+SCRIPT_KEYS: tuple[tuple[float, str, str, str | None], ...] = (
+    (0.0, "home", "home", None),
+    (20.0, "home", "home", None),
+    (32.0, "object", "home", "right_hand"),
+    (40.0, "object", "home", "right_hand"),
+    (54.0, "home", "home", "right_hand"),
+    (70.0, "home", "home", "right_hand"),
+    (82.0, "meet", "meet", "right_hand"),
+    (100.0, "meet", "meet", "left_hand"),
+    (116.0, "meet", "meet", "left_hand"),
+    (126.0, "home", "home", "left_hand"),
+    (150.0, "home", "home", "left_hand"),
+    (162.0, "head", "home", "left_hand"),
+    (186.0, "head", "home", "left_hand"),
+    (198.0, "home", "home", "left_hand"),
+    (220.0, "home", "home", "left_hand"),
+    (232.0, "meet", "meet", "left_hand"),
+    (262.0, "meet", "meet", "left_hand"),
+    (272.0, "home", "home", "left_hand"),
+    (300.0, "home", "home", "left_hand"),
+)
+
+
+@dataclass(frozen=True)
+class ScriptMotion:
+    """Random parameters of the scripted scene, drawn once per seed.
+
+    ``times`` are the key frames of :data:`SCRIPT_KEYS` after a per-seed
+    stretch of each interval (0.85-1.15); positions in metres relative to the
+    torso centre (x) and absolute (y); ``object_rest`` is the ball's resting
+    place ``(x, y)`` beside the person's right (image left).
+    """
+
+    times: tuple[float, ...]
+    home_right: tuple[float, float]
+    home_left: tuple[float, float]
+    meet: tuple[float, float]
+    object_rest: tuple[float, float]
+
+
+def script_parameters(rng: np.random.Generator) -> ScriptMotion:
+    """Draw the scripted scene's timing and places (seed-dependent)."""
+    u = rng.uniform
+    gaps = np.diff([k[0] for k in SCRIPT_KEYS]) * rng.uniform(0.85, 1.15, size=len(SCRIPT_KEYS) - 1)
+    times = tuple(float(t) for t in np.concatenate([[0.0], np.cumsum(gaps)]))
+    return ScriptMotion(
+        times=times,
+        home_right=(float(u(-0.19, -0.15)), float(u(0.16, 0.22))),
+        home_left=(float(u(0.15, 0.19)), float(u(0.16, 0.22))),
+        meet=(float(u(-0.03, 0.03)), float(u(0.12, 0.18))),
+        object_rest=(float(u(-0.36, -0.32)), float(u(0.02, 0.08))),
+    )
+
+
+def _script_places(m: Motion, s: ScriptMotion, tx: float, tz: float, head: np.ndarray) -> dict[str, np.ndarray]:
+    """The 3-D places of :data:`SCRIPT_KEYS` for each hand at the torso's current position."""
+    front = tz - m.hand_front - WASH_EXTRA_FRONT
+    grip = np.asarray(GRIP_OFFSET)
+    rest = np.array([tx + s.object_rest[0], s.object_rest[1], front + grip[2]])
+    face = head + np.array([0.0, 0.012, -0.02])
+    return {
+        "right_hand:home": np.array([tx + s.home_right[0], s.home_right[1], front]),
+        "left_hand:home": np.array([tx + s.home_left[0], s.home_left[1], front]),
+        "right_hand:meet": np.array([tx + s.meet[0] - 0.02, s.meet[1], front]),
+        "left_hand:meet": np.array([tx + s.meet[0] + 0.02, s.meet[1], front]),
+        "right_hand:object": rest - grip,
+        "right_hand:head": face + np.array([-0.10, 0.02, -0.03]),
+        "object:rest": rest,
+    }
+
+
+def script_pose_at(m: Motion, s: ScriptMotion, t: float) -> tuple[Pose, np.ndarray]:
+    """The pose at person-frame ``t`` of the scripted scene and the ball's 3-D centre.
+
+    The torso sways as in :func:`pose_at`; each palm moves between the places
+    of :data:`SCRIPT_KEYS` (cosine-eased between key frames, still after the
+    last); the ball rests until its first holder reaches it, then follows the
+    holder's palm at :data:`GRIP_OFFSET`, moving smoothly to the new holder's
+    grip over the key interval in which the holder changes. Both arms follow by
+    two-link inverse kinematics.
+    """
+    two_pi = 2.0 * math.pi
+    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
+    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
+    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
+    head = np.array([tx, -0.37, tz - 0.02])
+    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    places = _script_places(m, s, tx, tz, head)
+    i = min(max(int(np.searchsorted(s.times, t, side="right")) - 1, 0), len(s.times) - 2)
+    t0, t1 = s.times[i], s.times[i + 1]
+    e = (1.0 - math.cos(math.pi * min(max((t - t0) / (t1 - t0), 0.0), 1.0))) / 2.0
+    (_, r0, l0, h0), (_, r1, l1, h1) = SCRIPT_KEYS[i], SCRIPT_KEYS[i + 1]
+    r_palm = places[f"right_hand:{r0}"] + e * (places[f"right_hand:{r1}"] - places[f"right_hand:{r0}"])
+    l_palm = places[f"left_hand:{l0}"] + e * (places[f"left_hand:{l1}"] - places[f"left_hand:{l0}"])
+    grip = np.asarray(GRIP_OFFSET)
+    palms = {"right_hand": r_palm, "left_hand": l_palm}
+    if h0 is None:
+        ball = places["object:rest"]
+    else:
+        ball = palms[h0] + grip if h1 == h0 else palms[h0] + grip + e * (palms[str(h1)] - palms[h0])
+    hands = []
+    for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
+        to_palm = palm - sh
+        wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
+        hands.append((wr, _elbow(sh, wr, pole)))
+    (r_wr, r_el), (l_wr, l_el) = hands
+    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, r_palm, l_palm), ball
+
+
+def object_part(intr: Intrinsics, centre: np.ndarray) -> Part | None:
+    """The ball at ``centre`` (a disc bulging by its radius, :data:`OBJECT_RGB`), None outside the image."""
+    return _ellipse_part(intr, centre, OBJECT_RADIUS, OBJECT_RADIUS, 0.0, OBJECT_RADIUS, OBJECT_RGB, LABEL_CLOTH)
+
+
+def script_events(m: Motion, s: ScriptMotion, frames: int) -> list[tuple[int, str, tuple[str, ...]]]:
+    """The true events of the scripted scene over person frames ``[0, frames)``: ``(frame, event, targets)``.
+
+    ``join`` / ``separate``: the palm centres come closer than :data:`JOIN_M`
+    / move farther apart again; ``contact``: a palm comes closer than
+    :data:`CONTACT_M` to the face centre; ``pick_up``: the frame the ball's
+    first holder reaches it (the key frame); ``exchange``: the separation
+    after which another hand holds the ball (targets: giver, taker).
+    """
+    out: list[tuple[int, str, tuple[str, ...]]] = []
+    joined = False
+    touching = {"right_hand": False, "left_hand": False}
+    holder_at_join: str | None = None
+    pick = next(k for k, key in enumerate(SCRIPT_KEYS) if key[3] is not None)
+    pick_frame = math.ceil(s.times[pick])
+    for t in range(frames):
+        pose, _ = script_pose_at(m, s, float(t))
+        i = min(max(int(np.searchsorted(s.times, t, side="right")) - 1, 0), len(s.times) - 1)
+        holder = SCRIPT_KEYS[i][3]
+        if t == pick_frame:
+            out.append((t, "pick_up", (str(SCRIPT_KEYS[pick][3]),)))
+        d = float(np.linalg.norm(pose.right_hand - pose.left_hand))
+        if not joined and d < JOIN_M:
+            joined, holder_at_join = True, holder
+            out.append((t, "join", ("right_hand", "left_hand")))
+        elif joined and d >= JOIN_M:
+            joined = False
+            out.append((t, "separate", ("right_hand", "left_hand")))
+            if holder_at_join is not None and holder is not None and holder != holder_at_join:
+                out.append((t, "exchange", (holder_at_join, holder)))
+        face = face_centre(pose)
+        for name, palm in (("right_hand", pose.right_hand), ("left_hand", pose.left_hand)):
+            near = float(np.linalg.norm(palm - face)) < CONTACT_M
+            if near and not touching[name]:
+                out.append((t, "contact", (name, "head")))
+            touching[name] = near
+    return out

@@ -1,7 +1,7 @@
 """The tracker's MCAP topics: writing them next to a recording, reading them back.
 
 Writing: :class:`TrackerTopics` puts ``/tracker/estimate``, ``/tracker/cues``,
-``/tracker/overlay`` and ``/tracker/particles`` (docs/recording-format.md,
+``/tracker/overlay``, ``/tracker/particles`` and ``/tracker/events`` (docs/recording-format.md,
 "Tracker outputs") into a :class:`~drivers.mcap_record.McapRecorder`. The JSON
 messages come from :mod:`fusion_pf.pipeline.outputs`; the Foxglove overlay and
 point cloud are encoded here.
@@ -75,7 +75,13 @@ def read_json_topic(path: str | Path, topic: str) -> list[tuple[int, dict]]:
 
 
 #: Topic of each kind the scorer reads (:data:`fusion_pf.score.inputs.TopicReader`).
-TOPICS = {"estimate": fmt.ESTIMATE_TOPIC, "cues": fmt.CUES_TOPIC, "ground_truth": fmt.GROUND_TRUTH_TOPIC}
+TOPICS = {
+    "estimate": fmt.ESTIMATE_TOPIC,
+    "cues": fmt.CUES_TOPIC,
+    "ground_truth": fmt.GROUND_TRUTH_TOPIC,
+    "events": fmt.EVENTS_TOPIC,
+    "true_events": fmt.GROUND_TRUTH_EVENTS_TOPIC,
+}
 
 
 def read_topic(path: str | Path, kind: str) -> list[tuple[int, dict]]:
@@ -160,7 +166,8 @@ class TrackerTopics:
     and ``/tracker/cues`` (JSON) and ``/tracker/overlay``
     (``foxglove.ImageAnnotations``) once per tracked frame;
     ``/tracker/particles`` (``foxglove.PointCloud``) once per tracked frame
-    with a particle set. Background frames get none.
+    with a particle set; ``/tracker/events`` (JSON) once per interaction event
+    (``result.events``). Background frames get none.
 
     Parameters
     ----------
@@ -199,6 +206,8 @@ class TrackerTopics:
             self.recorder.write_protobuf(fmt.OVERLAY_TOPIC, picture, t)
             if cloud is not None:
                 self.recorder.write_protobuf(fmt.PARTICLES_TOPIC, cloud, t)
+            for event in result.events:
+                self.recorder.write_json(fmt.EVENTS_TOPIC, fmt.EVENT_SCHEMA, event.as_json(), t)
 
 
 def overlay(result: TrackResult):

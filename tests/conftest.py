@@ -31,7 +31,7 @@ def run_cli(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def fusion_pf():
-    """The command line in a subprocess (:func:`run_cli`)."""
+    """The command line in a subprocess (:func:`run_cli`); a plain function, so any fixture may use it."""
     return run_cli

@@ -146,10 +146,16 @@ def sweep_recording(recording: str, reference, config, counts, args, opts: Score
 def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
     """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
     from drivers.tracker_topics import frame_size
+    from fusion_pf.score.events import DEFAULT_TOLERANCE, events_json, match_events, read_events
     from fusion_pf.score.targets import score_targets_recording, targets_markdown
 
     result = score_targets_recording(table, args.ground_truth, read_topic, frame_size)
     errors = result.pop("errors")
+    truth = read_events(args.ground_truth, "true_events", read_topic)
+    events = None
+    if truth is not None:
+        events = match_events(truth, read_events(args.tracked, "events", read_topic) or [])
+        result["events"] = events_json(events, DEFAULT_TOLERANCE)
     if args.plots is not None:
         from fusion_pf.score.plots import plot_targets
 
@@ -159,6 +165,8 @@ def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
         print(json.dumps(result, indent=1, default=lambda x: None))
     else:
         print(targets_markdown(result, args.tracked, args.ground_truth), end="")
+        if events is not None:
+            print(f"\nEvents (within {DEFAULT_TOLERANCE} frames of /ground_truth/events): {events.summary()}")
     return 0
 
 

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.encoding import EncodingOptions
-from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, VARIATIONS, SynthSource
+from drivers.mcap_format import EVENT_SCHEMA, GROUND_TRUTH_EVENTS_TOPIC
+from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, SCRIPTS, VARIATIONS, SynthSource
 from drivers.synth_rig import MAX_CAMERAS, SynthRig, parse_occlusions
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
@@ -92,6 +93,13 @@ class SynthOptions:
         metavar="H",
         help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
         "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)",
+    )
+    script: str = option(
+        _SCENE["script"],
+        choices=SCRIPTS,
+        help="events: the scripted two-hand scene (needs --hands 2; seeded timing and places): a ball "
+        "picked up by the right hand and passed to the left while the hands join, the right hand at the "
+        "head, a second join; its true events on /ground_truth/events",
     )
 
     depth_noise: float = option(
@@ -189,6 +197,11 @@ class SynthOptions:
             )
         if self.occlude != "none" and self.cameras < 2:
             raise InputError("--occlude hides targets from cameras of a rig; it needs --cameras 2 or more")
+        if self.script != "none" and (self.hands != 2 or self.cameras > 1):
+            raise InputError(
+                f"--script {self.script} is a single-camera two-hand scene; it needs --hands 2 and no --cameras, "
+                f"got --hands {self.hands} --cameras {self.cameras}"
+            )
         if self.board and self.cameras < 2:
             raise InputError("--board renders a rig's calibration sequence; it needs --cameras 2 or more")
         if self.background_frames > self.frames:
@@ -244,8 +257,11 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         ) as bar,
     ):
+        truth = source.true_events()
         for frame in source:
             recorder.write(frame)
+            for event in (e for e in truth if e["frame"] == frame.seq):
+                recorder.write_json(GROUND_TRUTH_EVENTS_TOPIC, EVENT_SCHEMA, event, event["timestamp_ns"])
             bar.update()
     print(
         f"wrote {recorder.frames_written} frames ({source.background_frames} background) to {printable(out)} "

@@ -20,7 +20,7 @@ DESCRIPTION = (
     "cue -- paper 003 §3.5, background subtraction in a window around a prior -- and the skeleton "
     "joint) in a particle filter (or the Kalman baseline). OUT.mcap gets /tracker/estimate, "
     "/tracker/cues, /tracker/overlay and /tracker/particles (docs/recording-format.md, 'Tracker "
-    "outputs') and names the input recording in its metadata (key 'source'); Foxglove and Rerun "
+    "outputs') and /tracker/events (interaction events: joins, contacts, losses, carried objects) and names the input recording in its metadata (key 'source'); Foxglove and Rerun "
     "open the two files together. --copy-input also copies every input frame into OUT.mcap. "
     "--csv writes one row per tracked frame (docs/architecture.md, 'CSV'). The background model "
     "comes from --background, else the recording's own background frames, else the median of its "
@@ -164,6 +164,13 @@ def _tracked_line(tracked: int, n_background: int, src, args: argparse.Namespace
     )
 
 
+def _events_line(events: dict[str, int]) -> str:
+    """The summary line of the interaction events (``/tracker/events``), counted per event."""
+    if not events:
+        return "events: none"
+    return "events: " + ", ".join(f"{n} {e}" for e, n in sorted(events.items()))
+
+
 def _track_targets(src, frames, config, args: argparse.Namespace, recorder, table, background, bar, live) -> int:
     """Several targets (``--targets``): the same pipeline, its per-target CSV rows and ``/tracker/estimate`` messages.
 
@@ -184,6 +191,7 @@ def _track_targets(src, frames, config, args: argparse.Namespace, recorder, tabl
         writer.writerow(targets_csv_columns(config.targets))
     topics = TrackerTopics(recorder if live is None else live.tee(recorder), config)
     counts: dict[str, dict[str, int]] = {t: {} for t in config.targets}
+    events: dict[str, int] = {}
     tracked = n_background = 0
     for result in track(frames, config, background=background):
         with sigint_deferred():
@@ -199,6 +207,8 @@ def _track_targets(src, frames, config, args: argparse.Namespace, recorder, tabl
                     table.flush()
                 for t, r in result.targets.items():
                     counts[t][r.state] = counts[t].get(r.state, 0) + 1
+                for e in result.events:
+                    events[e.event] = events.get(e.event, 0) + 1
         result.source_frame = None
         n_background += result.background
         tracked += not result.background
@@ -206,6 +216,7 @@ def _track_targets(src, frames, config, args: argparse.Namespace, recorder, tabl
     print(_tracked_line(tracked, n_background, src, args), file=sys.stderr)
     for t, c in counts.items():
         print(f"{t}: " + ", ".join(f"{n} {s}" for s, n in sorted(c.items())), file=sys.stderr)
+    print(_events_line(events), file=sys.stderr)
     stats = getattr(src, "stats", None)
     if stats is not None and stats.partial:
         print(f"fusion-pf: warning: {stats.loss_summary()}", file=sys.stderr)
@@ -255,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         args.export_ply.mkdir(exist_ok=True)
     tracked = n_background = 0
     states = {s: 0 for s in STATES}
+    events: dict[str, int] = {}
     with open_source(args.source) as src, ExitStack() as stack:
         options = _recorder_options(src, args)
         options["metadata"]["tracker"] = json.dumps(config.settings(), sort_keys=True)
@@ -312,6 +324,8 @@ def run(args: argparse.Namespace) -> int:
             n_background += result.background
             tracked += not result.background
             states[result.state] += not result.background
+            for e in result.events:
+                events[e.event] = events.get(e.event, 0) + 1
             bar.update(1)
     print(_tracked_line(tracked, n_background, src, args), file=sys.stderr)
     print(
@@ -320,6 +334,7 @@ def run(args: argparse.Namespace) -> int:
         + track_stats.cue_summary(tracked),
         file=sys.stderr,
     )
+    print(_events_line(events), file=sys.stderr)
     stats = getattr(src, "stats", None)
     if stats is not None and stats.partial:
         print(f"fusion-pf: warning: {stats.loss_summary()}", file=sys.stderr)

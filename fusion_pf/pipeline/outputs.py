@@ -18,6 +18,7 @@ from typing import IO
 from ..cues.base import SOURCES
 from ..errors import InputError
 from .config import TrackConfig
+from .events import events_cell
 from .run import TrackResult, stages
 
 __all__ = [
@@ -53,6 +54,7 @@ def csv_columns(sources: Sequence[str] = SOURCES) -> tuple[str, ...]:
         *(f"latency_{stage}_ms" for stage in (*stages(sources), "sinks")),
         *(f"{s}_quality" for s in sources),
         "state",
+        "events",
     )
 
 
@@ -144,7 +146,7 @@ def csv_row(result: TrackResult, *, latency: bool = False, sources: Sequence[str
     for s in sources:
         m = result.cues.get(s)
         cells.append(_f(None if m is None else m.quality, 3))
-    cells.append(result.state)
+    cells += [result.state, events_cell(result.events)]
     return cells
 
 
@@ -185,12 +187,13 @@ def cues_json(result: TrackResult) -> dict:
 
 
 def targets_csv_columns(targets: Sequence[str]) -> tuple[str, ...]:
-    """CSV columns of a multi-target run: ``frame, timestamp_ns``, per target ``u, v, state``, evaluations."""
+    """CSV columns of a multi-target run: ``frame, timestamp_ns``, per target ``u, v, state``, evaluations, events."""
     return (
         "frame",
         "timestamp_ns",
         *(f"{t}_{c}" for t in targets for c in ("u", "v", "state")),
         "likelihood_evaluations",
+        "events",
     )
 
 
@@ -206,6 +209,7 @@ def targets_csv_row(result: TrackResult) -> list[str]:
         u, v = _uv(r)
         cells += [_f(u, 3), _f(v, 3), r.state]
     cells.append(str(sum(r.evaluations for r in result.targets.values())))
+    cells.append(events_cell(result.events))
     return cells
 
 

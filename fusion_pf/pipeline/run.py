@@ -128,6 +128,7 @@ from ..filter.states import (
 from ..frame import Frame, Intrinsics, Measurement, PalmPoint
 from ..geometry import backproject, depth_at
 from .config import TrackConfig
+from .events import Event, EventDetector
 
 __all__ = [
     "PATCH_MARGIN",
@@ -289,6 +290,8 @@ class TrackResult:
         Uncertainty of the estimate, px (module docstring, "Uncertainty"); None without an estimate.
     sigma_mm : float or None
         Its lateral counterpart at the palm's depth, mm; None without ``xyz_mm``.
+    events : list of Event
+        The interaction events this frame confirmed (:mod:`fusion_pf.pipeline.events`; set by :func:`track`).
     """
 
     frame: int
@@ -309,6 +312,7 @@ class TrackResult:
     targets: dict[str, "TrackResult"] = field(default_factory=dict)
     sigma_px: float | None = None
     sigma_mm: float | None = None
+    events: list[Event] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------- background
@@ -1182,6 +1186,7 @@ def track(
     """
     cues = _CueStage(config)
     targets = _Targets(config, rng)
+    events = EventDetector(targets.names)
     for index, frame, dec, model in _with_background(source, config, background):
         t0 = time.perf_counter_ns() - dec
         if model is None:
@@ -1201,6 +1206,7 @@ def track(
                 stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
                 stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
         result.source_frame = frame
+        result.events = events.feed(result)
         yield result
 
 

@@ -146,3 +146,25 @@ def test_several_targets_stream_every_target_estimate_of_the_output(tmp_path):
             assert m["state"] == rows[live["frame"]][f"{t}_state"]
     assert any(all(m["u"] is not None for m in json.loads(p)["targets"].values()) for _, p in estimates)
     assert "live view: " in err and "right_hand: " in err and "left_hand: " in err
+
+
+def test_the_interaction_events_of_the_output_are_streamed(tmp_path):
+    """``/tracker/events`` goes live too: the hands join (~frame 45) and separate (~115) in the washing scene.
+
+    The SDK advertises a channel with its first message, so a client subscribing then gets the later events:
+    the separation, exactly the message the output MCAP holds.
+    """
+    port = live_serve.free_port()
+    proc = _serve(
+        tmp_path, port, "--targets", "right_hand,left_hand", source="synth:seed=1,frames=150,size=320x200,hands=2"
+    )
+    client = live_serve.FoxgloveClient(port, ["/tracker/events"]).start()
+    _, err = proc.communicate(timeout=120)
+    client.stop()
+    assert proc.returncode == 0, err
+    assert client.error is None, client.error
+    events = [m for _, m in read_json_topic(tmp_path / "out.mcap", "/tracker/events")]
+    assert [e["event"] for e in events] == ["join", "separate"], events
+    assert client.channels["/tracker/events"]["schemaName"] == "fusion_pf.Event"
+    live = [(t, json.loads(p)) for t, p in client.messages["/tracker/events"]]
+    assert live and live[-1][1] == events[-1] and live[-1][0] == events[-1]["timestamp_ns"], (live, err)
