@@ -290,6 +290,10 @@ class FoxgloveServer:
         except RuntimeError as exc:
             raise InputError(f"--serve {self.host}:{self.port}: cannot listen ({exc})") from None
         self.port = self.server.port
+        from . import mcap_format as fmt
+
+        # an event is rare: a channel advertised with its first message would lose that message to every client
+        self._channel(fmt.EVENTS_TOPIC, None, fmt.EVENT_SCHEMA)
         return f"ws://{self.host}:{self.port}"
 
     def wants_frames(self) -> bool:
