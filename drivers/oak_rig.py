@@ -67,6 +67,8 @@ IDENTITY_WARNING = (
     "no --extrinsics: every camera is posed at the world origin (identity); record a ChArUco board and "
     "run fusion-pf calibrate for the real poses"
 )
+#: How far (ns) the newest frame may run ahead of an undecided instant before a silent camera is left out of it.
+MAX_WAIT_NS = 1_000_000_000
 #: Longest wait for a camera's reader thread after the rig closed.
 JOIN_S = 2.0
 
@@ -86,6 +88,10 @@ class RigSync:
         The cameras, in rig order.
     tolerance_ns : int
         Largest time from an instant's earliest frame to another camera's frame of it.
+    max_wait_ns : int
+        An instant waits for a silent camera (not ended, no frame waiting) only while the newest
+        frame of any camera is less than this after it (default :data:`MAX_WAIT_NS`): a device
+        that starts late or stalls holds at most that much of the others' frames in memory.
 
     Attributes
     ----------
@@ -99,6 +105,7 @@ class RigSync:
 
     cameras: Sequence[str]
     tolerance_ns: int
+    max_wait_ns: int = 0
     frames: dict[str, int] = field(init=False)
     unmatched: dict[str, int] = field(init=False)
     late: dict[str, int] = field(init=False)
@@ -117,6 +124,9 @@ class RigSync:
         self._waiting: dict[str, deque[Frame]] = {c: deque() for c in self.cameras}
         self._ended: set[str] = set()
         self._last: int | None = None
+        self._newest = -1
+        if not self.max_wait_ns:
+            self.max_wait_ns = MAX_WAIT_NS
 
     def push(self, camera: str, frame: Frame) -> list[tuple[int, dict[str, Frame]]]:
         """Take ``camera``'s next frame; return the instants now decided, as ``(t, {camera: frame})`` (frames retimed to t)."""
@@ -128,6 +138,7 @@ class RigSync:
             self.late[camera] += 1
             return []
         waiting.append(frame)
+        self._newest = max(self._newest, frame.timestamp_ns)
         return self._ready()
 
     def end(self, camera: str) -> list[tuple[int, dict[str, Frame]]]:
@@ -147,7 +158,8 @@ class RigSync:
             if not heads:
                 return out
             t, _k, first = min(heads)
-            if any(not w and c not in self._ended for c, w in self._waiting.items() if c != first):
+            silent = [c for c, w in self._waiting.items() if c != first and not w and c not in self._ended]
+            if silent and self._newest - t < self.max_wait_ns:
                 return out  # a camera may still send a frame of this instant
             frames = {}
             for camera, waiting in self._waiting.items():

@@ -113,6 +113,18 @@ def test_instants_wait_for_a_silent_camera_until_it_ends() -> None:
     assert [(t, sorted(f)) for t, f in ready] == [(0, ["a"]), (PERIOD, ["a"])]
 
 
+def test_a_silent_camera_holds_back_at_most_max_wait_of_the_others_frames() -> None:
+    sync = RigSync(["a", "b"], TOL, max_wait_ns=10 * PERIOD)
+    ready = [r for k in range(12) for r in sync.push("a", _frame(1_000_000_000 + k * PERIOD))]
+    # frame k is decided once frame k + 10 arrived: b, still silent (booting), is absent from it
+    assert [(t - 1_000_000_000) // PERIOD for t, _ in ready] == [0, 1]
+    assert all(list(f) == ["a"] for _, f in ready)
+    # b's first frame, captured at a's frame 11: matched with it (nothing of b was dropped)
+    ready = sync.push("b", _frame(1_000_000_000 + 11 * PERIOD + 2_000_000)) + sync.flush()
+    assert [sorted(f) for _, f in ready][-1] == ["a", "b"] and sync.late == {"a": 0, "b": 0}
+    assert RigSync(["a"], 1).max_wait_ns == 1_000_000_000
+
+
 def test_a_frame_older_than_an_emitted_instant_is_dropped_and_counted() -> None:
     sync = RigSync(["a", "b"], TOL)
     sync.push("a", _frame(1_000_000_000))
