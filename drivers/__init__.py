@@ -9,15 +9,26 @@ from pathlib import Path
 
 from fusion_pf.errors import InputError
 
-from .base import FrameLoss, ReplaySource, Sink, Source, SourceStats
+from .base import FrameLoss, ReplaySource, RigSource, Sink, Source, SourceStats
 
-__all__ = ["open_source", "Source", "ReplaySource", "Sink", "SourceStats", "FrameLoss", "SOURCE_SPECS"]
+__all__ = [
+    "open_source",
+    "open_rig",
+    "is_rig_spec",
+    "Source",
+    "ReplaySource",
+    "RigSource",
+    "Sink",
+    "SourceStats",
+    "FrameLoss",
+    "SOURCE_SPECS",
+]
 
 #: The source specs :func:`open_source` understands, for help texts.
 SOURCE_SPECS = (
     "FILE.mcap (replay a recording), "
     "synth[:seed=S,frames=N,size=WxH,background_frames=K] (synthetic scene), "
-    "oak[:size=WxH,fps=F] (live Luxonis OAK camera, needs the 'oak' extra), "
+    "oak[:size=WxH,fps=F] (live Luxonis OAK camera, needs the 'oak' extra; oak:device=ID1+ID2 for several), "
     "FOLDER of images, VIDEO file, Azure Kinect .mkv or ROS 1 .bag (read on the fly; "
     "see fusion-pf import for options and ROS 2 bags)"
 )
@@ -33,6 +44,32 @@ def _parse_options(text: str, spec: str) -> dict[str, str]:
             raise InputError(f"source option {item!r} in {spec!r} must look like key=value")
         options[key.strip()] = value.strip()
     return options
+
+
+def _is_rig(options: dict[str, object]) -> bool:
+    return "extrinsics" in options or "+" in str(options.get("device") or "")
+
+
+def is_rig_spec(spec: str | Path, **overrides: object) -> bool:
+    """Whether ``spec`` (with ``overrides``) names several cameras: ``oak:device=ID1+ID2`` or an ``extrinsics`` option."""
+    kind, _, rest = str(spec).partition(":")
+    return kind == "oak" and _is_rig({**_parse_options(rest, str(spec)), **overrides})
+
+
+def open_rig(spec: str | Path, **overrides: object) -> RigSource:
+    """Return the (unopened) several-camera source named by ``spec`` (see :func:`is_rig_spec`); it yields frame sets.
+
+    Raises
+    ------
+    InputError
+        When ``spec`` names one camera or none.
+    """
+    if not is_rig_spec(spec, **overrides):
+        raise InputError(f"{spec} does not name several cameras; expected oak:device=ID1+ID2[+...]")
+    from .oak_rig import OakRig
+
+    _, _, rest = str(spec).partition(":")
+    return OakRig.from_options({**_parse_options(rest, str(spec)), **overrides})
 
 
 def open_source(spec: str | Path, **overrides: object) -> Source:
@@ -55,7 +92,8 @@ def open_source(spec: str | Path, **overrides: object) -> Source:
     Raises
     ------
     InputError
-        When the spec names no known source; the message lists the valid ones.
+        When the spec names no known source (the message lists the valid ones), or several
+        cameras (:func:`open_rig` reads those).
     """
     text = str(spec)
     kind, _, rest = text.partition(":")
@@ -76,7 +114,13 @@ def open_source(spec: str | Path, **overrides: object) -> Source:
 
         return SynthSource.from_options({**_parse_options(rest, text), **overrides})
     if kind == "oak":
+        options = {**_parse_options(rest, text), **overrides}
+        if _is_rig(options):
+            raise InputError(
+                f"{text} names several cameras: record them with fusion-pf record {text} OUT.mcap; tracking "
+                "several cameras at once is not built yet"
+            )
         from .oak import OakSource
 
-        return OakSource.from_options({**_parse_options(rest, text), **overrides})
+        return OakSource.from_options(options)
     raise InputError(f"unknown source {text!r}; expected one of: {SOURCE_SPECS}")

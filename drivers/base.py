@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 from fusion_pf.frame import Frame
+from fusion_pf.rig import CameraPose, FrameSet
 
 _SourceT = TypeVar("_SourceT", bound="Source")
 _SinkT = TypeVar("_SinkT", bound="Sink")
+_RigT = TypeVar("_RigT", bound="RigSource")
 
 
 @dataclass(frozen=True)
@@ -249,3 +251,64 @@ class Sink(abc.ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class RigSource(abc.ABC):
+    """A context manager that yields the :class:`~fusion_pf.rig.FrameSet` of each instant of several posed cameras.
+
+    Live like :class:`Source` (``live = True``: iterated once, losses counted in
+    :attr:`stats`); ``fusion-pf record`` writes it with :class:`drivers.rig.RigRecorder`.
+    Subclasses implement :meth:`open`, :meth:`close`, :meth:`_sets`, :attr:`stats`
+    and :meth:`metadata`, and set :attr:`cameras` and :attr:`poses`.
+    """
+
+    live: bool = True
+    cameras: tuple[str, ...]
+    poses: dict[str, CameraPose]
+
+    def __init__(self) -> None:
+        self.rig_notes: list[str] = []
+        self._opened = False
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Acquire every camera; raise a FusionPFError when impossible (nothing left open)."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release everything; safe to call twice."""
+
+    @abc.abstractmethod
+    def _sets(self) -> Iterator[FrameSet]:
+        """Yield frame sets in time order (called by ``__iter__``)."""
+
+    @property
+    @abc.abstractmethod
+    def stats(self) -> SourceStats:
+        """What every camera yielded and lost, added up."""
+
+    @abc.abstractmethod
+    def metadata(self) -> dict[str, str]:
+        """Provenance for the recording's metadata record (after :meth:`open`)."""
+
+    @abc.abstractmethod
+    def matching(self) -> str:
+        """One line: the instants so far, how many hold every camera, per camera its frames and those without a partner."""
+
+    def __enter__(self: _RigT) -> _RigT:
+        self.open()
+        self._opened = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._opened = False
+        self.close()
+
+    def __iter__(self) -> Generator[FrameSet, None, None]:
+        if not self._opened:
+            raise RuntimeError(f"{type(self).__name__} must be used inside a 'with' block")
+        yield from self._sets()
+
+    def describe(self) -> str:
+        """One line naming the source for messages and progress bars."""
+        return type(self).__name__

@@ -748,9 +748,12 @@ class OakSource(Source):
 
     live = True
 
-    def __init__(self, config: OakConfig | None = None) -> None:
+    def __init__(self, config: OakConfig | None = None, clock: ClockMap | None = None) -> None:
         super().__init__()
         self.config = config if config is not None else OakConfig()
+        #: Steady clock -> epoch ns; None: measured when the pipeline starts (:meth:`ClockMap.capture`).
+        #: Several devices share the first one's (:class:`drivers.oak_rig.OakRig`).
+        self.clock = clock
         self._device: Any = None
         self._pipeline: Any = None
         self._queue: Any = None
@@ -828,7 +831,9 @@ class OakSource(Source):
         streams = build_device_pipeline(self._pipeline, platform, config.size, config.fps, model, hand_models)
         self._queue = streams.queue
         self._pipeline.start()
-        clock = ClockMap.capture()
+        if self.clock is None:
+            self.clock = ClockMap.capture()
+        clock = self.clock
         w, h = config.size
         self._metadata = {
             "oak_device_id": info.getDeviceId(),

@@ -32,7 +32,7 @@ import numpy as np
 
 from fusion_pf.errors import InputError, RecordingError
 from fusion_pf.frame import Frame
-from fusion_pf.rig import WORLD_FRAME, CameraPose, CameraView, FrameSet, check_camera_name
+from fusion_pf.rig import ALIGNMENTS, WORLD_FRAME, CameraPose, CameraView, FrameSet, check_camera_name
 
 from . import mcap_format as fmt
 from .mcap_record import McapRecorder
@@ -481,44 +481,186 @@ def match_times(reference: np.ndarray, times: np.ndarray, tolerance_ns: int) -> 
     return np.where(take, nearest, times), int(np.count_nonzero(~take))
 
 
+#: Motion energy is computed on colour images scaled to about this width (px).
+MOTION_WIDTH = 80
+#: Shortest overlap of two motion-energy series, as a fraction of the shorter, for a lag to count.
+MIN_OVERLAP = 0.5
+#: Fewest overlapping samples (grid steps) of two motion-energy series for a lag to count: a short overlap
+#: correlates well by chance.
+MIN_OVERLAP_SAMPLES = 30
+#: A motion alignment whose correlation peak is below this is reported as weak (check it, or give the offset).
+WEAK_CORRELATION = 0.5
+
+
+def motion_energy(replay: McapReplay) -> np.ndarray:
+    """Per frame of ``replay`` the mean absolute change of its grey image from the previous frame's (0 for the first,
+    which has none: leave it out of a correlation).
+
+    The images are reduced to about :data:`MOTION_WIDTH` px wide (block means) first, so
+    sensor noise and the cameras' different resolutions matter little.
+    """
+    import cv2
+
+    energy = np.zeros(len(replay), np.float64)
+    previous = None
+    for k, frame in enumerate(replay):
+        grey = frame.color.astype(np.float32).mean(axis=2)
+        scale = min(1.0, MOTION_WIDTH / grey.shape[1])
+        small = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        if previous is not None and previous.shape == small.shape:
+            energy[k] = float(np.abs(small - previous).mean())
+        previous = small
+    return energy
+
+
+def motion_offset(
+    times_ref: np.ndarray, energy_ref: np.ndarray, times: np.ndarray, energy: np.ndarray, step_ns: int
+) -> tuple[int, float]:
+    """The offset (ns) that, added to ``times``, best lines up ``energy`` with ``energy_ref``, and its correlation.
+
+    Both series are resampled on a grid of ``step_ns`` (linear interpolation); for every lag
+    leaving an overlap of at least :data:`MIN_OVERLAP` of the shorter and
+    :data:`MIN_OVERLAP_SAMPLES` samples, the Pearson correlation
+    of the overlapping parts is computed (vectorised: one ``np.correlate`` and cumulative
+    sums); the best lag is refined to a fraction of a step by a parabola through the peak and
+    its neighbours.
+
+    Raises
+    ------
+    InputError
+        A series shorter than :data:`MIN_OVERLAP_SAMPLES` steps, or without any change.
+    """
+    grids = []
+    for t, e, what in ((times_ref, energy_ref, "the first recording"), (times, energy, "a recording")):
+        t = np.asarray(t, np.int64)
+        n = int((t[-1] - t[0]) // step_ns) + 1 if len(t) else 0
+        if n < MIN_OVERLAP_SAMPLES:
+            raise InputError(
+                f"{what} is too short to align by motion ({len(t)} frames; at least {MIN_OVERLAP_SAMPLES} "
+                "frame periods are needed); give --clock-offset instead"
+            )
+        series = np.interp(t[0] + step_ns * np.arange(n, dtype=np.float64), t.astype(np.float64), e)
+        spread = series.std()
+        if not spread > 0:
+            raise InputError(f"{what} shows no motion to align by (a still scene); give --clock-offset instead")
+        grids.append((int(t[0]), (series - series.mean()) / spread))
+    (t0_ref, a), (t0, b) = grids
+    full = np.correlate(a, b, mode="full")  # full[k] = sum_j a[j + shift] b[j], shift = k - (len(b) - 1)
+    shifts = np.arange(-(len(b) - 1), len(a))
+    lo_a, hi_a = np.maximum(0, shifts), np.minimum(len(a), shifts + len(b))
+    lo_b, hi_b = lo_a - shifts, hi_a - shifts
+    overlap = (hi_a - lo_a).astype(np.float64)
+
+    def sums(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c1 = np.concatenate([[0.0], np.cumsum(x)])
+        c2 = np.concatenate([[0.0], np.cumsum(x * x)])
+        return c1[hi] - c1[lo], c2[hi] - c2[lo]
+
+    (sa, saa), (sb, sbb) = sums(a, lo_a, hi_a), sums(b, lo_b, hi_b)
+    with np.errstate(invalid="ignore", divide="ignore"):  # the Pearson correlation of each overlap
+        score = (full - sa * sb / overlap) / np.sqrt((saa - sa * sa / overlap) * (sbb - sb * sb / overlap))
+    enough = (overlap >= MIN_OVERLAP * min(len(a), len(b))) & (overlap >= MIN_OVERLAP_SAMPLES)
+    score = np.where(enough & np.isfinite(score), score, -np.inf)
+    k = int(np.argmax(score))
+    frac = 0.0
+    if 0 < k < len(score) - 1 and np.isfinite(score[k - 1]) and np.isfinite(score[k + 1]):
+        left, mid, right = score[k - 1], score[k], score[k + 1]
+        curvature = left - 2 * mid + right
+        frac = 0.5 * (left - right) / curvature if curvature < 0 else 0.0
+    shift = shifts[k] + frac  # a's sample i is b's sample i - shift
+    return int(round(t0_ref - t0 + shift * step_ns)), float(score[k])
+
+
+def _clock_offsets(
+    replays: Sequence[McapReplay], given: Sequence[int] | None, align: str, period: int
+) -> tuple[list[int], str, list[float | None]]:
+    """Each recording's clock offset to the first, where it came from, and each one's motion correlation (or None)."""
+    none: list[float | None] = [None] * len(replays)
+    if given is not None:
+        return [int(v) for v in given], "given", none
+    if align == "none":
+        return [0] * len(replays), "none", none
+    first = replays[0].timestamps
+    if not len(first) or any(not len(r.timestamps) for r in replays):
+        raise InputError("a recording without frames cannot be aligned")
+    if align == "first":
+        return [int(first[0]) - int(r.timestamps[0]) for r in replays], "first frames", none
+    step = period or 33_333_333
+    energy_ref = motion_energy(replays[0])[1:]  # a first frame has no change to measure
+    offsets, correlation = [0], list(none)
+    for k, r in enumerate(replays[1:], 1):
+        offset, correlation[k] = motion_offset(first[1:], energy_ref, r.timestamps[1:], motion_energy(r)[1:], step)
+        offsets.append(offset)
+    return offsets, "motion", correlation
+
+
 def merge(
     inputs: Sequence[str | Path],
     poses: Mapping[str, CameraPose],
     out: str | Path,
     *,
     tolerance_ns: int | None = None,
+    offsets_ns: Sequence[int] | None = None,
+    align: str = ALIGNMENTS[0],
     recorder_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Combine single-camera recordings (camera ``i`` = ``inputs[i]``) into one multi-camera recording.
 
-    The first input is the reference clock: another camera's frame joins the
-    reference frame nearest in time within ``tolerance_ns`` (default half the
-    reference's frame period) and takes its timestamp; the others keep their own.
+    The first input is the reference clock. Each recording's times are moved to it by its
+    clock offset: ``offsets_ns[i]`` when given, else estimated by ``align`` (``"first"``:
+    its first frame at the reference's first frame; ``"motion"``: :func:`motion_offset` of
+    the two recordings' :func:`motion_energy`; ``"none"``: 0). A frame of another camera then
+    joins the reference frame nearest in time within ``tolerance_ns`` (default half the
+    reference's frame period) and takes its timestamp; the others keep their own (moved) time.
 
     Returns
     -------
     dict
-        ``sets`` written, per camera ``frames`` and ``unmatched``, ``background_unflagged`` and ``notes``.
+        ``sets`` written, per camera ``frames``, ``unmatched``, ``offset_ns``, ``offset_from``
+        (``given``, ``first frames``, ``motion``, ``none``) and ``correlation`` (motion only),
+        ``background_unflagged`` and ``notes``.
     """
     names = list(poses)
     if len(names) != len(inputs):
         raise InputError(
             f"the extrinsics name {len(names)} camera(s) ({', '.join(names)}) but {len(inputs)} recording(s) were given"
         )
+    if align not in ALIGNMENTS:
+        raise InputError(f"align must be one of {', '.join(ALIGNMENTS)}, got {align!r}")
+    if offsets_ns is not None:
+        if align != "none":
+            raise InputError(f"clock offsets are given or estimated (align={align}), not both")
+        if len(offsets_ns) != len(inputs):
+            raise InputError(f"{len(offsets_ns)} clock offset(s) given for {len(inputs)} recording(s); give one each")
     report: dict[str, Any] = {"cameras": {}, "notes": []}
     with contextlib.ExitStack() as stack:
         replays = [stack.enter_context(McapReplay(path)) for path in inputs]
         reference = replays[0].timestamps
+        period = int(np.median(np.diff(reference))) if len(reference) > 1 else 0
         if tolerance_ns is None:
-            period = np.median(np.diff(reference)) if len(reference) > 1 else 0
-            tolerance_ns = int(period // 2)
+            tolerance_ns = period // 2
+        offsets, origin, correlation = _clock_offsets(replays, offsets_ns, align, period)
         instants = {}
-        for name, replay in zip(names, replays, strict=True):
-            new, unmatched = match_times(reference, replay.timestamps, tolerance_ns)
+        moved: dict[str, np.ndarray] = {}
+        for k, (name, replay, offset) in enumerate(zip(names, replays, offsets, strict=True)):
+            moved[name] = replay.timestamps + np.int64(offset)
+            if len(moved[name]) and int(moved[name][0]) < 0:
+                raise InputError(
+                    f"clock offset {offset / 1e9:+.9f} s moves {replay.path}'s first frame before 1970 "
+                    f"(t = {int(replay.timestamps[0])} ns)"
+                )
+            new, unmatched = match_times(reference, moved[name], tolerance_ns)
             if len(new) > 1 and not (np.diff(new) > 0).all():
                 raise InputError(f"{replay.path}: frames do not keep their order when matched to {inputs[0]}")
             instants[name] = new
-            report["cameras"][name] = {"input": str(replay.path), "frames": len(new), "unmatched": unmatched}
+            report["cameras"][name] = {
+                "input": str(replay.path),
+                "frames": len(new),
+                "unmatched": unmatched,
+                "offset_ns": int(offset),
+                "offset_from": origin if name != names[0] else "reference",
+                "correlation": correlation[k],
+            }
         meta = {"source": "merge:" + ",".join(Path(p).name for p in inputs)}
         to_instant = {
             name: dict(zip(replay.timestamps.tolist(), instants[name].tolist(), strict=True))

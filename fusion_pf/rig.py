@@ -22,6 +22,8 @@ from .frame import Frame
 
 #: Name of the common frame the camera poses refer to.
 WORLD_FRAME = "world"
+#: How ``fusion-pf merge`` estimates a recording's clock offset to the first: not, first frames, motion energy.
+ALIGNMENTS = ("none", "first", "motion")
 #: Camera names: a topic segment (letters, digits, ``_``, ``-``), starting with a letter.
 CAMERA_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from drivers import SOURCE_SPECS
 from drivers.encoding import EncodingOptions
@@ -21,7 +23,11 @@ DESCRIPTION = (
     "(exit 2, the frames recorded so far are kept). The header reaches the disk at once and every "
     "chunk as soon as it is written, so even a SIGKILL leaves a readable file. A summary (frames, "
     "dropped, bytes) is printed at the end; its frame count is read back from the file, so after "
-    "a write failure (full disk: exit 2) it counts only the frames the file really holds."
+    "a write failure (full disk: exit 2) it counts only the frames the file really holds. "
+    "Several OAK cameras (oak:device=ID1+ID2) are recorded into one multi-camera MCAP: their frames "
+    "matched by timestamp (within half a frame period; a frame without a partner is written alone "
+    "and counted), the cameras named and posed by --extrinsics (else oak_<id> at the world origin, "
+    "with a warning: the recording to calibrate them from)."
 )
 
 
@@ -93,7 +99,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="extra key/value for the fusion_pf.recording metadata record (repeatable)",
     )
+    p.add_argument(
+        "--extrinsics",
+        type=Path,
+        metavar="CAMS.yaml",
+        help="several OAK cameras (oak:device=ID1+ID2): camera names and poses, in device order "
+        "(default: oak_<id> at the world origin, with a warning)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite OUT.mcap if it exists")
+
+
+class _RigWriter:
+    """A :class:`drivers.rig.RigRecorder` as the one-item writer the recording loop uses (an item = a frame set)."""
+
+    def __init__(self, path: Path, poses: dict, **kwargs: object) -> None:
+        from drivers.rig import RigRecorder
+
+        self.rig = RigRecorder(path, poses, **kwargs)
+
+    def __enter__(self) -> "_RigWriter":
+        self.rig.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.rig.__exit__(*exc)
+
+    def write(self, frameset: Any) -> None:  # a fusion_pf.rig.FrameSet
+        self.rig.write(frameset.timestamp_ns, {name: view.frame for name, view in frameset.views.items()})
+
+    @property
+    def frames_written(self) -> int:
+        return self.rig.sets_written
+
+    @property
+    def error(self) -> OSError | None:
+        return self.rig.recorder.error
 
 
 def _one_line(exc: BaseException) -> str:
@@ -103,13 +143,14 @@ def _one_line(exc: BaseException) -> str:
     return text if isinstance(exc, FusionPFError) else f"{type(exc).__name__}: {text}"
 
 
-def _frames_in(path: Path) -> int:
-    """Frames a reader finds in ``path`` (0 when it holds none that can be read)."""
+def _frames_in(path: Path, rig: bool = False) -> int:
+    """Frames (instants of a rig) a reader finds in ``path`` (0 when it holds none that can be read)."""
     from drivers.mcap_replay import McapReplay
+    from drivers.rig import RigReplay
     from fusion_pf.errors import RecordingError
 
     try:
-        with McapReplay(path) as replay:
+        with RigReplay(path) if rig else McapReplay(path) as replay:
             return len(replay)
     except RecordingError:
         return 0
@@ -123,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from drivers import ReplaySource, open_source
+    from drivers import ReplaySource, RigSource, is_rig_spec, open_rig, open_source
     from drivers.mcap_record import McapRecorder
     from fusion_pf.errors import InputError, RecordingError
     from fusion_pf.signals import sigint_deferred
@@ -133,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
 
     opts = from_args(RecordOptions, args)
     encoding = from_args(EncodingOptions, args)
-    check_output(args.output, force=args.force, inputs=(args.source,))
+    extrinsics = getattr(args, "extrinsics", None)
+    check_output(args.output, force=args.force, inputs=(args.source, *([extrinsics] if extrinsics else [])))
     overrides = {k: v for k, v in (("size", opts.size), ("fps", opts.fps)) if v is not None}
     if overrides and args.source.lower().endswith(".mcap"):
         raise InputError(f"--size/--fps apply to a camera or synthetic source, not to the recording {args.source}")
@@ -141,7 +183,12 @@ def run(args: argparse.Namespace) -> int:
         if not args.source.lower().startswith("oak"):
             raise InputError(f"--ir-laser applies to an OAK camera source, not to {args.source}")
         overrides["ir_laser"] = opts.ir_laser
-    source = open_source(args.source, **overrides)
+    if extrinsics is not None:
+        if not args.source.lower().startswith("oak"):
+            raise InputError(f"--extrinsics applies to several OAK cameras (oak:device=ID1+ID2), not to {args.source}")
+        overrides["extrinsics"] = extrinsics
+    rig = is_rig_spec(args.source, **overrides)
+    source = open_rig(args.source, **overrides) if rig else open_source(args.source, **overrides)
     duration_ns = None if opts.duration is None else int(round(opts.duration * 1e9))
     failure: BaseException | None = None
     interrupted: int | None = None
@@ -155,8 +202,12 @@ def run(args: argparse.Namespace) -> int:
         total = len(src) if isinstance(src, ReplaySource) else None
         if opts.frames is not None:
             total = opts.frames if total is None else min(total, opts.frames)
-        recorder = McapRecorder(args.output, metadata=metadata, **encoding.recorder_kwargs())
-        frames = iter(src)
+        recorder: McapRecorder | _RigWriter = (
+            _RigWriter(args.output, src.poses, metadata=metadata, **encoding.recorder_kwargs())
+            if isinstance(src, RigSource)
+            else McapRecorder(args.output, metadata=metadata, **encoding.recorder_kwargs())
+        )
+        frames: Generator[Any, None, None] = iter(src)
         try:
             with recorder, tqdm(total=total, unit="frame", desc=src.describe(), disable=None, file=sys.stderr) as bar:
                 first_ns = None
@@ -179,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             with sigint_deferred():
                 frames.close()
-                n = _frames_in(args.output) if args.output.exists() else 0
+                n = _frames_in(args.output, rig) if args.output.exists() else 0
                 size = os.path.getsize(args.output) if args.output.exists() else 0
                 stats = src.stats
                 for note in stats.notes:
@@ -192,15 +243,18 @@ def run(args: argparse.Namespace) -> int:
                     if (recorder.error is not None and lost > 0)
                     else ""
                 )
+                what = f"instants of {len(src.cameras)} cameras" if isinstance(src, RigSource) else "frames"
                 print(
-                    f"recorded {n} frames{status}{unwritten} to {printable(args.output)} in {time.monotonic() - started:.1f} s: "
+                    f"recorded {n} {what}{status}{unwritten} to {printable(args.output)} in {time.monotonic() - started:.1f} s: "
                     f"{stats.dropped} dropped, {stats.missing_depth} without depth, "
                     f"{stats.missing_skeleton} without skeleton; {size} bytes{per_frame}",
                     flush=True,
                 )
+                if isinstance(src, RigSource):
+                    print(f"matching: {src.matching()}", flush=True)
     if failure is not None:
         raise RecordingError(
-            f"source {args.source} failed after {recorder.frames_written} frames ({_one_line(failure)}); "
+            f"source {args.source} failed after {recorder.frames_written} {'instants' if rig else 'frames'} ({_one_line(failure)}); "
             f"{args.output} is finalised and keeps those frames"
         )
     return 0

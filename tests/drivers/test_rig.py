@@ -129,7 +129,14 @@ def test_merge_and_read_back_frame_sets(tmp_path, rig_inputs):
     out = tmp_path / "m.mcap"
     report = merge([a, b], poses, out)
     assert report["sets"] == 6
-    assert report["cameras"]["cam_b"] == {"input": str(b), "frames": 6, "unmatched": 1}
+    assert report["cameras"]["cam_b"] == {
+        "input": str(b),
+        "frames": 6,
+        "unmatched": 1,
+        "offset_ns": 0,
+        "offset_from": "none",
+        "correlation": None,
+    }
     with McapReplay(a) as ra, McapReplay(b) as rb:
         fa, fb = list(ra), list(rb)
     with RigReplay(out) as rig:

@@ -8,9 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from drivers.charuco import BoardSpec
 from drivers.rig import RigReplay, load_extrinsics
-from drivers.rig_calibration import ICP_BOARD_TOLERANCE_PX, calibrate
 from drivers.synth_rig import SynthRig
 from fusion_pf.geometry import backproject
 
@@ -118,26 +116,6 @@ def test_calibrate_without_a_board_says_which_cameras(tmp_path, fusion_pf):
     assert not (tmp_path / "cams.json").exists()
     proc = fusion_pf("synth", tmp_path / "x.mcap", "--board")
     assert proc.returncode == 2 and "needs --cameras 2 or more" in proc.stderr
-
-
-def test_icp_refinement_runs_and_keeps_only_what_agrees_with_the_board(tmp_path):
-    rig_scene = SynthRig(2, board=True, frames=2, seed=33, size=(320, 200), depth_model="basic")
-    from drivers.rig import RigRecorder
-
-    path = tmp_path / "board.mcap"
-    with RigRecorder(path, rig_scene.poses, metadata=rig_scene.metadata()) as rec:
-        for i in range(2):
-            rec.write(rig_scene.timestamp_ns(i), rig_scene.frames(i))
-    with RigReplay(path) as rig:
-        results = calibrate(rig, BoardSpec(), refine="icp")
-    refined = [r for r in results.values() if r.icp is not None]
-    assert len(refined) == 1 and sum(r.reference for r in results.values()) == 1
-    (r,) = refined
-    assert 0.0 < r.icp.fitness <= 1.0 and np.isfinite(r.icp.board_rms_px)
-    if r.icp.accepted:
-        assert r.icp.board_rms_px <= r.board.rms_px + ICP_BOARD_TOLERANCE_PX and r.pose != r.board.pose
-    else:
-        assert r.pose == r.board.pose
 
 
 def test_colour_only_cameras_have_no_depth(tmp_path, fusion_pf):
