@@ -216,6 +216,7 @@ def fusion_worker(conn, rec: str) -> None:
     cues reset and run on the whole frame) and the estimate. ``None`` from the
     script ends the stream.
     """
+    from fusion_pf.cues.base import opencv_threads
     from fusion_pf.pipeline import TrackConfig, track
 
     config = TrackConfig()
@@ -250,9 +251,10 @@ def fusion_worker(conn, rec: str) -> None:
         tracking = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
         ctx = acq_context(frame)
         c0, t0 = time.process_time(), time.perf_counter_ns()
-        for cue in acq_cues.values():
-            cue.reset()
-            cue.measure(frame, ctx)
+        with opencv_threads(config.cue_options.cv_threads):  # as track runs its cues
+            for cue in acq_cues.values():
+                cue.reset()
+                cue.measure(frame, ctx)
         acq, acq_cpu = (time.perf_counter_ns() - t0) / 1e6, (time.process_time() - c0) * 1e3
         est = result.estimate
         u, v = (math.nan, math.nan) if est is None else (est.u, est.v)

@@ -128,6 +128,15 @@ class CueOptions:
         help="hand cue: LiteRT threads per model call; 1 never waits for a core another process holds, "
         "more adds a single-threaded twin and each call goes to the faster one",
     )
+    cv_threads: int = option(
+        1,
+        kind="int",
+        lo=1,
+        hi=64,
+        unit="threads",
+        help="OpenCV threads while the cues run; 1 never waits for a core another process holds "
+        "(the caller's setting is restored after each frame's cues)",
+    )
     skin_model: Path | None = option(
         None,
         optional=True,
