@@ -403,6 +403,20 @@ def _interpreter(path: Path, num_threads: int):
     return interpreter
 
 
+def others_running(loadavg: str = "/proc/loadavg") -> bool | None:
+    """Whether a task besides this one is runnable right now (the running count of ``loadavg``,
+    Linux); None when that cannot be read.
+
+    A multi-threaded model call waits for its slowest thread: with every core taken by someone, one
+    of its threads waits for a time slice. Reading the count costs about 10 us.
+    """
+    try:
+        with open(loadavg, "rb") as f:
+            return int(f.read().split()[3].split(b"/")[0]) > 1
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class _Model:
     """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
 
@@ -410,7 +424,8 @@ class _Model:
     thread is built (and its weights packed by one call) in a background thread.
     A multi-threaded call waits for its slowest thread, so when another process
     holds a core the parallel call stalls for that core's time slice while a
-    single-threaded one runs on the free core undisturbed. Once the twin is
+    single-threaded one runs on the free core undisturbed: while another task is
+    runnable (:func:`others_running`) every call goes to the twin. Otherwise, once the twin is
     ready each call goes to the interpreter with the smaller moving average of
     recent call times (the multi-threaded one only when it is below
     :data:`_MULTI_GAIN` x the twin's); every :data:`_EXPLORE` calls the other one
@@ -442,11 +457,12 @@ class _Model:
         self.interpreters.append(twin)
 
     def _pick(self) -> int:
-        """Index of the interpreter for this call: the twin once when it is new, then the faster one, the
-        other every :data:`_EXPLORE` calls."""
+        """Index of the interpreter for this call: the twin while another task is runnable
+        (:func:`others_running`), else the twin once when it is new, then the faster one, the other
+        every :data:`_EXPLORE` calls."""
         if len(self.interpreters) == 1:
             return 0
-        if self.calls[1] == 0:
+        if self.calls[1] == 0 or others_running() is not False:
             return 1
         # the multi-threaded primary only when clearly faster: its threads spin between layers, costing CPU
         best = 0 if self.mean_ns[0] < _MULTI_GAIN * self.mean_ns[1] else 1
@@ -475,9 +491,10 @@ class HandLandmarker:
     ----------
     num_threads : int
         LiteRT CPU threads per model call (>= 1). 1 (the default) never waits
-        for a core another process holds; more adds single-threaded twins and
-        sends each call to the faster one (:class:`_Model`). Results are
-        bit-identical whatever the thread count.
+        for a core another process holds; more adds single-threaded twins that
+        run every call while another task is runnable, otherwise the faster
+        one runs (:class:`_Model`). Results are bit-identical whatever the
+        thread count.
     min_detection : float
         Palm detection score threshold, [0, 1] (MediaPipe's ``min_detection_confidence``).
     min_presence : float

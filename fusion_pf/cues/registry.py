@@ -126,7 +126,8 @@ class CueOptions:
         hi=64,
         unit="threads",
         help="hand cue: LiteRT threads per model call; 1 never waits for a core another process holds, "
-        "more adds a single-threaded twin and each call goes to the faster one",
+        "more adds a single-threaded twin that runs every call while another task is runnable "
+        "(otherwise the faster of the two runs)",
     )
     cv_threads: int = option(
         1,

@@ -341,9 +341,10 @@ def test_deterministic_across_runs_and_instances(hl):
     assert p.boxes.tobytes() == q.boxes.tobytes() and p.scores.tobytes() == q.scores.tobytes()
 
 
-def test_thread_count_choice_never_changes_a_result():
+def test_thread_count_choice_never_changes_a_result(monkeypatch):
     # a 2-thread landmarker also builds 1-thread twins (in the background) and then sends each call to
-    # the faster of the two
+    # the faster of the two while no other task is runnable
+    monkeypatch.setattr(hand, "others_running", lambda: False)
     two, one = HandLandmarker(num_threads=2), HandLandmarker(num_threads=1)
     assert one._palm.twin is None and one._landmark.twin is None
     for m in (two._palm, two._landmark):
@@ -361,6 +362,22 @@ def test_thread_count_choice_never_changes_a_result():
         picks.append(model._pick())
         model.calls[picks[-1]] += 1
     assert picks.count(1) == 2 * hand._EXPLORE - 2 and picks.count(0) == 2  # the slower one is only re-timed
+    # another task runnable (or no way to tell): only the twin, the multi-threaded call could stall
+    model.mean_ns = [1.0e6, 5.0e6]
+    for running in (True, None):
+        monkeypatch.setattr(hand, "others_running", lambda running=running: running)
+        assert {model._pick() for _ in range(2 * hand._EXPLORE)} == {1}
+
+
+@pytest.mark.parametrize(
+    "text, running",
+    [("0.10 0.20 0.30 1/180 4242\n", False), ("3.1 2.0 1.5 3/190 4243\n", True), ("garbage", None), (None, None)],
+)
+def test_others_running_reads_the_run_queue(tmp_path, text, running):
+    path = tmp_path / "loadavg"
+    if text is not None:
+        path.write_text(text)
+    assert hand.others_running(str(path)) is running
 
 
 def test_measurement_from_observation(hl):
