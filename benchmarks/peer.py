@@ -26,7 +26,7 @@ Per frame (background frames skipped):
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
 both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
-on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too), each side and the
+on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too; wall and CPU), each side and the
 ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
 RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
 estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
@@ -216,6 +216,7 @@ def fusion_worker(conn, rec: str) -> None:
     cues reset and run on the whole frame) and the estimate. ``None`` from the
     script ends the stream.
     """
+    from fusion_pf.cues.base import opencv_threads
     from fusion_pf.pipeline import TrackConfig, track
 
     config = TrackConfig()
@@ -249,14 +250,16 @@ def fusion_worker(conn, rec: str) -> None:
         roi = result.roi
         tracking = roi is not None and (roi.x0, roi.y0, roi.x1, roi.y1) != (0, 0, *frame.size)
         ctx = acq_context(frame)
-        t0 = time.perf_counter_ns()
-        for cue in acq_cues.values():
-            cue.reset()
-            cue.measure(frame, ctx)
-        acq = (time.perf_counter_ns() - t0) / 1e6
+        c0, t0 = time.process_time(), time.perf_counter_ns()
+        with opencv_threads(config.cue_options.cv_threads):  # as track runs its cues
+            for cue in acq_cues.values():
+                cue.reset()
+                cue.measure(frame, ctx)
+        acq, acq_cpu = (time.perf_counter_ns() - t0) / 1e6, (time.process_time() - c0) * 1e3
         est = result.estimate
         u, v = (math.nan, math.nan) if est is None else (est.u, est.v)
-        conn.send(("result", result.frame, (lat["total"] - lat["decode"]) / 1e6, cpu, tracking, acq, u, v))
+        step = (lat["total"] - lat["decode"]) / 1e6
+        conn.send(("result", result.frame, step, cpu, tracking, acq, acq_cpu, u, v))
 
 
 def race(rec: Path, peer: MediaPipePeer) -> dict:
@@ -267,8 +270,8 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
 
     from drivers import open_source
 
-    cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_u", "fp_v")
-    cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_u", "mp_v", "gt_u", "gt_v")
+    cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_acq_cpu", "fp_u", "fp_v")
+    cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_acq_cpu", "mp_u", "mp_v", "gt_u", "gt_v")
     fusion: dict[int, tuple] = {}
     mediapipe: dict[int, list[float]] = {}
     mp_had_hand = False
@@ -293,11 +296,11 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
             for k, frame in enumerate(src):
                 run_mediapipe = not frame.background
                 if run_mediapipe and k % 2:
-                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                    mediapipe[k] = [*peer(frame.color, "video"), *peer(frame.color, "static")[:2]]
                 here.send(frame)
                 until_wanted()
                 if run_mediapipe and not k % 2:
-                    mediapipe[k] = [*peer(frame.color, "video"), peer(frame.color, "static")[0]]
+                    mediapipe[k] = [*peer(frame.color, "video"), *peer(frame.color, "static")[:2]]
                 if run_mediapipe:
                     gt = frame.ground_truth
                     mediapipe[k] += [math.nan, math.nan] if gt is None else [gt.u, gt.v]
@@ -310,11 +313,9 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
             worker_proc.kill()
     rows = []
     for k in sorted(set(fusion) & set(mediapipe)):
-        fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v = fusion[k]
-        mp_ms, mp_cpu, mp_palm, mp_acq, gt_u, gt_v = mediapipe[k]
+        mp_ms, mp_cpu, mp_palm, mp_acq, mp_acq_cpu, gt_u, gt_v = mediapipe[k]
         mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
-        rows.append([fp_ms, fp_cpu, fp_track, fp_acq, fp_u, fp_v])
-        rows[-1] += [mp_ms, mp_cpu, mp_had_hand, mp_acq, mp_u, mp_v, gt_u, gt_v]
+        rows.append([*fusion[k], mp_ms, mp_cpu, mp_had_hand, mp_acq, mp_acq_cpu, mp_u, mp_v, gt_u, gt_v])
         mp_had_hand = mp_palm is not None
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
     return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
@@ -333,6 +334,7 @@ def summarise(r: dict) -> dict:
         sel = both if both.any() else r[f"{side}_track"] > 0
         t = r[f"{side}_ms"][sel]
         a = r[f"{side}_acq_ms"]
+        a_cpu = r[f"{side}_acq_cpu"]
         cpu = r[f"{side}_cpu"][sel]
         out[side] = {
             "track_median_ms": _pct(t, 50),
@@ -342,11 +344,15 @@ def summarise(r: dict) -> dict:
             "acq_median_ms": _pct(a, 50),
             "acq_p95_ms": _pct(a, 95),
             "acq_p99_ms": _pct(a, 99),
+            "acq_cpu_median_ms": _pct(a_cpu, 50),
+            "acq_cpu_p95_ms": _pct(a_cpu, 95),
+            "acq_cpu_p99_ms": _pct(a_cpu, 99),
             "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
             "tracking_frames": int(sel.sum()),
         }
     keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
-    for key in (*keys, "acq_median_ms", "acq_p95_ms", "acq_p99_ms"):
+    acq = ("acq_median_ms", "acq_p95_ms", "acq_p99_ms", "acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")
+    for key in (*keys, *acq):
         out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
     has_gt = np.isfinite(r["gt_u"])
     if has_gt.any():
@@ -394,6 +400,9 @@ def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict)
         ("acquisition (whole-frame search), median", "acq_median_ms"),
         ("acquisition, p95", "acq_p95_ms"),
         ("acquisition, p99", "acq_p99_ms"),
+        ("acquisition, CPU ms (all threads), median", "acq_cpu_median_ms"),
+        ("acquisition, CPU ms, p95", "acq_cpu_p95_ms"),
+        ("acquisition, CPU ms, p99", "acq_cpu_p99_ms"),
     ]
     for label, key in lines:
         print(f"{label:<48} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")

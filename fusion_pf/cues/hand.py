@@ -23,11 +23,15 @@ MediaPipe's graphs:
 One addition to MediaPipe: **re-centring**. When the hand moved fast, the ROI
 taken from the previous frame is off-centre and can cut the fingers; when the
 ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
-the ROI the model saw, the landmark model runs once more on the new ROI. On
-the hand-graph-cnn development frames (1280 x 720, hand moving up to 158 px per
-frame) this took the palm RMSE from 12.9 to 9.9 px (p95 17.7 -> 16.2, max 60 ->
-25 px) for a second call on a quarter of the tracked frames; on the 256 x 256
-crops it changed nothing that matters (5.93 -> 5.96 px, 3 second calls).
+the ROI the model saw, the landmark model runs once more on the new ROI. Every
+other tracked frame costs exactly one landmark call (:attr:`HandLandmarker.calls`
+counts them). On the hand-graph-cnn development frames (1280 x 720, hand moving
+up to 158 px per frame) the palm RMSE is 12.9 px without re-centring (p95 17.7,
+max 60 px), 9.9 px with ``recentre`` = 0.1 (a second call on a quarter of the
+tracked frames: it set the p95 frame time) and 10.2 px with the default
+:data:`RECENTRE` = 0.18 (p95 17.0, max 25 px; a second call on 5 of 105 tracked
+frames, two large jumps among them); on the 256 x 256 crops 5.93 px either way
+(no second call).
 ``recentre=None`` gives MediaPipe's behaviour.
 
 Coordinates are full-frame pixels ``(u, v)`` with pixel centres at integer
@@ -71,6 +75,8 @@ LANDMARK_INPUT = 224  # landmark model input side, px
 PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
 MODES = ("detect", "track", "hint")
+#: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
+RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
 #: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
@@ -108,7 +114,9 @@ class HandRoi:
         """The four corners ``(4, 2)``: top-left, top-right, bottom-right, bottom-left of the crop."""
         return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
 
-    def warp(self, rgb: np.ndarray, side: int, *, zero_border: bool) -> np.ndarray:
+    def warp(
+        self, rgb: np.ndarray, side: int, *, zero_border: bool, out: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> np.ndarray:
         """The ROI resampled to a ``(1, side, side, 3)`` float32 tensor in [0, 1] (bilinear).
 
         Sampled as MediaPipe's ``ImageToTensorCalculator`` does on the CPU (the
@@ -117,6 +125,9 @@ class HandRoi:
         tensor pixel ``j`` samples the normalised ROI coordinate ``j / side``.
         On MediaPipe's own test video this reproduces its landmarks to 0.16 px
         on average (0.64 px with a pixel-centre-exact sampling).
+
+        ``out``: a ``(side, side, 3)`` uint8 and a ``(1, side, side, 3)`` float32
+        buffer to reuse (the float one is returned); new arrays when None.
         """
         k = self.size / side
         c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
@@ -124,8 +135,13 @@ class HandRoi:
         u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
         m = np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])  # tensor px -> frame px
         border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
-        out = cv2.warpAffine(rgb, m, (side, side), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border)
-        return np.multiply(out, np.float32(1 / 255), dtype=np.float32)[None]
+        u8, f32 = (
+            out if out is not None else (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
+        )
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        cv2.warpAffine(rgb, m, (side, side), dst=u8, flags=flags, borderMode=border)
+        np.multiply(u8, np.float32(1 / 255), out=f32[0], dtype=np.float32)
+        return f32
 
 
 @dataclass(frozen=True, slots=True)
@@ -387,6 +403,20 @@ def _interpreter(path: Path, num_threads: int):
     return interpreter
 
 
+def others_running(loadavg: str = "/proc/loadavg") -> bool | None:
+    """Whether a task besides this one is runnable right now (the running count of ``loadavg``,
+    Linux); None when that cannot be read.
+
+    A multi-threaded model call waits for its slowest thread: with every core taken by someone, one
+    of its threads waits for a time slice. Reading the count costs about 10 us.
+    """
+    try:
+        with open(loadavg, "rb") as f:
+            return int(f.read().split()[3].split(b"/")[0]) > 1
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class _Model:
     """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
 
@@ -394,7 +424,8 @@ class _Model:
     thread is built (and its weights packed by one call) in a background thread.
     A multi-threaded call waits for its slowest thread, so when another process
     holds a core the parallel call stalls for that core's time slice while a
-    single-threaded one runs on the free core undisturbed. Once the twin is
+    single-threaded one runs on the free core undisturbed: while another task is
+    runnable (:func:`others_running`) every call goes to the twin. Otherwise, once the twin is
     ready each call goes to the interpreter with the smaller moving average of
     recent call times (the multi-threaded one only when it is below
     :data:`_MULTI_GAIN` x the twin's); every :data:`_EXPLORE` calls the other one
@@ -426,11 +457,12 @@ class _Model:
         self.interpreters.append(twin)
 
     def _pick(self) -> int:
-        """Index of the interpreter for this call: the twin once when it is new, then the faster one, the
-        other every :data:`_EXPLORE` calls."""
+        """Index of the interpreter for this call: the twin while another task is runnable
+        (:func:`others_running`), else the twin once when it is new, then the faster one, the other
+        every :data:`_EXPLORE` calls."""
         if len(self.interpreters) == 1:
             return 0
-        if self.calls[1] == 0:
+        if self.calls[1] == 0 or others_running() is not False:
             return 1
         # the multi-threaded primary only when clearly faster: its threads spin between layers, costing CPU
         best = 0 if self.mean_ns[0] < _MULTI_GAIN * self.mean_ns[1] else 1
@@ -458,8 +490,11 @@ class HandLandmarker:
     Parameters
     ----------
     num_threads : int
-        LiteRT CPU threads (>= 1). Results are bit-identical run to run for a
-        given thread count.
+        LiteRT CPU threads per model call (>= 1). 1 (the default) never waits
+        for a core another process holds; more adds single-threaded twins that
+        run every call while another task is runnable, otherwise the faster
+        one runs (:class:`_Model`). Results are bit-identical whatever the
+        thread count.
     min_detection : float
         Palm detection score threshold, [0, 1] (MediaPipe's ``min_detection_confidence``).
     min_presence : float
@@ -486,12 +521,12 @@ class HandLandmarker:
     def __init__(
         self,
         *,
-        num_threads: int = 2,
+        num_threads: int = 1,
         min_detection: float = 0.5,
         min_presence: float = 0.5,
         nms_iou: float = 0.3,
         max_hands: int = 2,
-        recentre: float | None = 0.1,
+        recentre: float | None = RECENTRE,
         model_dir: str | Path | None = None,
     ) -> None:
         if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 1:
@@ -516,13 +551,20 @@ class HandLandmarker:
             folder / "hand_landmark_full.tflite", self.num_threads, ("Identity", "Identity_1", "Identity_2")
         )
         self._anchors = ssd_anchors()
+        self._buffers = {
+            side: (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
+            for side in (PALM_INPUT, LANDMARK_INPUT)
+        }
+        #: Model calls so far: ``"palm"`` (whole-frame detections) and ``"landmark"``.
+        self.calls = {"palm": 0, "landmark": 0}
 
     def palms(self, rgb: np.ndarray) -> PalmDetections:
         """Palm detections on the whole frame after weighted NMS, in full-frame pixels, best first."""
         _check_rgb(rgb)
         h, w = rgb.shape[:2]
         frame = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))  # letterbox: the frame centred in a square
-        raw_boxes, raw_scores = self._palm(frame.warp(rgb, PALM_INPUT, zero_border=True))
+        self.calls["palm"] += 1
+        raw_boxes, raw_scores = self._palm(frame.warp(rgb, PALM_INPUT, zero_border=True, out=self._buffers[PALM_INPUT]))
         det = weighted_nms(
             decode_palms(raw_boxes, raw_scores, self._anchors, min_score=self.min_detection),
             self.nms_iou,
@@ -546,7 +588,9 @@ class HandLandmarker:
     def _landmarks(self, rgb: np.ndarray, roi: HandRoi) -> HandObservation | None:
         """One landmark model call in ``roi``."""
         _check_rgb(rgb)
-        raw, presence, handed = self._landmark(roi.warp(rgb, LANDMARK_INPUT, zero_border=False))
+        self.calls["landmark"] += 1
+        tensor = roi.warp(rgb, LANDMARK_INPUT, zero_border=False, out=self._buffers[LANDMARK_INPUT])
+        raw, presence, handed = self._landmark(tensor)
         score = float(presence.reshape(-1)[0])
         if not score >= self.min_presence:
             return None
@@ -587,12 +631,14 @@ class HandLandmarker:
         """
         if previous is not None and not isinstance(previous, HandObservation):
             raise InputError(f"previous must be a HandObservation or None, got {type(previous).__name__}")
-        hint = self._hint_roi(roi_hint, previous)
+        hint_uvs = self._check_hint(roi_hint)
         if previous is not None:
             obs = self.landmarks(rgb, landmarks_roi(previous.landmarks))
             if obs is not None:
                 return obs, "track"
-        if hint is not None:
+        hint = None
+        if hint_uvs is not None:  # the previous landmarks' rotation, computed only when the hint is used
+            hint = HandRoi(*hint_uvs, landmarks_roi(previous.landmarks).rotation if previous is not None else 0.0)
             obs = self.landmarks(rgb, hint)
             if obs is not None:
                 return obs, "hint"
@@ -608,7 +654,7 @@ class HandLandmarker:
         return None, "detect"
 
     @staticmethod
-    def _hint_roi(roi_hint: tuple[float, float, float] | None, previous: HandObservation | None) -> HandRoi | None:
+    def _check_hint(roi_hint: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
         if roi_hint is None:
             return None
         try:
@@ -617,8 +663,7 @@ class HandLandmarker:
             raise InputError(f"roi_hint must be (u, v, size) in pixels, got {roi_hint!r}") from None
         if not (math.isfinite(u) and math.isfinite(v) and math.isfinite(size) and size > 0):
             raise InputError(f"roi_hint must be finite (u, v, size) with size > 0, got {roi_hint!r}")
-        rot = landmarks_roi(previous.landmarks).rotation if previous is not None else 0.0
-        return HandRoi(u, v, size, rot)
+        return u, v, size
 
 
 #: Weight of one frame in a tracked hand's smoothed handedness (a time constant of 5 frames).
@@ -663,15 +708,18 @@ class HandCue:
     Parameters
     ----------
     landmarker : HandLandmarker, optional
-        Default: a new one with its defaults.
+        Default: a new one with its defaults and ``num_threads``.
+    num_threads : int, optional
+        LiteRT threads of the default landmarker (its default when None).
     """
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
     needs = frozenset({"color"})
     name = "hand"
 
-    def __init__(self, landmarker: HandLandmarker | None = None) -> None:
+    def __init__(self, landmarker: HandLandmarker | None = None, *, num_threads: int | None = None) -> None:
         self._landmarker = landmarker
+        self._num_threads = num_threads
         self.previous: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
 
@@ -679,7 +727,8 @@ class HandCue:
     def landmarker(self) -> HandLandmarker:
         """The host landmarker (built on first use: camera-recorded hands need none)."""
         if self._landmarker is None:
-            self._landmarker = HandLandmarker()
+            n = self._num_threads
+            self._landmarker = HandLandmarker() if n is None else HandLandmarker(num_threads=n)
         return self._landmarker
 
     def reset(self) -> None:

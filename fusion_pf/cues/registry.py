@@ -23,7 +23,7 @@ from ..options import option, parse_tuple, validate
 from .base import Cue
 from .colour import ColourCue
 from .depth import DepthCue
-from .hand import HandCue
+from .hand import HandCue, HandLandmarker
 from .skeleton import SkeletonCue
 from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
 
@@ -119,6 +119,25 @@ class CueOptions:
         unit="px",
         help="smallest region the colour, depth and skin cues keep",
     )
+    hand_threads: int = option(
+        _default(HandLandmarker, "num_threads"),
+        kind="int",
+        lo=1,
+        hi=64,
+        unit="threads",
+        help="hand cue: LiteRT threads per model call; 1 never waits for a core another process holds, "
+        "more adds a single-threaded twin that runs every call while another task is runnable "
+        "(otherwise the faster of the two runs)",
+    )
+    cv_threads: int = option(
+        1,
+        kind="int",
+        lo=1,
+        hi=64,
+        unit="threads",
+        help="OpenCV threads while the cues run; 1 never waits for a core another process holds "
+        "(the caller's setting is restored after each frame's cues)",
+    )
     skin_model: Path | None = option(
         None,
         optional=True,
@@ -189,7 +208,7 @@ def _skeleton(o: CueOptions) -> Cue:
 
 @register("hand", HandCue.needs, "learned palm detector + hand landmarks (MediaPipe models on LiteRT), or the camera's")
 def _hand(o: CueOptions) -> Cue:
-    return HandCue()
+    return HandCue(num_threads=o.hand_threads)
 
 
 @register("skin_rgb", SkinCue.needs, "paper 002 eq. 4: explicit RGB skin rule")

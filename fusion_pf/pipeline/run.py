@@ -105,7 +105,7 @@ import numpy as np
 
 from ..association import HANDS, Detection, associate
 from ..cues.background import AdaptiveBackground, BackgroundModel
-from ..cues.base import SOURCES, Cue, CueContext
+from ..cues.base import SOURCES, Cue, CueContext, opencv_threads
 from ..cues.regions import DEFAULT_PALM_AREA
 from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
@@ -572,30 +572,31 @@ class _CueStage:
         hands = max(1, sum(t in HANDS for t in targets)) if several else 1
         detections: list[Detection] = []
         groups = window_groups(targets, rois)
-        for name in self.names:
-            t0 = time.perf_counter_ns()
-            needs = self.cues[targets[0]][name].needs
-            if name == "hand":
-                calls = [(targets[0], rois[targets[0]])]
-            elif "skeleton" in needs:
-                calls = [(t, rois[t]) for t in targets]
-            else:
-                calls = groups
-            for t, roi in calls:
-                ctx = CueContext(
-                    roi=roi,
-                    background=model,
-                    joint=t,
-                    prior=priors[t],
-                    search=priors[t] is None,
-                    hands=hands,
-                    candidates=several,
-                )
-                found = self.detect(name, self.cues[t][name], index, frame, ctx)
-                if "skeleton" in needs:  # the joint of target t: a certain label
-                    found = tuple(Detection(d.measurement, label=t) for d in found)
-                detections.extend(found)
-            lat[name] = time.perf_counter_ns() - t0
+        with opencv_threads(self.config.cue_options.cv_threads):  # no cue waits for a core held elsewhere
+            for name in self.names:
+                t0 = time.perf_counter_ns()
+                needs = self.cues[targets[0]][name].needs
+                if name == "hand":
+                    calls = [(targets[0], rois[targets[0]])]
+                elif "skeleton" in needs:
+                    calls = [(t, rois[t]) for t in targets]
+                else:
+                    calls = groups
+                for t, roi in calls:
+                    ctx = CueContext(
+                        roi=roi,
+                        background=model,
+                        joint=t,
+                        prior=priors[t],
+                        search=priors[t] is None,
+                        hands=hands,
+                        candidates=several,
+                    )
+                    found = self.detect(name, self.cues[t][name], index, frame, ctx)
+                    if "skeleton" in needs:  # the joint of target t: a certain label
+                        found = tuple(Detection(d.measurement, label=t) for d in found)
+                    detections.extend(found)
+                lat[name] = time.perf_counter_ns() - t0
         assigned = associate(
             targets,
             [priors[t] for t in targets],

@@ -23,6 +23,8 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
         "mp_track": np.array([0.0, 0, 1, 1, 1, 1, 1, 1]),
         "fp_acq_ms": np.full(n, 10.0),
         "mp_acq_ms": np.full(n, 20.0),
+        "fp_acq_cpu": np.full(n, 9.0),
+        "mp_acq_cpu": np.full(n, 12.0),
         "gt_u": np.full(n, 10.0),
         "gt_v": np.full(n, 10.0),
         "fp_u": np.array([13.0, 10, 10, 10, 10, 10, 10, math.nan]),
@@ -37,6 +39,7 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
     assert s["fp"]["track_median_ms"] == 2.0 and s["mp"]["track_median_ms"] == 4.0
     assert s["ratio_track_median_ms"] == pytest.approx(0.5)
     assert s["ratio_acq_median_ms"] == pytest.approx(0.5) == s["ratio_track_cpu_median_ms"]
+    assert s["ratio_acq_cpu_median_ms"] == pytest.approx(0.75) == s["ratio_acq_cpu_p99_ms"]
     assert s["fp"]["own_acquisition_frames"] == 1 and s["mp"]["own_acquisition_frames"] == 2
     # errors 5 (frame 0) and 4 (frames 1-6), frame 7 has no estimate
     assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt((25 + 6 * 16) / 7))

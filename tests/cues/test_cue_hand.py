@@ -255,6 +255,58 @@ def test_recentring_recovers_an_off_centre_roi(hl, angle):
     assert once_err > 2 * twice_err  # the hand cut by the stale ROI is placed much worse
 
 
+def _moving_hand(step: float, frames: int) -> list[np.ndarray]:
+    """``asl_hand_001.jpg`` with the hand moving ``step`` x its tracking-ROI side to the right per frame."""
+    rgb = load("asl_hand_001.jpg")
+    refs, _ = expected("asl_hand_001.jpg")
+    dx = step * landmarks_roi(refs[0]).size
+    h, w = rgb.shape[:2]
+    shifts = [np.array([[1.0, 0.0, (k - 2) * dx], [0.0, 1.0, 0.0]]) for k in range(frames)]
+    return [cv2.warpAffine(rgb, m, (w, h), borderMode=cv2.BORDER_REPLICATE) for m in shifts]
+
+
+@pytest.mark.parametrize("step", [0.0, 0.15])
+def test_one_landmark_call_per_tracked_frame(step):
+    """Issue 25: a tracked frame costs exactly one landmark call and no palm detection, counted by the
+    cue's landmarker, also when the hand moved 0.15 ROI since the last frame (re-centring at 0.1 used to
+    call the model twice there)."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import HandCue
+
+    cue = HandCue()
+    video = _moving_hand(step, 5)
+    first = cue.measure(_frame(video[0]), CueContext()).measurement
+    assert first is not None and first.extras["mode"] == "detect"
+    before = dict(cue.landmarker.calls)
+    for i, rgb in enumerate(video[1:], 1):
+        m = cue.measure(_frame(rgb, i), CueContext()).measurement
+        assert m is not None and m.extras["mode"] == "track"
+        assert cue.landmarker.calls["landmark"] - before["landmark"] == i  # one call per frame
+    assert cue.landmarker.calls["palm"] == before["palm"]  # tracked: no palm detection
+    # the palm followed the motion
+    assert abs(m.u - first.u - 4 * step * landmarks_roi(np.asarray(first.extras["landmarks"])).size) < 15.0
+
+
+def test_only_a_large_jump_is_recentred():
+    """A hand that jumped 0.3 ROI is re-centred in that frame (two calls); without re-centring (MediaPipe)
+    every frame is one call."""
+    video = _moving_hand(0.3, 2)
+    for recentre, calls in ((hand.RECENTRE, 2), (None, 1)):
+        lm = HandLandmarker(recentre=recentre)
+        prev, _ = lm.track(video[0], None)
+        n = lm.calls["landmark"]
+        obs, mode = lm.track(video[1], prev)
+        assert mode == "track" and lm.calls["landmark"] - n == calls
+
+
+def test_hand_threads_option_reaches_the_landmarker():
+    from fusion_pf.cues.registry import CueOptions, build_cues
+
+    assert build_cues(["hand"])["hand"].landmarker.num_threads == 1  # default: never waits for a held core
+    cue = build_cues(["hand"], CueOptions(hand_threads=2))["hand"]
+    assert cue.landmarker.num_threads == 2 and cue.landmarker._landmark.twin is not None
+
+
 # ------------------------------------------------------------------ failure
 
 
@@ -289,9 +341,10 @@ def test_deterministic_across_runs_and_instances(hl):
     assert p.boxes.tobytes() == q.boxes.tobytes() and p.scores.tobytes() == q.scores.tobytes()
 
 
-def test_thread_count_choice_never_changes_a_result():
+def test_thread_count_choice_never_changes_a_result(monkeypatch):
     # a 2-thread landmarker also builds 1-thread twins (in the background) and then sends each call to
-    # the faster of the two
+    # the faster of the two while no other task is runnable
+    monkeypatch.setattr(hand, "others_running", lambda: False)
     two, one = HandLandmarker(num_threads=2), HandLandmarker(num_threads=1)
     assert one._palm.twin is None and one._landmark.twin is None
     for m in (two._palm, two._landmark):
@@ -309,6 +362,22 @@ def test_thread_count_choice_never_changes_a_result():
         picks.append(model._pick())
         model.calls[picks[-1]] += 1
     assert picks.count(1) == 2 * hand._EXPLORE - 2 and picks.count(0) == 2  # the slower one is only re-timed
+    # another task runnable (or no way to tell): only the twin, the multi-threaded call could stall
+    model.mean_ns = [1.0e6, 5.0e6]
+    for running in (True, None):
+        monkeypatch.setattr(hand, "others_running", lambda running=running: running)
+        assert {model._pick() for _ in range(2 * hand._EXPLORE)} == {1}
+
+
+@pytest.mark.parametrize(
+    "text, running",
+    [("0.10 0.20 0.30 1/180 4242\n", False), ("3.1 2.0 1.5 3/190 4243\n", True), ("garbage", None), (None, None)],
+)
+def test_others_running_reads_the_run_queue(tmp_path, text, running):
+    path = tmp_path / "loadavg"
+    if text is not None:
+        path.write_text(text)
+    assert hand.others_running(str(path)) is running
 
 
 def test_measurement_from_observation(hl):

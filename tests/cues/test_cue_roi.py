@@ -54,22 +54,16 @@ def test_bad_options_raise_one_line_input_error(kwargs, needle):
     assert "\n" not in str(e.value)
 
 
-def test_search_step_keeps_a_whole_frame_search_near_640x360():
+def test_search_step_keeps_a_whole_frame_search_near_500x280():
     from fusion_pf.cues.roi import full_roi, search_step
 
     assert [
         search_step(full_roi(w, h)) for w, h in ((320, 200), (640, 480), (960, 540), (1280, 720), (1920, 1080))
-    ] == [
-        1,
-        1,
-        2,
-        2,
-        3,
-    ]
+    ] == [1, 1, 2, 3, 4]
 
 
 def test_reduced_search_finds_the_palm_the_full_resolution_search_finds(monkeypatch):
-    # a 1280 x 720 synthetic scene: the whole-frame search on every 2nd row and column against
+    # a 1280 x 720 synthetic scene: the whole-frame search on every 3rd row and column against
     # the same search on every pixel (SEARCH_PIXELS raised so the step is 1)
     from drivers.synth import SynthSource
     from fusion_pf.cues import roi as roi_module
@@ -91,7 +85,7 @@ def test_reduced_search_finds_the_palm_the_full_resolution_search_finds(monkeypa
             colour = ColourCue()(f.color, bg.color, keep_border=True).measurement
             found[pixels] = (depth, colour)
         (d2, c2), (d1, c1) = found.values()
-        assert d2.extras["search_step"] == 2 and d1.extras["search_step"] == 1
+        assert d2.extras["search_step"] == 3 and d1.extras["search_step"] == 1
         assert math.hypot(d2.u - d1.u, d2.v - d1.v) < 3.0
         assert d2.extras["area"] == pytest.approx(d1.extras["area"], rel=0.1)
         assert abs(d2.quality - d1.quality) < 0.1

@@ -174,3 +174,32 @@ def test_uncertainty_covers_the_error_in_about_95_percent_of_frames(scene_frames
     for r in tracked:
         if r.xyz_mm is not None:
             assert r.sigma_mm == pytest.approx(r.sigma_px * r.xyz_mm[2] / r.source_frame.intrinsics.fx)
+
+
+def test_cues_run_with_the_configured_opencv_threads(monkeypatch):
+    """Issue 25: the cues run single-threaded in OpenCV by default (a split call waits for a core another
+    process holds); the caller's setting is restored after every frame."""
+    from drivers.synth import SynthSource
+    from fusion_pf.cues.colour import ColourCue
+    from fusion_pf.cues.registry import CueOptions
+
+    seen: list[int] = []
+    measure = ColourCue.measure
+
+    def spy(self, frame, ctx):
+        seen.append(cv2.getNumThreads())
+        return measure(self, frame, ctx)
+
+    monkeypatch.setattr(ColourCue, "measure", spy)
+    with SynthSource(frames=5, seed=1, size=(160, 100), background_frames=2) as src:
+        frames = list(src)
+    caller = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(2)
+        for options, threads in ((CueOptions(), 1), (CueOptions(cv_threads=2), 2)):
+            seen.clear()
+            for _ in track(iter(frames), TrackConfig(cues=("colour",), cue_options=options)):
+                assert cv2.getNumThreads() == 2  # restored between frames
+            assert seen == [threads] * 3
+    finally:
+        cv2.setNumThreads(caller)
