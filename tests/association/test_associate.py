@@ -157,3 +157,17 @@ def test_bad_arguments_are_input_errors(kwargs, word):
 def test_label_score_must_be_a_probability():
     with pytest.raises(InputError, match="label_score"):
         det("hand", 0, 0, "right_hand", 1.5)
+
+
+def test_a_source_gate_keeps_a_detection_beyond_the_targets_uncertainty_out():
+    # a colour region 50 px from the right hand's prediction (clutter), inside its window's gate of 120 px
+    dets = [det("colour", 150, 0), det("depth", 104, 0)]
+    out = associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300])
+    assert picked(out)["right_hand"] == [("colour", 150, 0), ("depth", 104, 0)]
+    # its uncertainty gates colour at 30 px: the clutter is nobody's but the acquiring target's
+    out = associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[{"colour": 30.0}, None])
+    assert picked(out) == {"right_hand": [("depth", 104, 0)], "left_hand": [("colour", 150, 0)]}
+    with pytest.raises(InputError, match="source_gates must hold one mapping of px > 0"):
+        associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[{"colour": 0.0}, None])
+    with pytest.raises(InputError, match="source_gates must hold one mapping"):
+        associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[None])
