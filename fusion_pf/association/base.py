@@ -33,7 +33,9 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the
    Hungarian gives each of the pair a detection; the blob they share is the
-   nearer one, not a distractor farther out). No other detection is given
+   nearer one, not a distractor farther out), except when both are parts of
+   one region the cue split between them (extras ``part``,
+   :func:`fusion_pf.cues.regions.split_region`). No other detection is given
    to two targets.
 
 Detections of one source closer than ``merge_px`` are one detection (the
@@ -230,6 +232,8 @@ def associate(
             if t not in out or q not in own or not compatible(t, own[q]):
                 continue
             p = predictions[targets.index(t)]
+            if t in own and "part" in own[t].measurement.extras and "part" in own[q].measurement.extras:
+                continue  # the cue split the pair's region between them: each keeps its part
             if t not in own or (
                 p is not None
                 and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])

@@ -177,6 +177,9 @@ SUPPORT_SIGMAS = 3.0
 #: Several targets: a tracked target's association gate of a source is at least this many of
 #: its apparent palm lengths (:meth:`_FilterStage.source_gates`).
 GATE_FLOOR_PALMS = 1.0
+#: A combined pair's region is split between them (:func:`fusion_pf.cues.regions.split_region`) while
+#: their priors are at least this many apparent palm lengths apart (the hands side by side).
+SPLIT_PALMS = 0.85
 #: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
 #: the hand cue's presence score is 0.9-1.0 on a visible hand.
 JUMP_MIN_QUALITY = 0.8
@@ -598,6 +601,7 @@ class _CueStage:
                     search=priors[t] is None,
                     hands=hands,
                     candidates=several,
+                    parts=_joined_priors(priors, partners or {}, roi, palms or {}),
                 )
                 found = self.detect(name, self.cues[t][name], index, frame, ctx)
                 if "skeleton" in needs:  # the joint of target t: a certain label
@@ -661,6 +665,28 @@ class _CueStage:
             intrinsics=frame.intrinsics,
             ground_truth=frame.ground_truth if target is None else (frame.ground_truths or {}).get(target),
         )
+
+
+def _joined_priors(
+    priors: Mapping[str, tuple[float, float] | None],
+    partners: Mapping[str, str],
+    roi: Roi | None,
+    palms: Mapping[str, float | None],
+) -> tuple[tuple[float, float], ...]:
+    """The priors of the first combined pair whose priors both lie in ``roi`` at least :data:`SPLIT_PALMS` apparent palm lengths apart (the region cues split a region holding both).
+
+    Closer (one hand over the other) the 2-means split cuts the front palm in
+    two and the hidden hand's part is off its centre: the pair shares the region.
+    """
+    for a, b in partners.items():
+        pa, pb, palm = priors.get(a), priors.get(b), palms.get(a)
+        if pa is None or pb is None or palm is None:
+            continue
+        if math.hypot(pa[0] - pb[0], pa[1] - pb[1]) < SPLIT_PALMS * palm:
+            continue
+        if roi is None or all(roi.x0 <= p[0] <= roi.x1 and roi.y0 <= p[1] <= roi.y1 for p in (pa, pb)):
+            return (pa, pb)
+    return ()
 
 
 def _background_row(index: int, frame: Frame, decode_ns: int, names: Sequence[str]) -> CueRow:
@@ -1120,8 +1146,8 @@ def _detected_apart(a: CueRow, b: CueRow, distance: float) -> bool:
     """Whether a region cue gave the two targets' rows two detections farther than ``distance`` apart (the cue sees two hands, not one shared blob)."""
     for source, m in a.cues.items():
         n = b.cues.get(source)
-        if m is None or n is None or m is n or source in ("skeleton", "hand"):
-            continue
+        if m is None or n is None or m is n or source in ("skeleton", "hand") or "part" in m.extras:
+            continue  # labelled sources count as labels; parts are one region the cue split between the pair
         if math.hypot(m.u - n.u, m.v - n.v) > distance:
             return True
     return False

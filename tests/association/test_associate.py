@@ -171,3 +171,12 @@ def test_a_source_gate_keeps_a_detection_beyond_the_targets_uncertainty_out():
         associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[{"colour": 0.0}, None])
     with pytest.raises(InputError, match="source_gates must hold one mapping"):
         associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[None])
+
+
+def test_a_combined_pair_keeps_the_parts_a_cue_split_their_region_into():
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    part = [Detection(Measurement("depth", u, 270.0, 0.9, {"part": k})) for k, u in enumerate((352.0, 376.0))]
+    # the right hand's prediction lies nearer the left's part than its own (the estimates drifted together):
+    # the parts are still each its own, not shared like a blob
+    out = associate(HANDS, [(366.0, 270.0), (372.0, 270.0)], part, gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("depth", 352, 270)], "left_hand": [("depth", 376, 270)]}
