@@ -15,6 +15,7 @@ processes sharing the cores inflate the wall time unevenly), and their ratio.
 Usage::
 
     PYTHONPATH=. python benchmarks/targets.py [--seeds 0,1,2] [--frames 330] [--size 640x400] [--filters pf,kf,sspf]
+        [--scene hand_front=0.1,joins=3,crossings=2,timing=1]
 
 Seed 0 is the one the pipeline was developed on; report the others as held out.
 """
@@ -28,7 +29,7 @@ import time
 
 import numpy as np
 
-from drivers.synth import SynthSource
+from drivers.synth import VARIATIONS, SynthSource
 from fusion_pf.cues.background import BackgroundModel
 from fusion_pf.pipeline import TrackConfig, track
 from fusion_pf.score.targets import JOINED_FRACTION, count_swaps
@@ -37,9 +38,22 @@ HANDS = ("right_hand", "left_hand")
 BACKGROUND_FRAMES = 30
 
 
-def _frames(seed: int, frames: int, size: tuple[int, int]) -> list:
-    with SynthSource(seed=seed, frames=frames, size=size, hands=2, background_frames=BACKGROUND_FRAMES) as src:
+def _frames(seed: int, frames: int, size: tuple[int, int], scene: dict | None = None) -> list:
+    with SynthSource(
+        seed=seed, frames=frames, size=size, hands=2, background_frames=BACKGROUND_FRAMES, **(scene or {})
+    ) as src:
         return list(src)
+
+
+def _scene(text: str) -> dict:
+    """``--scene`` ``K=V,...``: synth variations and layout options (``drivers.synth.VARIATIONS``)."""
+    out = {}
+    for item in filter(None, text.split(",")):
+        key, _, value = item.partition("=")
+        if key not in VARIATIONS:
+            raise SystemExit(f"--scene: unknown synth option {key!r}; expected one of {', '.join(VARIATIONS)}")
+        out[key] = value
+    return out
 
 
 def accuracy(frames: list, targets: tuple[str, ...] = HANDS, filt: str = "pf") -> dict:
@@ -86,6 +100,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", default="640x400", help="image size WxH")
     p.add_argument("--repeats", type=int, default=3, help="alternating timing runs (default 3)")
     p.add_argument("--filters", default="pf", help="comma-separated per-target filters among pf, kf, sspf (default pf)")
+    p.add_argument(
+        "--scene",
+        default="",
+        help="synth scene options K=V,... (e.g. hand_front=0.1,joins=3,crossings=2,timing=1; default none)",
+    )
     args = p.parse_args(argv)
     size = tuple(int(x) for x in args.size.split("x"))
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -93,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---:|---|---|---:|---:|---:|---:|")
     first = None
     for seed in seeds:
-        frames = _frames(seed, args.frames, size)
+        frames = _frames(seed, args.frames, size, _scene(args.scene))
         first = first or frames
         for filt in args.filters.split(","):
             res = accuracy(frames, HANDS, filt)

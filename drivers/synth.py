@@ -188,6 +188,14 @@ and forearms, the face and neck, and a skin-coloured painting on the wall.
   the confidence drop saturate at ``w = 1``), ``clutter``, ``lighting`` and
   ``depth_noise`` as for one hand.
 * ``hands=1`` (the default) renders exactly the one-hand scene, bit for bit.
+* Layout (``hands=2`` only; :data:`LAYOUT`; :func:`drivers.synth_scene.wash_keys`):
+  ``joins`` (0-4) and ``crossings`` (0-3) per cycle, interleaved;
+  ``hand_distance`` (m apart, 0.14-0.5), ``cross_height`` (how far the right
+  palm passes above the left, 0.05-0.25 m); ``timing=1`` draws the order of the
+  events and every hold, approach and crossing length from
+  ``spawn_key=(6,)``. The defaults (2, 1, 0.30, 0.13, fixed timing) are
+  :data:`drivers.synth_scene.WASH_KEYS`; a cycle ending crossed is followed by
+  its mirror image.
 
 Scripted events (``hands=2, script="events"``)
 ----------------------------------------------
@@ -345,7 +353,14 @@ VARIATIONS = {
     "skeleton_bias": (1.0, 0.0, 5.0),
     "clothing": (0.0, 0.0, float(len(sc.CLOTHING_PALETTE) - 1)),
     "clutter": (0, 0, 30),
+    "hand_distance": (sc.WASH_LAYOUT[2], 0.14, 0.5),
+    "joins": (sc.WASH_LAYOUT[0], 0, 4),
+    "crossings": (sc.WASH_LAYOUT[1], 0, 3),
+    "cross_height": (sc.WASH_LAYOUT[3], 0.05, 0.25),
+    "timing": (0, 0, 1),
 }
+#: The variations of the two-hand motion (``hands=2`` only).
+LAYOUT = ("hand_distance", "joins", "crossings", "cross_height", "timing")
 _OPTIONS = (
     "seed",
     "frames",
@@ -393,6 +408,11 @@ def _variation(name: str, value: object) -> float:
     if not lo <= number <= hi:
         raise InputError(f"synth option {name} must be a number in [{lo}, {hi}], got {value!r}")
     return number
+
+
+def _int_variation(name: str, value: object) -> int:
+    _, lo, hi = VARIATIONS[name]
+    return _int_option(f"synth option {name}", value, int(lo), int(hi))
 
 
 def _fps_option(value: object) -> float:
@@ -474,6 +494,11 @@ class SynthSource(ReplaySource):
         skeleton_bias: float = VARIATIONS["skeleton_bias"][0],
         clothing: float = VARIATIONS["clothing"][0],
         clutter: int = int(VARIATIONS["clutter"][0]),
+        hand_distance: float = VARIATIONS["hand_distance"][0],
+        joins: int = int(VARIATIONS["joins"][0]),
+        crossings: int = int(VARIATIONS["crossings"][0]),
+        cross_height: float = VARIATIONS["cross_height"][0],
+        timing: int = int(VARIATIONS["timing"][0]),
     ) -> None:
         super().__init__()
         self.depth_noise = _variation("depth_noise", depth_noise)
@@ -482,8 +507,12 @@ class SynthSource(ReplaySource):
         self.skin_tone = _variation("skin_tone", skin_tone)
         self.skeleton_bias = _variation("skeleton_bias", skeleton_bias)
         self.clothing = _variation("clothing", clothing)
-        _, lo, hi = VARIATIONS["clutter"]
-        self.clutter = _int_option("synth option clutter", clutter, int(lo), int(hi))
+        self.hand_distance = _variation("hand_distance", hand_distance)
+        self.cross_height = _variation("cross_height", cross_height)
+        self.clutter = _int_variation("clutter", clutter)
+        self.joins = _int_variation("joins", joins)
+        self.crossings = _int_variation("crossings", crossings)
+        self.timing = _int_variation("timing", timing)
         self._skin = sc.skin_rgb(self.skin_tone)
         self._shirt = sc.clothing_rgb(self.clothing)
         self.hands = _int_option("synth option hands", hands, 1, 2)
@@ -493,6 +522,11 @@ class SynthSource(ReplaySource):
             raise InputError(f"synth option script {script!r} needs hands 2 (both hands act in it), got {self.hands}")
         self.script = script
         self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
+        layout = [k for k in LAYOUT if getattr(self, k) != VARIATIONS[k][0]]
+        if layout and self.hands != 2:
+            raise InputError(f"synth option {layout[0]} describes the two-hand motion; it needs hands=2")
+        if layout and script != "none":
+            raise InputError(f"synth option {layout[0]} changes the two-hand motion, which script {script!r} fixes")
         self.seed = _int_option("synth option seed", seed, 0, 2**63 - 1)
         self.size = _size_option(size)
         self.fps = _fps_option(fps)
@@ -514,10 +548,21 @@ class SynthSource(ReplaySource):
             drift_amps=tuple(self.lighting * x for x in a.drift_amps),
             gradient_amp=self.lighting * a.gradient_amp,
         )
-        self._wash = sc.wash_parameters(self._rng(4)) if self.hands == 2 else None
+        self._wash = self._wash_motion() if self.hands == 2 else None
         self._script = sc.script_parameters(self._rng(6)) if script == "events" else None
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
+
+    def _wash_motion(self) -> sc.WashMotion:
+        """The two-hand motion: its per-seed parameters and the cycle of the layout options."""
+        keys = sc.wash_keys(
+            self.joins,
+            self.crossings,
+            self.hand_distance,
+            self.cross_height,
+            self._rng(6) if self.timing else None,
+        )
+        return dataclasses.replace(sc.wash_parameters(self._rng(4)), keys=keys, cross_height=self.cross_height)
 
     @classmethod
     def from_options(cls, options: Mapping[str, object]) -> "SynthSource":

@@ -19,6 +19,7 @@ the caller from the seed.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -862,13 +863,24 @@ WASH_KEYS: tuple[tuple[float, float, float], ...] = (
 WASH_EXTRA_FRONT = 0.06
 #: Length of one cycle (frames); odd cycles are mirrored (``d -> -d``), so the motion is continuous.
 WASH_PERIOD = WASH_KEYS[-1][0]
+#: Distance of the joined palm centres (m).
+JOINED_D = 0.04
+#: The layout of :data:`WASH_KEYS`: joins, crossings per cycle, hands' distance apart and
+#: crossing height (m).
+WASH_LAYOUT = (2, 1, 0.30, 0.13)
+#: Phase lengths (frames) of a generated cycle (:func:`wash_keys`) with fixed timing:
+#: hold apart, approach (and part), hold joined, a quarter of a crossing ...
+WASH_PHASES = (25.0, 25.0, 50.0, 15.0)
+#: ... and their ranges when drawn per seed (``timing``).
+WASH_PHASE_RANGES = ((5.0, 40.0), (12.0, 35.0), (15.0, 90.0), (8.0, 20.0))
 
 
 @dataclass(frozen=True)
 class WashMotion:
     """Random parameters of the two-hand (hand-washing) motion, drawn once per seed.
 
-    Periods in frames, amplitudes in metres.
+    Periods in frames, amplitudes in metres; ``keys`` is the cycle
+    (:func:`wash_keys`) and ``cross_height`` its crossing height, m.
     """
 
     rub_period: float
@@ -880,6 +892,8 @@ class WashMotion:
     centre_phase: float
     centre_amp: float
     height: float
+    keys: tuple[tuple[float, float, float], ...] = WASH_KEYS
+    cross_height: float = WASH_LAYOUT[3]
 
 
 def wash_parameters(rng: np.random.Generator) -> WashMotion:
@@ -898,13 +912,68 @@ def wash_parameters(rng: np.random.Generator) -> WashMotion:
     )
 
 
-def wash_schedule(t: float) -> tuple[float, float]:
-    """``(d, dy)`` of :data:`WASH_KEYS` at person-frame ``t`` (cosine-eased between key frames)."""
-    cycle, local = divmod(t, WASH_PERIOD)
-    sign = -1.0 if int(cycle) % 2 else 1.0
-    times = [k[0] for k in WASH_KEYS]
-    i = min(max(int(np.searchsorted(times, local, side="right")) - 1, 0), len(WASH_KEYS) - 2)
-    (t0, d0, y0), (t1, d1, y1) = WASH_KEYS[i], WASH_KEYS[i + 1]
+def wash_keys(
+    joins: int, crossings: int, distance: float, cross_height: float, rng: np.random.Generator | None = None
+) -> tuple[tuple[float, float, float], ...]:
+    """Key frames (as :data:`WASH_KEYS`) of a cycle with ``joins`` joins and ``crossings`` crossings.
+
+    The hands start ``distance`` m apart on their own sides; the events follow
+    in an interleaved order (joins spread between the crossings), each after
+    a hold apart. A join approaches to :data:`JOINED_D`, holds and parts again;
+    a crossing passes the right palm ``cross_height`` m above the left to the
+    other side (``d`` changes sign). Phase lengths are :data:`WASH_PHASES`, or
+    drawn from :data:`WASH_PHASE_RANGES` with ``rng`` (which also shuffles the
+    order of the events). :data:`WASH_LAYOUT` with fixed timing is
+    :data:`WASH_KEYS` itself.
+    """
+    if rng is None and (joins, crossings, distance, cross_height) == WASH_LAYOUT:
+        return WASH_KEYS
+    events = ["cross"] * crossings
+    for k in range(joins):  # spread the joins over the gaps between the crossings
+        events.insert(round(k * (crossings + 1) / max(joins, 1)) + k, "join")
+    if rng is not None:
+        events = [events[i] for i in rng.permutation(len(events))]
+
+    def phase(i: int) -> float:
+        if rng is None:
+            return WASH_PHASES[i]
+        lo, hi = WASH_PHASE_RANGES[i]
+        return float(round(rng.uniform(lo, hi)))
+
+    side, t = 1.0, 0.0
+    keys = [(0.0, distance, 0.0)]
+    for event in events:
+        t += phase(0)
+        keys.append((t, side * distance, 0.0))
+        if event == "join":
+            t += phase(1)
+            keys.append((t, side * JOINED_D, 0.0))
+            t += phase(2)
+            keys.append((t, side * JOINED_D, 0.0))
+            t += phase(1)
+            keys.append((t, side * distance, 0.0))
+        else:
+            for d, dy in ((0.5, 0.85), (0.0, 1.0), (-0.5, 0.85), (-1.0, 0.0)):
+                t += phase(3)
+                keys.append((t, side * d * distance, dy * cross_height))
+            side = -side
+    t += phase(0)
+    keys.append((t, side * distance, 0.0))
+    return tuple(keys)
+
+
+def wash_schedule(t: float, keys: Sequence[tuple[float, float, float]] = WASH_KEYS) -> tuple[float, float]:
+    """``(d, dy)`` of the cycle ``keys`` (:data:`WASH_KEYS`) at person-frame ``t`` (cosine-eased between key frames).
+
+    A cycle that ends crossed (an odd number of crossings) is followed by its
+    mirror image (``d -> -d``), so the motion is continuous.
+    """
+    period = keys[-1][0]
+    cycle, local = divmod(t, period)
+    sign = -1.0 if keys[-1][1] < 0 and int(cycle) % 2 else 1.0
+    times = [k[0] for k in keys]
+    i = min(max(int(np.searchsorted(times, local, side="right")) - 1, 0), len(keys) - 2)
+    (t0, d0, y0), (t1, d1, y1) = keys[i], keys[i + 1]
     s = (1.0 - math.cos(math.pi * (local - t0) / (t1 - t0))) / 2.0
     return sign * (d0 + s * (d1 - d0)), y0 + s * (y1 - y0)
 
@@ -926,8 +995,8 @@ def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
     head = np.array([tx, -0.37, tz - 0.02])
     r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
     l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
-    d, dy = wash_schedule(t)
-    crossing = dy / 0.13
+    d, dy = wash_schedule(t, w.keys)
+    crossing = dy / w.cross_height
     # 1 while joined (|d| = 0.04 m), fading out by |d| = 0.14 m; no rubbing while crossing
     joined = min(max(1.0 - (abs(d) - 0.04) / 0.10, 0.0), 1.0) * (1.0 - crossing)
     rub = joined * w.rub_amp * math.sin(two_pi * t / w.rub_period)

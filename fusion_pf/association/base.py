@@ -14,7 +14,10 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    target only;
 2. per source, a one-to-one assignment over all targets (Hungarian,
    :func:`scipy.optimize.linear_sum_assignment`) minimising the distance to
-   each target's prediction, gated; an uncertain label adds (mismatch) or
+   each target's prediction, gated (``gates``; for a tracked target also per
+   source, ``source_gates``: the pipeline's is a number of standard deviations
+   of the target's posterior spread and that cue's noise, with a floor of a
+   palm's length); an uncertain label adds (mismatch) or
    removes (match) ``label_score x gate`` of cost, so handedness decides
    between targets at similar distances and cannot pull a target across the
    image; a target without a prediction (uninitialised or lost: acquisition)
@@ -30,7 +33,9 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the
    Hungarian gives each of the pair a detection; the blob they share is the
-   nearer one, not a distractor farther out). No other detection is given
+   nearer one, not a distractor farther out), except when both are parts of
+   one region the cue split between them (extras ``part``,
+   :func:`fusion_pf.cues.regions.split_region`). No other detection is given
    to two targets.
 
 Detections of one source closer than ``merge_px`` are one detection (the
@@ -149,6 +154,7 @@ def associate(
     detections: Sequence[Detection],
     *,
     gates: Sequence[float],
+    source_gates: Sequence[Mapping[str, float] | None] | None = None,
     partners: Mapping[str, str] | None = None,
     merge_px: float = 1.0,
 ) -> dict[str, list[Detection]]:
@@ -165,6 +171,10 @@ def associate(
     gates : sequence of float
         Per target the largest accepted distance to its prediction (px, > 0);
         also the cost of an acquisition.
+    source_gates : sequence of (mapping of str to float or None), optional
+        Per target (None: none) a tighter gate per source, px (> 0): a
+        detection of that source farther than it from the prediction is not
+        the target's.
     partners : mapping of str to str, optional
         Combined targets: each one's partner (both directions).
     merge_px : float
@@ -183,6 +193,9 @@ def associate(
     gate = np.asarray(gates, dtype=np.float64)
     if k and not (np.isfinite(gate).all() and (gate > 0).all()):
         raise InputError(f"gates must be finite numbers > 0 px, got {list(gates)!r}")
+    per_source = [{} if g is None else dict(g) for g in (source_gates or [None] * k)]
+    if len(per_source) != k or not all(math.isfinite(v) and v > 0 for g in per_source for v in g.values()):
+        raise InputError(f"source_gates must hold one mapping of px > 0 (or None) per target, got {source_gates!r}")
     partners = dict(partners or {})
     out: dict[str, list[Detection]] = {t: [] for t in targets}
     sources = list(dict.fromkeys(d.source for d in detections))
@@ -203,7 +216,7 @@ def associate(
                     c = gate[i]
                 else:
                     dist = math.hypot(d.u - p[0], d.v - p[1])
-                    if dist > gate[i]:
+                    if dist > min(gate[i], per_source[i].get(source, math.inf)):
                         continue
                     c = dist
                 if d.label is not None:
@@ -219,6 +232,8 @@ def associate(
             if t not in out or q not in own or not compatible(t, own[q]):
                 continue
             p = predictions[targets.index(t)]
+            if t in own and "part" in own[t].measurement.extras and "part" in own[q].measurement.extras:
+                continue  # the cue split the pair's region between them: each keeps its part
             if t not in own or (
                 p is not None
                 and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])

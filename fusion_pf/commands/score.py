@@ -12,6 +12,7 @@ from fusion_pf.errors import InputError
 from fusion_pf.experiments.paper import PAPER_PARTICLE_COUNTS
 from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.score.metrics import TIE_TOL_PX
+from fusion_pf.score.targets import SINGLE_PALM_TARGET
 
 from ._options import check_cluster, counts_option, runs_option, scheduler_option, workers_option
 
@@ -63,6 +64,15 @@ class ScoreOptions:
         "worker processes of the local Dask cluster; 1: in this process (not with --scheduler)"
     )
     scheduler: str | None = scheduler_option("run the sweep on this existing Dask scheduler instead of a local cluster")
+    target: str | None = option(
+        None,
+        kind="str",
+        optional=True,
+        metavar="NAME",
+        show=lambda v: SINGLE_PALM_TARGET,
+        help="a several-target output against a single-palm --ground-truth (one palm, no target names): "
+        "the target it scores",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
@@ -94,7 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", metavar="DIR", help="write the PNG figures, score.md and score.json to DIR")
     p.add_argument("--json", action="store_true", help="print the report as JSON instead of Markdown")
     add_options(p, ScoreOptions, exclude=SWEEP_OPTIONS)
-    add_options(p, ScoreOptions, exclude=("tie_tol",), title=SWEEP_TITLE)
+    add_options(p, ScoreOptions, exclude=("tie_tol", "target"), title=SWEEP_TITLE)
     p.add_argument(
         "--recording",
         metavar="SOURCE",
@@ -143,13 +153,19 @@ def sweep_recording(recording: str, reference, config, counts, args, opts: Score
     )
 
 
-def _score_targets(table, args: argparse.Namespace, read_topic) -> int:
+def _score_targets(table, args: argparse.Namespace, target: str | None, read_topic) -> int:
     """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
     from drivers.tracker_topics import frame_size
     from fusion_pf.score.events import DEFAULT_TOLERANCE, events_json, match_events, read_events
     from fusion_pf.score.targets import score_targets_recording, targets_markdown
 
-    result = score_targets_recording(table, args.ground_truth, read_topic, frame_size)
+    result = score_targets_recording(table, args.ground_truth, read_topic, frame_size, target)
+    if result["single_palm"] is not None:
+        print(
+            f"fusion-pf score: {args.ground_truth} holds one palm; scoring target {result['single_palm']} "
+            f"of {', '.join(table.uv)}",
+            file=sys.stderr,
+        )
     errors = result.pop("errors")
     truth = read_events(args.ground_truth, "true_events", read_topic)
     events = None
@@ -218,7 +234,13 @@ def run(args: argparse.Namespace) -> int:
                     f"--sweep scores one target, but {args.tracked} holds several ({', '.join(table.uv)}); "
                     "sweep a run of one target (track without --targets, or --targets NAME)"
                 )
-            return _score_targets(table, args, read_topic)
+            return _score_targets(table, args, opts.target, read_topic)
+    if opts.target is not None:
+        raise InputError(
+            f"--target chooses the target of a several-target output scored against a single-palm --ground-truth; "
+            f"{args.tracked} is of one target"
+            + ("" if args.ground_truth is not None else " or scored against --reference")
+        )
     reference = read_reference(args.reference, args.ground_truth, read_topic)
     ev = evaluate(args.tracked, reference, tie_tol=opts.tie_tol, read_topic=read_topic)
     if args.reference is not None:

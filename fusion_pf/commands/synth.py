@@ -91,8 +91,9 @@ class SynthOptions:
         lo=1,
         hi=2,
         metavar="H",
-        help="1: one palm sweeping in front of the torso; 2: both hands washing (they join twice "
-        "and cross once every 300 frames), ground truth per target (right_hand, left_hand, head)",
+        help="1: one palm sweeping in front of the torso; 2: both hands washing (by default they join twice "
+        "and cross once every 300 frames; see --joins, --crossings, --timing), ground truth per target "
+        "(right_hand, left_hand, head)",
     )
     script: str = option(
         _SCENE["script"],
@@ -155,6 +156,47 @@ class SynthOptions:
         metavar="N",
         help="static objects in the room (boxes and round shapes; every third skin-coloured, every second "
         "at hand depth beside the person), placed from the seed",
+    )
+    hand_distance: float = option(
+        _SCENE["hand_distance"],
+        kind="float",
+        lo=VARIATIONS["hand_distance"][1],
+        hi=VARIATIONS["hand_distance"][2],
+        unit="m",
+        help="--hands 2: the palms' horizontal distance while apart",
+    )
+    joins: int = option(
+        _SCENE["joins"],
+        kind="int",
+        lo=int(VARIATIONS["joins"][1]),
+        hi=int(VARIATIONS["joins"][2]),
+        metavar="N",
+        help="--hands 2: times the hands join (palms 4 cm apart, rubbing) per cycle",
+    )
+    crossings: int = option(
+        _SCENE["crossings"],
+        kind="int",
+        lo=int(VARIATIONS["crossings"][1]),
+        hi=int(VARIATIONS["crossings"][2]),
+        metavar="N",
+        help="--hands 2: times the hands cross per cycle (an odd number: the next cycle is mirrored)",
+    )
+    cross_height: float = option(
+        _SCENE["cross_height"],
+        kind="float",
+        lo=VARIATIONS["cross_height"][1],
+        hi=VARIATIONS["cross_height"][2],
+        unit="m",
+        help="--hands 2: how far the right palm passes above the left one while crossing",
+    )
+    timing: int = option(
+        _SCENE["timing"],
+        kind="int",
+        lo=int(VARIATIONS["timing"][1]),
+        hi=int(VARIATIONS["timing"][2]),
+        metavar="T",
+        help="--hands 2: 0 fixed phase lengths; 1 the order of joins and crossings and every hold, approach "
+        "and crossing length drawn from the seed",
     )
     cameras: int = option(
         1,

@@ -110,6 +110,10 @@ class CueContext:
         Several targets share the frame: region cues also return every region
         of the window as a candidate (another target's region may lie in it;
         the association picks).
+    parts : tuple of (float, float)
+        With ``candidates``: the predictions (full-frame px) of two joined
+        (``combined``) targets; a region holding both is given as two parts,
+        its pixels split between them (:func:`fusion_pf.cues.regions.split_region`).
     """
 
     roi: Roi | None = None
@@ -120,6 +124,7 @@ class CueContext:
     search: bool = False
     hands: int = 1
     candidates: bool = False
+    parts: tuple[tuple[float, float], ...] = ()
 
 
 @runtime_checkable

@@ -127,7 +127,13 @@ class ColourCue:
         """The :class:`~fusion_pf.cues.base.Cue` form: ``frame``'s colour against ``ctx.background``."""
         background = None if ctx.background is None else ctx.background.color
         return self(
-            frame.color, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search, candidates=ctx.candidates
+            frame.color,
+            background,
+            roi=ctx.roi,
+            stages=ctx.stages,
+            keep_border=ctx.search,
+            candidates=ctx.candidates,
+            parts=ctx.parts,
         )
 
     def __call__(
@@ -139,6 +145,7 @@ class ColourCue:
         stages: bool = False,
         keep_border: bool = False,
         candidates: bool = False,
+        parts: tuple[tuple[float, float], ...] = (),
     ) -> CueResult:
         """Extract the palm centroid from ``color`` against ``background``.
 
@@ -156,6 +163,9 @@ class ColourCue:
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
+        parts : tuple of (float, float)
+            With ``candidates``: two joined targets' predictions; a region
+            holding both is two candidates (:func:`~fusion_pf.cues.regions.split_region`).
         stages : bool
             Also return the stage images I_C1 ... I_C9 (at the search's reduced
             resolution when it had one).
@@ -189,7 +199,14 @@ class ColourCue:
         c9 = clear_border(c8) if self.clear_border and not keep_border else c8  # I_C9 = border cleared
         extras = {"roi": roi.as_list(), "search_step": step}
         m, found = window_regions(
-            c9, roi, self.source, min_area=self.min_area, extras=extras, step=step, candidates=candidates
+            c9,
+            roi,
+            self.source,
+            min_area=self.min_area,
+            extras=extras,
+            step=step,
+            candidates=candidates,
+            parts=parts,
         )
         if stages:
             out = {

@@ -190,7 +190,13 @@ class DepthCue:
         if frame.depth is None:
             return CueResult(None)
         return self(
-            frame.depth, background, roi=ctx.roi, stages=ctx.stages, keep_border=ctx.search, candidates=ctx.candidates
+            frame.depth,
+            background,
+            roi=ctx.roi,
+            stages=ctx.stages,
+            keep_border=ctx.search,
+            candidates=ctx.candidates,
+            parts=ctx.parts,
         )
 
     def __call__(
@@ -202,6 +208,7 @@ class DepthCue:
         stages: bool = False,
         keep_border: bool = False,
         candidates: bool = False,
+        parts: tuple[tuple[float, float], ...] = (),
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -219,6 +226,9 @@ class DepthCue:
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
+        parts : tuple of (float, float)
+            With ``candidates``: two joined targets' predictions; a region
+            holding both is two candidates (:func:`~fusion_pf.cues.regions.split_region`).
         stages : bool
             Also return the stage images I_d1 ... I_d10 (at the search's reduced
             resolution when it had one).
@@ -280,7 +290,14 @@ class DepthCue:
         d10 = clear_border(d9) if self.clear_border and not keep_border else d9  # I_d10 = border cleared
         extras = {"roi": roi.as_list(), "moved": moved, "search_step": step}
         m, found = window_regions(
-            d10, roi, self.source, min_area=self.min_area, extras=extras, step=step, candidates=candidates
+            d10,
+            roi,
+            self.source,
+            min_area=self.min_area,
+            extras=extras,
+            step=step,
+            candidates=candidates,
+            parts=parts,
         )
         if stages:
             out = {

@@ -255,6 +255,37 @@ def measure(
     )
 
 
+#: Iterations of the 2-means split of a shared region (:func:`split_region`).
+SPLIT_ITERATIONS = 10
+
+
+def split_region(mask: np.ndarray, seeds: np.ndarray) -> list[Region] | None:
+    """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000).
+
+    ``seeds`` (2 x 2, mask pixels) start the two means; every pixel goes to the
+    nearer mean, each mean moves to its pixels' centroid, :data:`SPLIT_ITERATIONS`
+    times (two joined palms seen as one region give one part each). Returns
+    the two parts in seed order, None when one is empty.
+    """
+    ys, xs = np.nonzero(mask)
+    pts = np.stack([xs, ys], axis=1).astype(np.float64)
+    means = np.asarray(seeds, dtype=np.float64).copy()
+    near = np.zeros(len(pts), dtype=bool)
+    for _ in range(SPLIT_ITERATIONS):
+        d = ((pts[:, None, :] - means[None, :, :]) ** 2).sum(axis=2)
+        near = d[:, 0] <= d[:, 1]
+        if near.all() or not near.any():
+            return None
+        means = np.array([pts[near].mean(axis=0), pts[~near].mean(axis=0)])
+    out = []
+    for part in (near, ~near):
+        p = pts[part]
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        box = (int(lo[0]), int(lo[1]), int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+        out.append(Region(float(p[:, 0].mean()), float(p[:, 1].mean()), int(part.sum()), box))
+    return out
+
+
 def region_detections(
     final: np.ndarray,
     offset: tuple[int, int],
@@ -265,21 +296,26 @@ def region_detections(
     extras: dict | None = None,
     max_regions: int = 8,
     step: int = 1,
+    parts: tuple[tuple[float, float], ...] = (),
 ) -> tuple:
     """Every region of ``final`` of at least ``min_area`` px as a full-frame :class:`Detection`, largest first.
 
     The same centroid, quality and extras as :func:`measure` gives its one
     region (``step`` as there); at most ``max_regions`` (the largest) are returned.
+    A region whose box holds both of the two points ``parts`` (full-frame px:
+    two joined targets' predictions) is given as its two parts instead
+    (:func:`split_region`; extras ``part`` 0 or 1, the point it began at).
     """
     from ..association.base import Detection
     from .base import Measurement
 
     if final.size == 0 or not cv2.countNonZero(final):
         return ()
-    n, _, stats, centroids = cv2.connectedComponentsWithStats(final, connectivity=8, ltype=cv2.CV_32S)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(final, connectivity=8, ltype=cv2.CV_32S)
     areas = stats[1:, cv2.CC_STAT_AREA]
     x0, y0 = offset
     k2 = step * step
+    seeds = None if len(parts) != 2 else (np.asarray(parts, dtype=np.float64) - (x0, y0)) / step
     out = []
     for i in np.argsort(-areas, kind="stable")[:max_regions]:
         area = int(areas[i])
@@ -289,23 +325,50 @@ def region_detections(
             int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
         )
         region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
-        info = {**(extras or {}), "area": area * k2, "bbox": [x * step + x0, y * step + y0, w * step, h * step]}
-        m = Measurement(
-            source, region.u * step + x0, region.v * step + y0, region_quality(region, palm_area / k2), info
-        )
-        out.append(Detection(m))
+        pieces: list[tuple[Region, dict]] = [(region, {})]
+        if seeds is not None and all(x <= a <= x + w and y <= b <= y + h for a, b in seeds):
+            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y))
+            if split is not None:
+                pieces = [
+                    (
+                        Region(r.u + x, r.v + y, r.area, (r.bbox[0] + x, r.bbox[1] + y, r.bbox[2], r.bbox[3])),
+                        {"part": k},
+                    )
+                    for k, r in enumerate(split)
+                ]
+        for r, tag in pieces:
+            bx, by, bw, bh = r.bbox
+            info = {
+                **(extras or {}),
+                "area": r.area * k2,
+                "bbox": [bx * step + x0, by * step + y0, bw * step, bh * step],
+                **tag,
+            }
+            m = Measurement(source, r.u * step + x0, r.v * step + y0, region_quality(r, palm_area / k2), info)
+            out.append(Detection(m))
     return tuple(out)
 
 
-def window_regions(final: np.ndarray, roi, source: str, *, min_area: int, extras: dict, step: int, candidates: bool):
+def window_regions(
+    final: np.ndarray,
+    roi,
+    source: str,
+    *,
+    min_area: int,
+    extras: dict,
+    step: int,
+    candidates: bool,
+    parts: tuple[tuple[float, float], ...] = (),
+):
     """A region cue's answer in ``roi``: ``(measurement, candidates)``.
 
     The measurement is :func:`measure`'s (the largest region); with
     ``candidates`` every region is also a :class:`Detection` (:func:`region_detections`,
-    several targets: the association picks) and the measurement is the first of them.
+    several targets: the association picks; ``parts`` as there) and the
+    measurement is the first of them.
     """
     kw = {"palm_area": roi.palm_area, "min_area": min_area, "extras": extras, "step": step}
     if not candidates:
         return measure(final, roi.offset, source, **kw), ()
-    found = region_detections(final, roi.offset, source, **kw)
+    found = region_detections(final, roi.offset, source, parts=parts, **kw)
     return (found[0].measurement if found else None), found

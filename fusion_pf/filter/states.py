@@ -28,7 +28,7 @@ only holds the thresholds and the current status for convenience.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -80,6 +80,9 @@ class StateConfig:
     merge_px, split_px : float
         Combined state: two estimates closer than ``merge_px`` combine; combined
         estimates farther than ``split_px`` (>= ``merge_px``) separate.
+    label_split_px : float or None
+        Two targets whose own evidence (labels, :func:`combine_states`) lies
+        farther apart than this are apart; None: ``split_px``.
     """
 
     max_spread_px: float = 40.0
@@ -89,6 +92,7 @@ class StateConfig:
     image_size: tuple[int, int] | None = None
     merge_px: float = 20.0
     split_px: float = 35.0
+    label_split_px: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("max_spread_px", "merge_px", "split_px"):
@@ -101,6 +105,10 @@ class StateConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise InputError(f"{name} must be an int >= 1, got {value!r}")
+        if self.label_split_px is not None and not (
+            math.isfinite(float(self.label_split_px)) and float(self.label_split_px) > 0.0
+        ):
+            raise InputError(f"label_split_px must be a finite number > 0 px or None, got {self.label_split_px!r}")
         if self.split_px < self.merge_px:
             raise InputError(f"split_px must be >= merge_px ({self.merge_px}), got {self.split_px}")
 
@@ -215,6 +223,7 @@ def combine_states(
     positions: Sequence[tuple[float, float] | None],
     config: StateConfig,
     labels: Sequence[tuple[float, float] | None] | None = None,
+    apart: Collection[tuple[int, int]] = (),
 ) -> list[TrackStatus]:
     """The ``combined`` transitions between targets (paper 004 §5.2), after :func:`step_state`.
 
@@ -228,10 +237,12 @@ def combine_states(
 
     ``labels``: where each target's own labelled evidence (its skeleton joint)
     puts it this frame. Two targets whose labels are both known and farther
-    than ``split_px`` apart are apart whatever their estimates say (two
-    estimates held together by one shared blob): a combined pair separates,
-    and such a pair does not combine (nor does a pair in the frame it
-    separated).
+    than ``label_split_px`` (default ``split_px``) apart are apart whatever
+    their estimates say (two estimates held together by one shared blob): a
+    combined pair separates, and such a pair does not combine (nor does a
+    pair in the frame it separated). ``apart``: pairs ``(i, j)`` the caller
+    knows are apart this frame (e.g. a cue saw them as two separate regions),
+    with the same effect.
 
     Parameters
     ----------
@@ -241,6 +252,8 @@ def combine_states(
     config : StateConfig
     labels : sequence of (u, v) or None, length K, optional
         This frame's label positions (None: no label evidence).
+    apart : collection of (int, int)
+        Pairs of targets known to be apart this frame (either order).
 
     Returns
     -------
@@ -258,9 +271,14 @@ def combine_states(
         a, b = at[i], at[j]
         return math.inf if a is None or b is None else math.hypot(a[0] - b[0], a[1] - b[1])
 
-    def apart(i: int, j: int) -> bool:
-        """Whether the labels of ``i`` and ``j`` are both known and farther than ``split_px`` apart."""
-        return labels is not None and dist(i, j, labels) < math.inf and dist(i, j, labels) > config.split_px
+    label_split = config.split_px if config.label_split_px is None else config.label_split_px
+    known = {frozenset(p) for p in apart}
+
+    def separate(i: int, j: int) -> bool:
+        """Whether ``i`` and ``j`` are known apart, or their labels are both known and farther than ``label_split_px`` apart."""
+        if frozenset((i, j)) in known:
+            return True
+        return labels is not None and dist(i, j, labels) < math.inf and dist(i, j, labels) > label_split
 
     for i in range(k):
         s = out[i]
@@ -269,7 +287,7 @@ def combine_states(
         j = s.partner
         if j is None or out[j].state == TrackState.LOST or positions[i] is None:
             out[i] = replace(s, state=TrackState.TRACKING, partner=None)
-        elif dist(i, j) > config.split_px or apart(i, j):
+        elif dist(i, j) > config.split_px or separate(i, j):
             out[i] = replace(s, state=TrackState.UNLABELLED, partner=None)
     active = (TrackState.TRACKING, TrackState.UNLABELLED)
     separated = {
@@ -282,7 +300,7 @@ def combine_states(
         if out[i].state in active
         and out[j].state in active
         and dist(i, j) < config.merge_px
-        and not apart(i, j)
+        and not separate(i, j)
         and not {i, j} <= separated
     )
     for _, i, j in pairs:

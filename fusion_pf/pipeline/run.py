@@ -165,13 +165,22 @@ DEGRADED_FRAMES = 3
 HOLDING = (TrackState.TRACKING, TrackState.COMBINED, TrackState.UNLABELLED)
 #: Detections of one source closer than this (px at the reference size) are one (two windows saw the same region).
 MERGE_PX = 1.0
-#: Two targets' estimates closer than this (px at the reference size) are ``combined`` (paper 004) ...
-COMBINE_PX = 20.0
-#: ... and combined ones farther apart than this separate.
-SEPARATE_PX = 35.0
+#: Two targets' estimates closer than this many of their apparent palm lengths are ``combined`` (paper 004) ...
+COMBINE_PALMS = 1.07
+#: ... combined ones farther apart than this separate ...
+SEPARATE_PALMS = 1.87
+#: ... and so do two targets whose own evidence (skeleton joints, two separate detections of one cue)
+#: lies farther apart than this (two palms side by side are one palm width, about 0.45 lengths, apart).
+APART_PALMS = 1.1
 #: A cue supports the estimate within this many of its noise plus the posterior spread
 #: (a 2-D Gaussian lies farther in 1.1 % of frames).
 SUPPORT_SIGMAS = 3.0
+#: Several targets: a tracked target's association gate of a source is at least this many of
+#: its apparent palm lengths (:meth:`_FilterStage.source_gates`).
+GATE_FLOOR_PALMS = 1.0
+#: A combined pair's region is split between them (:func:`fusion_pf.cues.regions.split_region`) while
+#: their priors are at least this many apparent palm lengths apart (the hands side by side).
+SPLIT_PALMS = 0.85
 #: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
 #: the hand cue's presence score is 0.9-1.0 on a visible hand.
 JUMP_MIN_QUALITY = 0.8
@@ -554,8 +563,14 @@ class _CueStage:
         priors: Mapping[str, tuple[float, float] | None],
         palms: Mapping[str, float | None] | None = None,
         partners: Mapping[str, str] | None = None,
+        source_gates: Mapping[str, Mapping[str, float] | None] | None = None,
     ) -> dict[str, CueRow]:
-        """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets."""
+        """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets.
+
+        Several targets: a target's detection of a source lies within its
+        window's gate (:meth:`_gate`) and its ``source_gates`` of that source
+        (:meth:`_FilterStage.source_gates`).
+        """
         if self.cues is None:
             self.names = cue_names(self.config, frame)
             self.cues = self._build()
@@ -591,6 +606,7 @@ class _CueStage:
                         search=priors[t] is None,
                         hands=hands,
                         candidates=several,
+                        parts=_joined_priors(priors, partners or {}, roi, palms or {}),
                     )
                     found = self.detect(name, self.cues[t][name], index, frame, ctx)
                     if "skeleton" in needs:  # the joint of target t: a certain label
@@ -602,6 +618,7 @@ class _CueStage:
             [priors[t] for t in targets],
             detections,
             gates=[self._gate(frame, rois[t] if several and priors[t] is not None else None) for t in targets],
+            source_gates=[(source_gates or {}).get(t) if several else None for t in targets],
             partners=partners,
             merge_px=MERGE_PX * pixel_scale(frame.size, self.config),
         )
@@ -653,6 +670,28 @@ class _CueStage:
             intrinsics=frame.intrinsics,
             ground_truth=frame.ground_truth if target is None else (frame.ground_truths or {}).get(target),
         )
+
+
+def _joined_priors(
+    priors: Mapping[str, tuple[float, float] | None],
+    partners: Mapping[str, str],
+    roi: Roi | None,
+    palms: Mapping[str, float | None],
+) -> tuple[tuple[float, float], ...]:
+    """The priors of the first combined pair whose priors both lie in ``roi`` at least :data:`SPLIT_PALMS` apparent palm lengths apart (the region cues split a region holding both).
+
+    Closer (one hand over the other) the 2-means split cuts the front palm in
+    two and the hidden hand's part is off its centre: the pair shares the region.
+    """
+    for a, b in partners.items():
+        pa, pb, palm = priors.get(a), priors.get(b), palms.get(a)
+        if pa is None or pb is None or palm is None:
+            continue
+        if math.hypot(pa[0] - pb[0], pa[1] - pb[1]) < SPLIT_PALMS * palm:
+            continue
+        if roi is None or all(roi.x0 <= p[0] <= roi.x1 and roi.y0 <= p[1] <= roi.y1 for p in (pa, pb)):
+            return (pa, pb)
+    return ()
 
 
 def _background_row(index: int, frame: Frame, decode_ns: int, names: Sequence[str]) -> CueRow:
@@ -791,6 +830,19 @@ class _FilterStage:
         u, v = u1 + k * (u1 - u0), v1 + k * (v1 - v0)
         assert self._size is not None  # set by _start with the first estimate
         return min(max(u, 0.0), self._size[0] - 1.0), min(max(v, 0.0), self._size[1] - 1.0)
+
+    def source_gates(self) -> dict[str, float] | None:
+        """Association gate per source, px: :data:`SUPPORT_SIGMAS` standard deviations of the posterior spread and the cue's noise, at least :data:`GATE_FLOOR_PALMS` palm lengths (None without a track).
+
+        A detection the track would not count as support (:meth:`_support`) is
+        not its own, whatever the window's size; the floor leaves room for the
+        motion between two frames and a cue's bias on the palm.
+        """
+        if not self.tracking or self._spread is None or not self._var:
+            return None
+        floor = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+        spread2 = self._spread**2
+        return {s: max(floor, SUPPORT_SIGMAS * math.sqrt(spread2 + v)) for s, v in self._var.items()}
 
     @property
     def palm_px(self) -> float | None:
@@ -995,9 +1047,10 @@ class _Targets:
     """One :class:`_FilterStage` per target and the supervision between them (paper 004 §5.2).
 
     After every target's step, two tracked targets closer than
-    :data:`COMBINE_PX` become ``combined`` (they share detections in the next
+    :data:`COMBINE_PALMS` apparent palm lengths become ``combined`` (they share detections in the next
     frame's association); a combined pair farther apart than
-    :data:`SEPARATE_PX` separates (``unlabelled`` for a frame) and its
+    :data:`SEPARATE_PALMS`, or whose skeleton joints or two detections of one cue lie farther than
+    :data:`APART_PALMS` apart, separates (``unlabelled`` for a frame) and its
     identities are given back: by the targets' own skeleton joints of this
     frame when both have one (handedness already decides in the association),
     else by the side each entered the combination from
@@ -1040,12 +1093,25 @@ class _Targets:
 
     def _supervise(self, rows: Mapping[str, CueRow], results: dict[str, TrackResult], size: tuple[int, int]) -> None:
         stages = [self.stages[t] for t in self.names]
-        s = pixel_scale(size, stages[0].config)
-        config = StateConfig(merge_px=COMBINE_PX * s, split_px=SEPARATE_PX * s, image_size=size)
+        palms = [f.palm_px for f in stages if f.tracking and f.palm_px is not None]
+        palm = sum(palms) / len(palms) if palms else REFERENCE_PALM_PX * pixel_scale(size, stages[0].config)
+        config = StateConfig(
+            merge_px=COMBINE_PALMS * palm,
+            split_px=SEPARATE_PALMS * palm,
+            label_split_px=APART_PALMS * palm,
+            image_size=size,
+        )
         positions = [None if (e := results[t].estimate) is None else (e.u, e.v) for t in self.names]
         before = [f.status for f in stages]
         labels = [_label_position(rows[t]) for t in self.names]
-        after = combine_states(before, positions, config, labels)
+        apart = [
+            (k, b.partner)
+            for k, b in enumerate(before)
+            if b.state == TrackState.COMBINED
+            and b.partner is not None
+            and _detected_apart(rows[self.names[k]], rows[self.names[b.partner]], APART_PALMS * palm)
+        ]
+        after = combine_states(before, positions, config, labels, apart)
         for k, (b, a) in enumerate(zip(before, after)):
             t = self.names[k]
             if a.state == TrackState.COMBINED and b.state != TrackState.COMBINED and a.partner is not None:
@@ -1079,6 +1145,17 @@ class _Targets:
         if swap:
             self.stages[a], self.stages[b] = self.stages[b], self.stages[a]
             results[a], results[b] = results[b], results[a]
+
+
+def _detected_apart(a: CueRow, b: CueRow, distance: float) -> bool:
+    """Whether a region cue gave the two targets' rows two detections farther than ``distance`` apart (the cue sees two hands, not one shared blob)."""
+    for source, m in a.cues.items():
+        n = b.cues.get(source)
+        if m is None or n is None or m is n or source in ("skeleton", "hand") or "part" in m.extras:
+            continue  # labelled sources count as labels; parts are one region the cue split between the pair
+        if math.hypot(m.u - n.u, m.v - n.v) > distance:
+            return True
+    return False
 
 
 def _label_position(row: CueRow) -> tuple[float, float] | None:
@@ -1198,7 +1275,8 @@ def track(
             for t, f in targets.stages.items():
                 priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
                 palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
-            result = targets(cues.rows(index, frame, dec, model, priors, palms, targets.partners()), frame.size)
+            gates = {t: f.source_gates() for t, f in targets.stages.items()}
+            result = targets(cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates), frame.size)
             result.latency_ns["total"] = time.perf_counter_ns() - t0
             for r in result.targets.values():
                 r.latency_ns["total"] = result.latency_ns["total"]

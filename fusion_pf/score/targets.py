@@ -22,6 +22,7 @@ from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, FrameSize, TopicReader, 
 from .metrics import rmse
 
 __all__ = [
+    "SINGLE_PALM_TARGET",
     "TargetsTable",
     "count_swaps",
     "read_targets_csv",
@@ -98,13 +99,34 @@ def read_targets_topic(path: str, read_topic: TopicReader) -> TargetsTable | Non
     return TargetsTable(path, np.array([int(ts) for ts, _ in msgs], dtype=np.int64), uv, states)
 
 
-def truths_by_target(path: str, read_topic: TopicReader) -> dict[str, dict[int, tuple[float, float]]]:
-    """Ground truth per target of a multi-target recording: ``{target: {timestamp_ns: (u, v)}}``."""
+#: The target a single-palm reference (ground truth without a target field) is taken to be by default.
+SINGLE_PALM_TARGET = "right_hand"
+
+
+#: The target a single-palm reference (ground truth without target names) scores by default.
+SINGLE_PALM_TARGET = "right_hand"
+
+
+def read_truths(
+    path: str, read_topic: TopicReader
+) -> tuple[dict[str, dict[int, tuple[float, float]]], dict[int, tuple[float, float]]]:
+    """The ground truth of ``path``: per target (messages with a ``target`` field) and of a single palm (without)."""
     out: dict[str, dict[int, tuple[float, float]]] = {}
+    palm: dict[int, tuple[float, float]] = {}
     for t, msg in read_topic(path, GROUND_TRUTH_TOPIC):
-        target = msg.get("target") if isinstance(msg, dict) else None
+        if not isinstance(msg, dict) or "u" not in msg or "v" not in msg:
+            continue
+        target = msg.get("target")
         if isinstance(target, str):
             out.setdefault(target, {})[int(t)] = (float(msg["u"]), float(msg["v"]))
+        else:
+            palm[int(t)] = (float(msg["u"]), float(msg["v"]))
+    return out, palm
+
+
+def truths_by_target(path: str, read_topic: TopicReader) -> dict[str, dict[int, tuple[float, float]]]:
+    """Ground truth per target of a multi-target recording: ``{target: {timestamp_ns: (u, v)}}``."""
+    out, _ = read_truths(path, read_topic)
     if not out:
         raise InputError(
             f"{path}: no ground truth with a target field; expected a multi-target recording (synth --hands 2)"
@@ -172,15 +194,43 @@ def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, 
 
 
 def score_targets_recording(
-    table: TargetsTable, recording: str | Path, read_topic: TopicReader, frame_size: FrameSize
+    table: TargetsTable,
+    recording: str | Path,
+    read_topic: TopicReader,
+    frame_size: FrameSize,
+    target: str | None = None,
 ) -> dict:
-    """:func:`score_targets` of ``table`` against the ground truth of the multi-target ``recording``.
+    """:func:`score_targets` of ``table`` against the ground truth of ``recording``.
 
     ``frame_size(recording)`` gives its image size (the caller's reader: this package opens no files).
+    A single-palm ``recording`` (one palm, no target names) scores one target
+    of ``table``: ``target``, else :data:`SINGLE_PALM_TARGET`; the result's
+    ``single_palm`` names it (None for a multi-target reference).
     """
-    truths = truths_by_target(str(recording), read_topic)
+    truths, palm = read_truths(str(recording), read_topic)
+    if truths and target is not None:
+        raise InputError(
+            f"--target names the target of a single-palm reference, but {recording} has ground truth per target "
+            f"({', '.join(truths)})"
+        )
+    single = None
+    if not truths and palm:
+        single = SINGLE_PALM_TARGET if target is None else target
+        if single not in table.uv:
+            raise InputError(
+                f"{recording} has the ground truth of one palm, scored as target {single}, but {table.path} tracks "
+                f"{', '.join(table.uv)}; choose one with --target"
+            )
+        table = TargetsTable(table.path, table.timestamp_ns, {single: table.uv[single]}, {single: table.states[single]})
+        truths = {single: palm}
+    elif not truths:
+        raise InputError(
+            f"{recording}: no ground truth on /{GROUND_TRUTH_TOPIC}; expected a recording with ground truth"
+        )
     w, h = frame_size(recording)
-    return score_targets(table, truths, math.hypot(w, h))
+    result = score_targets(table, truths, math.hypot(w, h))
+    result["single_palm"] = single
+    return result
 
 
 def read_targets(path: str | Path, read_topic: TopicReader) -> TargetsTable | None:
@@ -207,6 +257,12 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
             f"| {t} | {r['rmse_px']:.2f} | {r['median_px']:.2f} | {r['p95_px']:.2f} | "
             f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {states} |"
         )
+    if result.get("single_palm") is not None:
+        lines += [
+            "",
+            f"The reference holds one palm (no target names): scored as target {result['single_palm']}; "
+            "the other targets have no ground truth.",
+        ]
     if result["swaps"] is not None:
         lines += [
             "",

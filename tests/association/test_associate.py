@@ -157,3 +157,26 @@ def test_bad_arguments_are_input_errors(kwargs, word):
 def test_label_score_must_be_a_probability():
     with pytest.raises(InputError, match="label_score"):
         det("hand", 0, 0, "right_hand", 1.5)
+
+
+def test_a_source_gate_keeps_a_detection_beyond_the_targets_uncertainty_out():
+    # a colour region 50 px from the right hand's prediction (clutter), inside its window's gate of 120 px
+    dets = [det("colour", 150, 0), det("depth", 104, 0)]
+    out = associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300])
+    assert picked(out)["right_hand"] == [("colour", 150, 0), ("depth", 104, 0)]
+    # its uncertainty gates colour at 30 px: the clutter is nobody's but the acquiring target's
+    out = associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[{"colour": 30.0}, None])
+    assert picked(out) == {"right_hand": [("depth", 104, 0)], "left_hand": [("colour", 150, 0)]}
+    with pytest.raises(InputError, match="source_gates must hold one mapping of px > 0"):
+        associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[{"colour": 0.0}, None])
+    with pytest.raises(InputError, match="source_gates must hold one mapping"):
+        associate(HANDS, [(100.0, 0.0), None], dets, gates=[120, 300], source_gates=[None])
+
+
+def test_a_combined_pair_keeps_the_parts_a_cue_split_their_region_into():
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    part = [Detection(Measurement("depth", u, 270.0, 0.9, {"part": k})) for k, u in enumerate((352.0, 376.0))]
+    # the right hand's prediction lies nearer the left's part than its own (the estimates drifted together):
+    # the parts are still each its own, not shared like a blob
+    out = associate(HANDS, [(366.0, 270.0), (372.0, 270.0)], part, gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("depth", 352, 270)], "left_hand": [("depth", 376, 270)]}

@@ -3,6 +3,8 @@
 import importlib.util
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("targets_bench", ROOT / "benchmarks" / "targets.py")
 bench = importlib.util.module_from_spec(_spec)
@@ -23,3 +25,12 @@ def test_table_per_seed_filter_and_hand_then_the_cost(capsys):
     ]
     assert all("100.0 %" in r for r in rows)  # both hands covered in every tracked frame
     assert lines[-1].startswith("CPU time per frame at 160x100 (least of 1): one target ")
+
+
+def test_scene_options_reach_the_synthetic_scene():
+    assert bench._scene("hand_front=0.1,joins=3,timing=1") == {"hand_front": "0.1", "joins": "3", "timing": "1"}
+    frames = bench._frames(3, 33, (64, 40), bench._scene("crossings=2,hand_distance=0.4"))
+    plain = bench._frames(3, 33, (64, 40))
+    assert frames[-1].ground_truths != plain[-1].ground_truths
+    with pytest.raises(SystemExit, match="--scene: unknown synth option 'joints'"):
+        bench._scene("joints=3")

@@ -130,3 +130,24 @@ def test_region_filters_equal_scipy_labelling(seed):
     np.testing.assert_array_equal(
         keep_marked(m, marker.astype(np.uint8)) == 255, np.isin(labels, marked) & (labels > 0)
     )
+
+
+def test_a_region_holding_two_joined_targets_is_split_between_them():
+    import cv2
+
+    from fusion_pf.cues.regions import region_detections, split_region
+
+    m = _mask(60, 120)
+    cv2.circle(m, (40, 30), 15, 255, -1)  # two palms side by side, touching: one region
+    cv2.circle(m, (66, 30), 15, 255, -1)
+    whole = region_detections(m, (100, 200), "colour", palm_area=700.0)
+    assert len(whole) == 1 and abs(whole[0].u - 153.0) < 0.5  # the pair's middle
+    parts = region_detections(m, (100, 200), "colour", palm_area=700.0, parts=((145.0, 228.0), (162.0, 232.0)))
+    assert [d.measurement.extras["part"] for d in parts] == [0, 1]
+    assert abs(parts[0].u - 140.0) < 3.0 and abs(parts[1].u - 166.0) < 3.0  # each palm's centre
+    assert all(abs(d.v - 230.0) < 1.0 for d in parts)
+    # points outside the region's box: not split
+    far = region_detections(m, (100, 200), "colour", palm_area=700.0, parts=((145.0, 228.0), (300.0, 232.0)))
+    assert len(far) == 1 and "part" not in far[0].measurement.extras
+    # a mask whose pixels all lie nearer one seed cannot be split
+    assert split_region(m[:, :60] > 0, np.array([[40.0, 30.0], [110.0, 30.0]])) is None

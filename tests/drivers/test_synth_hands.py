@@ -135,3 +135,37 @@ def test_wash_schedule_is_continuous_across_cycles():
     d = np.array([sc.wash_schedule(t)[0] for t in np.arange(0.0, 600.0, 0.5)])
     assert np.abs(np.diff(d)).max() < 0.02
     assert sc.wash_schedule(0.0) == (0.30, 0.0) and sc.wash_schedule(300.0)[0] == pytest.approx(-0.30)
+
+
+def _layout(src):
+    """(joins of >= 10 frames, crossings, largest apart distance px) over the source's frames."""
+    truths = [src.ground_truths(i) for i in range(len(src))]
+    joined = [t["right_hand"].occluded for t in truths]
+    dx = np.array([t["left_hand"].u - t["right_hand"].u for t in truths])
+    return len([n for n in runs(joined) if n >= 10]), int(np.count_nonzero(np.diff(np.sign(dx)) != 0)), np.abs(dx).max()
+
+
+def test_layout_options_set_joins_crossings_distance_and_timing():
+    base = SynthSource(frames=300, size=(320, 200), hands=2, seed=5)
+    assert base._wash.keys is sc.WASH_KEYS  # the documented cycle, bit for bit
+    joins, crossings, far = _layout(base)
+    assert (joins, crossings) == (2, 1)
+    kw = dict(size=(320, 200), hands=2, seed=5, joins=3, crossings=2, hand_distance=0.4)
+    period = sc.wash_keys(3, 2, 0.4, 0.13)[-1][0]
+    other = SynthSource(frames=int(period), **kw)
+    assert "hand_distance=0.4 joins=3 crossings=2" in other.describe()
+    j, c, wide = _layout(other)
+    assert (j, c) == (3, 2) and wide > 1.2 * far
+    # timing drawn from the seed: same seed same motion, another seed another
+    drawn = [SynthSource(frames=300, size=(320, 200), hands=2, seed=s, timing=1)._wash.keys for s in (5, 5, 6)]
+    assert drawn[0] == drawn[1] != drawn[2]
+    d = np.array([sc.wash_schedule(t, drawn[2])[0] for t in np.arange(0.0, 3 * drawn[2][-1][0], 0.5)])
+    assert np.abs(np.diff(d)).max() < 0.02  # continuous across cycles
+    with pytest.raises(InputError, match="synth option crossings describes the two-hand motion; it needs hands=2"):
+        SynthSource(frames=3, crossings=2)
+    with pytest.raises(
+        InputError, match="synth option timing changes the two-hand motion, which script 'events' fixes"
+    ):
+        SynthSource(frames=3, hands=2, script="events", timing=1)
+    with pytest.raises(InputError, match=r"synth option joins must be an integer in \[0, 4\], got 5"):
+        SynthSource(frames=3, hands=2, joins=5)

@@ -1,5 +1,6 @@
 """Track states (paper 004 §5.2): single-target transitions, combination, identity re-assignment."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -139,3 +140,19 @@ def test_reassign_identities_by_entry_side():
 def test_bad_config(kwargs, match):
     with pytest.raises(InputError, match=match):
         StateConfig(**kwargs)
+
+
+def test_own_evidence_apart_separates_below_the_estimates_split_distance():
+    c = [TrackStatus(TrackState.COMBINED, partner=1), TrackStatus(TrackState.COMBINED, partner=0)]
+    together = [(100.0, 100.0), (102.0, 100.0)]
+    joints = [(88.0, 100.0), (112.0, 100.0)]  # 24 px apart: within split_px 35
+    assert [x.state for x in combine_states(c, together, CFG, joints)] == [TrackState.COMBINED] * 2
+    near = dataclasses.replace(CFG, label_split_px=20.0)  # e.g. 1.1 apparent palm lengths
+    assert [x.state for x in combine_states(c, together, near, joints)] == [TrackState.UNLABELLED] * 2
+    # two separate detections the caller saw: apart without labels
+    s = combine_states(c, together, CFG, None, apart=[(1, 0)])
+    assert [x.state for x in s] == [TrackState.UNLABELLED] * 2
+    t = [TrackStatus(TrackState.TRACKING)] * 2
+    assert combine_states(t, together, CFG, None, apart=[(0, 1)]) == t
+    with pytest.raises(InputError, match="label_split_px must be a finite number > 0 px or None, got -1"):
+        StateConfig(label_split_px=-1)

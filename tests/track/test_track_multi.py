@@ -150,3 +150,18 @@ def test_hands_near_the_body_keep_off_the_region_bridging_them():
     for t in HANDS:
         err = np.hypot(*(est[t] - truth[t]).T)
         assert np.isfinite(err).all() and err[apart].max() < 15.0, (t, float(err[apart].max()))
+
+
+def test_a_combined_pair_side_by_side_has_its_region_split():
+    from fusion_pf.cues.roi import Roi
+    from fusion_pf.pipeline.run import SPLIT_PALMS, _joined_priors
+
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    palms = {"right_hand": 40.0, "left_hand": 40.0}
+    apart = {"right_hand": (100.0, 100.0), "left_hand": (100.0 + SPLIT_PALMS * 40.0 + 1.0, 100.0)}
+    assert _joined_priors(apart, partners, None, palms) == (apart["right_hand"], apart["left_hand"])
+    over = {"right_hand": (100.0, 100.0), "left_hand": (100.0 + SPLIT_PALMS * 40.0 - 1.0, 100.0)}
+    assert _joined_priors(over, partners, None, palms) == ()  # one over the other: they share the region
+    assert _joined_priors(apart, {}, None, palms) == ()  # not combined: nothing to split
+    assert _joined_priors(apart, partners, Roi(0, 0, 120, 200, 100.0), palms) == ()  # one outside the window
+    assert _joined_priors(apart, partners, None, {}) == ()  # no palm size yet

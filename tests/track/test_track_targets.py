@@ -130,3 +130,30 @@ def test_a_sweep_of_several_targets_is_a_one_line_error(scene, tmp_path, capsys)
     assert main(["score", str(out), "--ground-truth", str(scene), "--sweep", "10,20"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--sweep scores one target" in err and "right_hand, left_hand" in err
+
+
+def test_two_targets_score_against_a_single_palm_reference(tmp_path, capsys):
+    """A several-target run against a one-palm recording scores the target the reference names (right_hand by default)."""
+    one = tmp_path / "one.mcap"
+    assert main(["synth", str(one), "--frames", "25", "--size", "160x100", "--background-frames", "5"]) == 0
+    table = tmp_path / "t.csv"
+    argv = ["track", str(one), "-o", str(tmp_path / "t.mcap"), "--csv", str(table), "--no-progress"]
+    assert main([*argv, "--targets", "right_hand,left_hand"]) == 0
+    capsys.readouterr()
+    assert main(["score", str(table), "--ground-truth", str(one), "--json"]) == 0
+    captured = capsys.readouterr()
+    rep = json.loads(captured.out)
+    assert set(rep["targets"]) == {"right_hand"} and rep["single_palm"] == "right_hand"
+    assert "holds one palm; scoring target right_hand of right_hand, left_hand" in captured.err
+    # the same figure as the single palm's own score of the right_hand column
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rep["targets"]["right_hand"]["coverage"] == pytest.approx(
+        sum(r["right_hand_u"] != "" for r in rows) / len(rows)
+    )
+    assert main(["score", str(table), "--ground-truth", str(one), "--target", "left_hand"]) == 0
+    out = capsys.readouterr().out
+    assert "| left_hand |" in out and "| right_hand |" not in out and "scored as target left_hand" in out
+    assert main(["score", str(table), "--ground-truth", str(one), "--target", "head"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "scored as target head, but" in err and "choose one with --target" in err
