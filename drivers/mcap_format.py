@@ -96,6 +96,9 @@ WORLD_POINT_SCHEMA = "fusion_pf.TargetWorldPoint"
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 CUES_SCHEMA = "fusion_pf.Cues"
+#: World estimates of every target of one instant (``fusion-pf track`` of a multi-camera recording).
+WORLD_ESTIMATE_SCHEMA = "fusion_pf.WorldEstimate"
+WORLD_ESTIMATE_TOPIC = "/tracker/world"
 
 #: Colour formats the recorder writes: raw rgb8, JPEG or PNG.
 COLOR_FORMATS = ("raw", "jpeg", "png")
@@ -213,6 +216,41 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "target": {"type": "string", "minLength": 1},
             "xyz_mm": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
+        },
+    },
+    WORLD_ESTIMATE_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": WORLD_ESTIMATE_SCHEMA,
+        "description": "World estimates (mm) of every target at one instant of a multi-camera recording: state, "
+        "position (null without a track), posterior std, the cameras that measured it, and the position projected "
+        "into every camera (null where out of view or without a track).",
+        "type": "object",
+        "required": ["timestamp_ns", "targets"],
+        "properties": {
+            "timestamp_ns": {"type": "integer", "minimum": 0},
+            "targets": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "required": ["target", "state", "position_mm", "sigma_mm", "cameras", "pixels"],
+                    "properties": {
+                        "target": {"type": "string"},
+                        "state": {"type": "string"},
+                        "position_mm": {"type": ["array", "null"], "items": _NUMBER, "minItems": 3, "maxItems": 3},
+                        "sigma_mm": _NUMBER_OR_NULL,
+                        "cameras": {"type": "array", "items": {"type": "string"}},
+                        "pixels": {
+                            "type": "object",
+                            "additionalProperties": {
+                                "type": ["array", "null"],
+                                "items": _NUMBER,
+                                "minItems": 2,
+                                "maxItems": 2,
+                            },
+                        },
+                    },
+                },
+            },
         },
     },
     ESTIMATE_SCHEMA: {
