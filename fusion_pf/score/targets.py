@@ -24,6 +24,7 @@ from .metrics import rmse
 __all__ = [
     "TargetsTable",
     "count_swaps",
+    "score_world",
     "read_targets_csv",
     "read_targets_topic",
     "read_targets",
@@ -37,6 +38,8 @@ __all__ = [
 #: Hands closer than this fraction of the image diagonal are joined: an identity is not defined there
 #: (25 px at 320 x 200, about 8 cm at the hands).
 JOINED_FRACTION = 25.0 / math.hypot(320, 200)
+#: The same in the world (mm): 25 px of the 320 x 200 reference scene at its palm's scale (5.08 mm per px).
+JOINED_MM = 127.0
 
 
 @dataclass(frozen=True)
@@ -117,16 +120,20 @@ def count_swaps(ea: np.ndarray, eb: np.ndarray, ta: np.ndarray, tb: np.ndarray, 
 
     Parameters
     ----------
-    ea, eb : ndarray, shape (n, 2)
-        Estimates of targets a and b (NaN: none).
-    ta, tb : ndarray, shape (n, 2)
+    ea, eb : ndarray, shape (n, d)
+        Estimates of targets a and b (NaN: none): pixels (d = 2) or world mm (d = 3).
+    ta, tb : ndarray, shape (n, d)
         Their true positions.
     min_separation_px : float
-        Only frames where the truths are at least this far apart count (joined hands are ambiguous).
+        Only frames where the truths are at least this far apart count (joined hands are ambiguous), in their unit.
     """
-    sep = np.hypot(*(ta - tb).T)
-    straight = np.hypot(*(ea - ta).T) + np.hypot(*(eb - tb).T)
-    crossed = np.hypot(*(ea - tb).T) + np.hypot(*(eb - ta).T)
+
+    def dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.hypot(*(a - b).T) if a.shape[1] == 2 else np.sqrt(((a - b) ** 2).sum(axis=1))
+
+    sep = dist(ta, tb)
+    straight = dist(ea, ta) + dist(eb, tb)
+    crossed = dist(ea, tb) + dist(eb, ta)
     ok = (sep >= min_separation_px) & np.isfinite(straight) & np.isfinite(crossed)
     flags = np.concatenate([[False], (crossed < straight)[ok]])
     return int(np.count_nonzero(flags[1:] != flags[:-1]))
@@ -213,3 +220,49 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
             f"Identity swaps between right_hand and left_hand (frames where they are apart): {result['swaps']}.",
         ]
     return "\n".join(lines) + "\n"
+
+
+def score_world(
+    positions: dict[str, np.ndarray],
+    truths: dict[str, np.ndarray],
+    states: dict[str, list[str]],
+    *,
+    min_separation_mm: float = JOINED_MM,
+) -> dict:
+    """3-D accuracy per target of a multi-camera run against the world ground truth (``/ground_truth/world``).
+
+    Parameters
+    ----------
+    positions, truths : dict of str to ndarray (n, 3)
+        Per target the world estimates and truths of the same ``n`` instants, mm (NaN: none).
+    states : dict of str to list of str
+        Per target the track state of each instant.
+
+    Returns
+    -------
+    dict
+        ``targets``: per target ``rmse_mm``, ``median_mm``, ``p95_mm``, ``coverage`` (instants with an estimate
+        among those with a truth), ``states``; ``errors``: per target ``(n,)`` mm (NaN: none); ``swaps`` between
+        the hands (None unless both are scored).
+    """
+    out: dict = {"targets": {}, "errors": {}, "swaps": None}
+    for t, p in positions.items():
+        ref = truths[t]
+        err = np.sqrt(((p - ref) ** 2).sum(axis=1))
+        out["errors"][t] = err
+        summary = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), states[t])
+        out["targets"][t] = {
+            "rmse_mm": summary["rmse_px"],
+            "median_mm": summary["median_px"],
+            "p95_mm": summary["p95_px"],
+            **{k: summary[k] for k in ("coverage", "n_reference", "states")},
+        }
+    if "right_hand" in positions and "left_hand" in positions:
+        out["swaps"] = count_swaps(
+            positions["right_hand"],
+            positions["left_hand"],
+            truths["right_hand"],
+            truths["left_hand"],
+            min_separation_mm,
+        )
+    return out
