@@ -63,6 +63,8 @@ FRAME_TOPICS = (CALIBRATION_TOPIC, COLOR_TOPIC, DEPTH_TOPIC, SKELETON_TOPIC, GRO
 TF_TOPIC = "/tf"
 #: JSON fusion_pf.TargetWorldPoint: world ground truth of multi-camera synthetic recordings.
 WORLD_TRUTH_TOPIC = "/ground_truth/world"
+#: JSON fusion_pf.Visibility: which targets each camera of a synthetic multi-camera recording sees.
+VISIBILITY_TOPIC = "/ground_truth/visibility"
 
 #: Name of the MCAP metadata record describing the recording.
 RECORDING_METADATA = "fusion_pf.recording"
@@ -93,6 +95,8 @@ TARGET_PALM_SCHEMA = "fusion_pf.TargetPalmPoint"
 HAND_SCHEMA = "fusion_pf.HandLandmarks"
 #: World ground truth of one target (mm) in a multi-camera recording.
 WORLD_POINT_SCHEMA = "fusion_pf.TargetWorldPoint"
+#: Per camera, the targets it sees at one instant (synthetic multi-camera recordings).
+VISIBILITY_SCHEMA = "fusion_pf.Visibility"
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 ESTIMATE_SCHEMA = "fusion_pf.Estimate"
 CUES_SCHEMA = "fusion_pf.Cues"
@@ -216,6 +220,21 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
         "properties": {
             "target": {"type": "string", "minLength": 1},
             "xyz_mm": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
+        },
+    },
+    VISIBILITY_SCHEMA: {
+        "$schema": _DRAFT,
+        "title": VISIBILITY_SCHEMA,
+        "description": "Ground truth of one instant of a multi-camera recording: per camera, the targets it sees "
+        "(a target missing from a camera's list is hidden from it or outside its image).",
+        "type": "object",
+        "required": ["timestamp_ns", "visible"],
+        "properties": {
+            "timestamp_ns": {"type": "integer", "minimum": 0},
+            "visible": {
+                "type": "object",
+                "additionalProperties": {"type": "array", "items": {"type": "string", "minLength": 1}},
+            },
         },
     },
     WORLD_ESTIMATE_SCHEMA: {
@@ -939,3 +958,20 @@ def decode_world_point(obj: Any, where: str = WORLD_TRUTH_TOPIC) -> tuple[str, n
     if point.shape != (3,) or not np.isfinite(point).all():
         raise RecordingError(f"{where}: 'xyz_mm' of {target!r} must be 3 finite numbers, got {xyz!r}")
     return target, point
+
+
+def encode_visibility(timestamp_ns: int, visible: Mapping[str, Sequence[str]]) -> dict[str, Any]:
+    """The ``fusion_pf.Visibility`` object of one instant: per camera, the targets it sees."""
+    return {"timestamp_ns": int(timestamp_ns), "visible": {camera: list(t) for camera, t in visible.items()}}
+
+
+def decode_visibility(obj: Any, where: str = VISIBILITY_TOPIC) -> dict[str, tuple[str, ...]]:
+    """Per camera, the targets it sees, from a ``fusion_pf.Visibility`` object."""
+    visible = obj.get("visible") if isinstance(obj, dict) else None
+    if not isinstance(visible, dict) or not all(
+        isinstance(v, list) and all(isinstance(t, str) and t for t in v) for v in visible.values()
+    ):
+        raise RecordingError(
+            f"{where}: 'visible' must map each camera to a list of target names, got {str(obj)[:80]!r}"
+        )
+    return {str(camera): tuple(targets) for camera, targets in visible.items()}

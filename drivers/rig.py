@@ -155,7 +155,8 @@ class RigRecorder:
     The camera poses go on ``/tf`` with the first frame set (and into the
     recording metadata as ``pose_<camera>``, outside the chunks, so a damaged first
     chunk does not take them along); each camera's frame goes on its prefixed
-    topics; world ground truth on ``/ground_truth/world``.
+    topics; world ground truth on ``/ground_truth/world``, the targets each camera sees on
+    ``/ground_truth/visibility``.
     """
 
     def __init__(self, path: str | Path, poses: Mapping[str, CameraPose], **recorder_kwargs: Any) -> None:
@@ -182,8 +183,10 @@ class RigRecorder:
         timestamp_ns: int,
         frames: Mapping[str, Frame],
         truth_mm: Mapping[str, np.ndarray | Sequence[float]] | None = None,
+        visible: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
-        """Write the frames of one instant (each with ``timestamp_ns``) and its world ground truth."""
+        """Write the frames of one instant (each with ``timestamp_ns``), its world ground truth and, given,
+        the targets each camera sees (``/ground_truth/visibility``)."""
         t = fmt.check_timestamp(timestamp_ns)
         unknown = sorted(set(frames) - set(self.poses))
         if unknown:
@@ -202,6 +205,8 @@ class RigRecorder:
             self.recorder.write_json(
                 fmt.WORLD_TRUTH_TOPIC, fmt.WORLD_POINT_SCHEMA, fmt.encode_world_point(target, xyz), t
             )
+        if visible is not None:
+            self.recorder.write_json(fmt.VISIBILITY_TOPIC, fmt.VISIBILITY_SCHEMA, fmt.encode_visibility(t, visible), t)
         self.sets_written += 1
 
 
@@ -234,6 +239,9 @@ class RigReplay:
         One replay per camera (their ``stats`` say what each lost).
     timestamps : ndarray int64
         The instants: every time at which some camera has a frame.
+    visibility : dict of int to (dict of str to tuple of str), or None
+        Per instant (ns), the targets each camera sees (``/ground_truth/visibility``);
+        None when the recording has no such topic.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -244,6 +252,7 @@ class RigReplay:
         self.timestamps = np.zeros(0, np.int64)
         self.notes: list[str] = []
         self._truth: dict[int, dict[str, np.ndarray]] | None = None
+        self.visibility: dict[int, dict[str, tuple[str, ...]]] | None = None
 
     def __enter__(self) -> RigReplay:
         try:
@@ -277,6 +286,7 @@ class RigReplay:
             self.cameras = tuple(order + [c for c in found if c not in order])
             self.poses = self._read_poses(topics)
             self._truth = self._read_truth(topics)
+            self.visibility = self._read_visibility(topics)
             self.notes += topics.stats.notes
         for name in self.cameras:
             self.replays[name] = McapReplay(self.path, camera=name).__enter__()
@@ -325,6 +335,17 @@ class RigReplay:
             target, xyz = fmt.decode_world_point(fmt.decode_json(data, where), where)
             truth.setdefault(t, {})[target] = xyz
         return truth
+
+    @staticmethod
+    def _read_visibility(topics: McapTopics) -> dict[int, dict[str, tuple[str, ...]]] | None:
+        messages = topics.messages(fmt.VISIBILITY_TOPIC)
+        if not messages:
+            return None
+        return {
+            t: fmt.decode_visibility(fmt.decode_json(data, where), where)
+            for t, _encoding, data in messages
+            for where in [f"{fmt.VISIBILITY_TOPIC} at t={t} ns"]
+        }
 
     def __len__(self) -> int:
         return len(self.timestamps)

@@ -833,6 +833,14 @@ class SynthSource(ReplaySource):
         noise = self._gaussian(rng, color.shape)
         return cv2.addWeighted(blurred, 1.0, noise, COLOR_NOISE_SIGMA, 0.0, dtype=cv2.CV_8U)
 
+    def _composite(self, index: int, pose: sc.Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The noise-free colour, true depth (m) and labels of person frame ``index`` (:func:`sc.composite`)."""
+        if self._wash is not None:
+            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
+            return sc.composite(self._background, parts)
+        parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
+        return sc.composite(self._background, parts, self.blur_kernel(index))
+
     def render(self, index: int) -> tuple[Frame, dict[str, np.ndarray]]:
         """Render frame ``index``.
 
@@ -858,13 +866,8 @@ class SynthSource(ReplaySource):
             color_f, depth_m = bg.color, bg.depth_m
             labels = np.zeros(depth_m.shape, np.uint8)
             valid = self._bg_depth_valid
-        elif self._wash is not None:
-            parts = sc.wash_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
-            color_f, depth_m, labels = sc.composite(bg, parts)
-            valid = self._stereo_valid(depth_m)
         else:
-            parts = sc.person_parts(self.intrinsics, pose, self._appearance.sleeve_fraction, self._skin, self._shirt)
-            color_f, depth_m, labels = sc.composite(bg, parts, self.blur_kernel(index))
+            color_f, depth_m, labels = self._composite(index, pose)
             valid = self._stereo_valid(depth_m)
         color = self._color_image(color_f, index, rng)
         depth = self._depth_image(depth_m, valid, rng)

@@ -40,14 +40,16 @@ from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import replace
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
 import numpy as np
 
 from fusion_pf.errors import InputError
-from fusion_pf.frame import Frame, Intrinsics
+from fusion_pf.frame import Frame, Intrinsics, Joint
 from fusion_pf.rig import CameraPose
 
 from . import synth_scene as sc
@@ -78,6 +80,68 @@ BOXES_M = (
 )
 #: Board ink and paper grey levels.
 BOARD_BLACK, BOARD_WHITE = 28.0, 232.0
+#: Radius (metres) of the disc a card hides per target: the palm's half length, the head's half height.
+TARGET_RADIUS_M = {
+    "right_hand": sc.PALM_HALF_LENGTH,
+    "left_hand": sc.PALM_HALF_LENGTH,
+    "head": sc.FACE_HALF_SIZE[1] + 0.015,
+}
+#: The skeleton joints a camera loses while a card hides the target from it.
+TARGET_JOINTS = {
+    "right_hand": ("right_hand", "right_wrist"),
+    "left_hand": ("left_hand", "left_wrist"),
+    "head": ("head",),
+}
+#: A card's distance from the camera (fraction of the target's depth) and its size (times the target's disc).
+CARD_DEPTH_FRACTION, CARD_MARGIN = 0.5, 1.6
+#: A target is visible in a camera when at least this fraction of its disc (inside the image or not) shows it.
+VISIBLE_FRACTION = 0.25
+#: ``occlude="auto"``: each hand's period is this fraction of its share of the person frames, at most
+#: :data:`AUTO_MAX_FRAMES` frames.
+AUTO_FRACTION, AUTO_MAX_FRAMES = 0.5, 60
+_OCCLUSION = re.compile(r"^([^:]+):([^:]+):(\d+)-(\d+)$")
+
+
+@dataclass(frozen=True)
+class Occlusion:
+    """A card hides ``target`` from ``camera`` during frames ``start`` to ``end`` (inclusive)."""
+
+    camera: str
+    target: str
+    start: int
+    end: int
+
+    def covers(self, index: int) -> bool:
+        return self.start <= index <= self.end
+
+    def __str__(self) -> str:
+        return f"{self.camera}:{self.target}:{self.start}-{self.end}"
+
+
+def parse_occlusions(text: str) -> tuple[Occlusion, ...] | str:
+    """``"none"``, ``"auto"`` or the periods of ``"CAM:TARGET:START-END[,...]"`` (frames, inclusive).
+
+    Raises
+    ------
+    InputError
+        Naming the malformed period and the expected form.
+    """
+    text = text.strip()
+    if text in ("none", "auto"):
+        return text
+    out = []
+    for item in text.split(","):
+        m = _OCCLUSION.match(item.strip())
+        if m is None:
+            raise InputError(
+                f"occlusion {item.strip()!r} must be CAMERA:TARGET:START-END (e.g. cam1:right_hand:40-80), "
+                "or the whole value none or auto"
+            )
+        start, end = int(m.group(3)), int(m.group(4))
+        if end < start:
+            raise InputError(f"occlusion {item.strip()!r}: END {end} is before START {start}")
+        out.append(Occlusion(m.group(1), m.group(2), start, end))
+    return tuple(out)
 
 
 def _look_at(centre: np.ndarray, target: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -188,15 +252,79 @@ def render_static(
     return sc.Background(color * vignette, depth.astype(np.float32), vignette)
 
 
+def _target_point(pose: sc.Pose, target: str) -> np.ndarray:
+    """The 3-D centre of ``target`` in ``pose`` (the palm; the face for the head)."""
+    return {"right_hand": pose.right_hand, "left_hand": pose.left_hand, "head": sc.face_centre(pose)}[target]
+
+
 class _CameraView(SynthSource):
     """One camera of the rig: the single-camera scene's renderer over the rig's static scene, from its pose."""
 
-    def __init__(self, number: int, pose: CameraPose, background: sc.Background, **scene: Any) -> None:
+    def __init__(
+        self,
+        number: int,
+        pose: CameraPose,
+        background: sc.Background,
+        occlusions: tuple[Occlusion, ...] = (),
+        **scene: Any,
+    ) -> None:
         self.number = number
         super().__init__(**scene)
         self._camera_pose = pose
         self._background = background
         self._bg_depth_valid = self._stereo_valid(background.depth_m)
+        self.occlusions = occlusions
+
+    def hidden(self, index: int) -> tuple[str, ...]:
+        """The targets a card hides from this camera at frame ``index``."""
+        return tuple(dict.fromkeys(o.target for o in self.occlusions if o.covers(index)))
+
+    def _composite(self, index: int, pose: sc.Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        color, depth, labels = super()._composite(index, pose)
+        cards = [
+            sc.card_part(self.intrinsics, _target_point(pose, t), TARGET_RADIUS_M[t], CARD_DEPTH_FRACTION, CARD_MARGIN)
+            for t in self.hidden(index)
+        ]
+        sc.draw_parts(color, depth, labels, self._background.vignette, [c for c in cards if c is not None])
+        return color, depth, labels
+
+    def joints(self, index: int) -> dict[str, Joint]:
+        """The skeleton of this camera: a hidden target's joints are missing (the camera cannot see them)."""
+        lost = {j for t in self.hidden(index) for j in TARGET_JOINTS[t]}
+        return {name: joint for name, joint in super().joints(index).items() if name not in lost}
+
+    def visible(self, index: int, masks: Mapping[str, np.ndarray]) -> tuple[str, ...]:
+        """The targets this camera sees at ``index`` (``masks``: its :meth:`render` masks of that frame).
+
+        A target is visible when at least :data:`VISIBLE_FRACTION` of its disc (the
+        palm ellipse; the face ellipse for the head), counted inside the image or
+        not, shows it: palm pixels for a hand, skin that is not a palm for the head.
+        """
+        pose = self.pose(index)
+        if pose is None:
+            return ()
+        intr = self.intrinsics
+        discs = {
+            "right_hand": (sc.palm_mask, masks["palm"]),
+            "left_hand": (sc.left_palm_mask, masks["palm"]),
+            "head": (sc.face_mask, masks["skin"] & ~masks["palm"]),
+        }
+        out = []
+        for target in self.targets:
+            disc, shows = discs[target]
+            full = disc(intr, pose, clip=False)
+            inside = disc(intr, pose, clip=True)
+            area = 0 if full is None else int(full[2].sum())
+            if area == 0 or inside is None:
+                continue
+            rows, cols, mask = inside[:3]
+            if np.count_nonzero(mask & shows[rows, cols]) >= VISIBLE_FRACTION * area:
+                out.append(target)
+        return tuple(out)
+
+    @property
+    def targets(self) -> tuple[str, ...]:
+        return TARGETS if self.hands == 2 else TARGETS[:1]
 
     def _rng(self, *key: int) -> np.random.Generator:
         # noise (1: images, 2: skeleton) is per camera; motion and appearance are shared
@@ -231,12 +359,25 @@ class SynthRig:
         Render the rig's calibration sequence (the board in the empty room) instead of the person.
     colour_only : int
         The last ``colour_only`` cameras have no depth (``Frame.depth = None``), in ``[0, cameras]``.
+    occlude : str or tuple of Occlusion
+        Periods in which a card hides a target from one camera: ``"none"``,
+        ``"auto"`` (with 2 or more cameras, each hand once, camera and period from the
+        seed: :meth:`auto_occlusions`), ``"CAM:TARGET:START-END[,...]"`` (frames,
+        inclusive) or :class:`Occlusion` objects.
     **scene
         :class:`~drivers.synth.SynthSource`'s options (frames, seed, size, fps,
         background_frames, start_ns, depth_model, hands).
     """
 
-    def __init__(self, cameras: int, *, board: bool = False, colour_only: int = 0, **scene: Any) -> None:
+    def __init__(
+        self,
+        cameras: int,
+        *,
+        board: bool = False,
+        colour_only: int = 0,
+        occlude: str | tuple[Occlusion, ...] = "none",
+        **scene: Any,
+    ) -> None:
         self.cameras = _int_option("synth option cameras", cameras, 1, MAX_CAMERAS)
         self.colour_only = _int_option("synth option colour_only", colour_only, 0, self.cameras)
         self.board = BoardSpec() if board else None
@@ -255,11 +396,62 @@ class SynthRig:
             while pyramid[-1].shape[1] > 64:  # block means (pyrDown's samples sit a quarter pixel off the centres)
                 pyramid.append(cv2.resize(pyramid[-1], None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
         spec = self.board or BoardSpec()
+        self.source = probe
+        self.occlusions = self._occlusions(parse_occlusions(occlude) if isinstance(occlude, str) else tuple(occlude))
         self.views = {
-            name: _CameraView(k, pose, render_static(probe.intrinsics, pose, spec, pyramid, tex), **scene)
+            name: _CameraView(
+                k,
+                pose,
+                render_static(probe.intrinsics, pose, spec, pyramid, tex),
+                tuple(o for o in self.occlusions if o.camera == name),
+                **scene,
+            )
             for k, (name, pose) in enumerate(self.poses.items())
         }
-        self.source = probe
+
+    @property
+    def targets(self) -> tuple[str, ...]:
+        """The scene's targets (:data:`drivers.synth.TARGETS`; one hand: the right hand only)."""
+        return TARGETS if self.source.hands == 2 else TARGETS[:1]
+
+    def _occlusions(self, spec: tuple[Occlusion, ...] | str) -> tuple[Occlusion, ...]:
+        """The periods of ``spec`` checked against the rig and the scene (``"auto"`` drawn from the seed)."""
+        if spec == "none" or (spec == "auto" and (self.board is not None or self.cameras < 2)):
+            return ()
+        if spec == "auto":
+            return self.auto_occlusions()
+        if self.board is not None and spec:
+            raise InputError("synth option occlude hides a target of the person; the board sequence has none")
+        frames = len(self.source)
+        for o in spec:
+            if o.camera not in self.poses:
+                raise InputError(f"occlusion {o}: no camera {o.camera!r}; the rig has {', '.join(self.poses)}")
+            if o.target not in self.targets:
+                raise InputError(f"occlusion {o}: no target {o.target!r}; the scene has {', '.join(self.targets)}")
+            if not 0 <= o.start <= o.end < frames:
+                raise InputError(f"occlusion {o}: frames must lie in [0, {frames - 1}], got {o.start}-{o.end}")
+        return tuple(spec)  # type: ignore[arg-type]
+
+    def auto_occlusions(self) -> tuple[Occlusion, ...]:
+        """One period per hand, in a camera drawn from the seed.
+
+        The person frames are split into one share per hand (the right hand's
+        first); each hand is hidden for :data:`AUTO_FRACTION` of its share (at most
+        :data:`AUTO_MAX_FRAMES`, at least 1 frame) at a start drawn inside it.
+        Nothing when the scene has fewer person frames than hands.
+        """
+        rng = self.source._rng(12)
+        first = self.source.background_frames
+        hands = [t for t in self.targets if t != "head"]
+        share = (len(self.source) - first) // len(hands)
+        if share < 1:
+            return ()
+        out = []
+        for k, target in enumerate(hands):
+            length = max(1, min(AUTO_MAX_FRAMES, int(round(AUTO_FRACTION * share))))
+            start = first + k * share + int(rng.integers(0, share - length + 1))
+            out.append(Occlusion(f"cam{int(rng.integers(0, self.cameras))}", target, start, start + length - 1))
+        return tuple(out)
 
     def __len__(self) -> int:
         return len(self.source)
@@ -284,11 +476,17 @@ class SynthRig:
 
     def frames(self, index: int) -> dict[str, Frame]:
         """Every camera's frame at ``index`` (no depth from the colour-only cameras)."""
+        return self.render(index)[0]
+
+    def render(self, index: int) -> tuple[dict[str, Frame], dict[str, tuple[str, ...]]]:
+        """Every camera's frame at ``index`` and the targets each camera sees (:meth:`_CameraView.visible`)."""
         plain = self.colour_only_cameras
-        return {
-            name: replace(view.render(index)[0], seq=index, **({"depth": None} if name in plain else {}))
-            for name, view in self.views.items()
-        }
+        frames, visible = {}, {}
+        for name, view in self.views.items():
+            frame, masks = view.render(index)
+            frames[name] = replace(frame, seq=index, **({"depth": None} if name in plain else {}))
+            visible[name] = view.visible(index, masks)
+        return frames, visible
 
     def metadata(self) -> dict[str, str]:
         """The single-camera scene's metadata, the camera count, the board and the world frame's definition."""
@@ -299,4 +497,5 @@ class SynthRig:
             "colour_only_cameras": ",".join(self.colour_only_cameras),
             "world": "calibration board frame (origin top-left outer corner, x right, y down, z into the board)",
             **(self.board.metadata() if self.board is not None else {}),
+            **({"occlusions": ",".join(map(str, self.occlusions))} if self.occlusions else {}),
         }

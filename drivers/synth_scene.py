@@ -82,6 +82,10 @@ UPPER_ARM_RADIUS, FOREARM_RADIUS = 0.052, 0.042
 PALM_HALF_WIDTH, PALM_HALF_LENGTH, PALM_THICKNESS = 0.05, 0.065, 0.02
 #: Radius (metres) of the bare right forearm below the pushed-up sleeve.
 BARE_FOREARM_RADIUS = 0.034
+#: Half width and half height (metres) of the face, the skin ellipse of the head.
+FACE_HALF_SIZE = (0.074, 0.1)
+#: Colour of an occluding card (:func:`card_part`): a matte olive grey, neither skin nor clothing.
+CARD_RGB = (104.0, 112.0, 88.0)
 
 
 @dataclass(frozen=True)
@@ -667,6 +671,29 @@ def add_clutter(intr: Intrinsics, bg: Background, rng: np.random.Generator, coun
     return Background(color, depth, bg.vignette)
 
 
+def card_part(intr: Intrinsics, target: np.ndarray, radius_m: float, distance: float, margin: float) -> Part | None:
+    """A square card between the camera and the 3-D point ``target`` (metres) that hides a disc of ``radius_m`` there.
+
+    The card is fronto-parallel at ``distance`` times the target's depth, centred on
+    the target's line of sight, ``margin`` times as wide as the disc's image (plus 2 px),
+    matte (shade 0.9-1.0 from its top-left to its bottom-right) and drawn over
+    everything (``on_top``); its label is :data:`LABEL_BACKGROUND` (not the person).
+    None when the target is behind the camera or the card outside the image.
+    """
+    if target[2] <= 0:
+        return None
+    cu, cv = project(intr, target)
+    half = margin * radius_m * intr.fx / float(target[2]) + 2.0
+    g = _grid(intr, cu - half, cu + half, cv - half, cv + half)
+    if g is None:
+        return None
+    rows, cols, uu, vv = g
+    mask = (np.abs(uu - np.float32(cu)) <= half) & (np.abs(vv - np.float32(cv)) <= half)
+    shade = (0.95 - 0.025 * ((uu - np.float32(cu)) + (vv - np.float32(cv))) / np.float32(half)) * np.ones_like(mask)
+    depth = np.full(mask.shape, np.float32(distance * target[2]), np.float32)
+    return Part(rows, cols, mask, depth, shade.astype(np.float32), CARD_RGB, LABEL_BACKGROUND, on_top=True)
+
+
 def person_parts(
     intr: Intrinsics,
     pose: Pose,
@@ -694,7 +721,7 @@ def person_parts(
     parts.append(
         _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
     )
-    parts.append(_ellipse_part(intr, pose.head + [0.0, 0.012, -0.02], 0.074, 0.1, math.pi / 2, 0.07, skin, LABEL_SKIN))
+    parts.append(_ellipse_part(intr, face_centre(pose), *FACE_HALF_SIZE, math.pi / 2, 0.07, skin, LABEL_SKIN))
     parts.append(_capsule_part(intr, pose.left_shoulder, pose.left_elbow, UPPER_ARM_RADIUS, shirt, LABEL_CLOTH))
     parts.append(_capsule_part(intr, pose.left_elbow, pose.left_wrist, FOREARM_RADIUS, shirt, LABEL_CLOTH))
     parts.append(
@@ -732,7 +759,7 @@ def person_parts(
     return [p for p in parts + arm if p is not None]
 
 
-def _draw(
+def draw_parts(
     color: np.ndarray,
     depth: np.ndarray,
     labels: np.ndarray,
@@ -787,9 +814,9 @@ def composite(
     depth = bg.depth_m.copy()
     labels = np.zeros(depth.shape, np.uint8)
     moving = [p for p in parts if p.moving]
-    _draw(color, depth, labels, bg.vignette, [p for p in parts if not p.moving])
+    draw_parts(color, depth, labels, bg.vignette, [p for p in parts if not p.moving])
     if blur is None or not moving:
-        _draw(color, depth, labels, bg.vignette, moving)
+        draw_parts(color, depth, labels, bg.vignette, moving)
         return color, depth, labels
     pad = blur.shape[0] // 2 + 1
     h, w = depth.shape
@@ -799,9 +826,9 @@ def composite(
     c1 = min(max(p.cols.stop for p in moving) + pad, w)
     base = color[r0:r1, c0:c1].copy()
     layer = np.zeros_like(base)
-    alpha = _draw(layer, depth[r0:r1, c0:c1], labels[r0:r1, c0:c1], bg.vignette[r0:r1, c0:c1], moving, r0, c0).astype(
-        np.float32
-    )
+    alpha = draw_parts(
+        layer, depth[r0:r1, c0:c1], labels[r0:r1, c0:c1], bg.vignette[r0:r1, c0:c1], moving, r0, c0
+    ).astype(np.float32)
     layer = cv2.filter2D(layer, -1, blur, borderType=cv2.BORDER_REPLICATE)
     alpha = cv2.filter2D(alpha, -1, blur, borderType=cv2.BORDER_REPLICATE)
     color[r0:r1, c0:c1] = layer + (1.0 - alpha)[..., None] * base
@@ -946,6 +973,11 @@ def face_centre(pose: Pose) -> np.ndarray:
     return pose.head + np.array([0.0, 0.012, -0.02])
 
 
+def face_mask(intr: Intrinsics, pose: Pose, clip: bool = True):
+    """The face ellipse (the head's skin): ``(rows, cols, mask, q, du, dv)`` as :func:`ellipse_mask`."""
+    return ellipse_mask(intr, face_centre(pose), *FACE_HALF_SIZE, math.pi / 2, clip)
+
+
 def wash_parts(
     intr: Intrinsics,
     pose: Pose,
@@ -973,7 +1005,7 @@ def wash_parts(
     parts.append(
         _ellipse_part(intr, pose.head + [0.0, -0.012, 0.0], 0.088, 0.112, math.pi / 2, 0.08, HAIR_RGB, LABEL_CLOTH)
     )
-    parts.append(_ellipse_part(intr, face_centre(pose), 0.074, 0.1, math.pi / 2, 0.07, skin, LABEL_SKIN))
+    parts.append(_ellipse_part(intr, face_centre(pose), *FACE_HALF_SIZE, math.pi / 2, 0.07, skin, LABEL_SKIN))
     arms = []
     for sh, el, wr, hand in (
         (pose.right_shoulder, pose.right_elbow, pose.right_wrist, pose.right_hand),

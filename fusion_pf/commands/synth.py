@@ -10,7 +10,7 @@ from pathlib import Path
 
 from drivers.encoding import EncodingOptions
 from drivers.synth import DEPTH_MODELS, MAX_FRAMES, MAX_SIZE, MIN_SIZE, VARIATIONS, SynthSource
-from drivers.synth_rig import MAX_CAMERAS, SynthRig
+from drivers.synth_rig import MAX_CAMERAS, SynthRig, parse_occlusions
 from fusion_pf.errors import InputError
 from fusion_pf.options import add_options, from_args, option, validate
 from fusion_pf.text import printable
@@ -30,6 +30,14 @@ DESCRIPTION = (
     "/ground_truth/world. --board renders the same rig's calibration sequence instead: a ChArUco "
     "board where the person stands, for fusion-pf calibrate (the same seed gives the same poses)."
 )
+
+
+def _check_occlude(label: str, value: str) -> str:
+    try:
+        parse_occlusions(value)
+    except InputError as exc:
+        raise InputError(f"{label}: {exc}") from None
+    return value
 
 
 #: The synthetic scene's own defaults (``SynthSource``'s keyword arguments): defined once, there.
@@ -156,6 +164,15 @@ class SynthOptions:
         metavar="K",
         help="with --cameras: the last K cameras have no depth (colour-only cameras)",
     )
+    occlude: str = option(
+        "none",
+        kind="str",
+        check=_check_occlude,
+        metavar="SPEC",
+        help="with --cameras: periods in which a card in front of one camera hides a target from it, "
+        "CAM:TARGET:START-END[,...] (frames, inclusive; e.g. cam1:right_hand:40-80), auto (each hand once, "
+        "camera and period from the seed) or none; the targets each camera sees go on /ground_truth/visibility",
+    )
     board: bool = option(
         False,
         kind="bool",
@@ -170,6 +187,8 @@ class SynthOptions:
             raise InputError(
                 f"colour_only (--colour-only) must be in [0, cameras {self.cameras}], got {self.colour_only}"
             )
+        if self.occlude != "none" and self.cameras < 2:
+            raise InputError("--occlude hides targets from cameras of a rig; it needs --cameras 2 or more")
         if self.board and self.cameras < 2:
             raise InputError("--board renders a rig's calibration sequence; it needs --cameras 2 or more")
         if self.background_frames > self.frames:
@@ -206,13 +225,11 @@ def run(args: argparse.Namespace) -> int:
     scene = from_args(SynthOptions, args)
     encoding = from_args(EncodingOptions, args)
     options = dataclasses.asdict(scene)
-    cameras, board, colour_only = options.pop("cameras"), options.pop("board"), options.pop("colour_only")
+    rig = {name: options.pop(name) for name in ("cameras", "board", "colour_only", "occlude")}
     out: Path = args.output
     check_output(out, force=args.force)
-    if cameras > 1:
-        return _run_rig(
-            SynthRig(cameras, board=board, colour_only=colour_only, **options), encoding, out, args.no_progress
-        )
+    if rig["cameras"] > 1:
+        return _run_rig(SynthRig(rig.pop("cameras"), **rig, **options), encoding, out, args.no_progress)
     source = SynthSource(**options)
     recorder = McapRecorder(out, metadata=source.metadata(), **encoding.recorder_kwargs())
     started = time.monotonic()
@@ -259,7 +276,9 @@ def _run_rig(rig: SynthRig, encoding: EncodingOptions, out: Path, no_progress: b
         ) as bar,
     ):
         for index in range(len(rig)):
-            recorder.write(rig.timestamp_ns(index), rig.frames(index), rig.truth_mm(index))
+            frames, visible = rig.render(index)
+            truth = rig.truth_mm(index)
+            recorder.write(rig.timestamp_ns(index), frames, truth, visible if truth else None)
             bar.update()
     print(
         f"wrote {recorder.sets_written} instants of {cameras} cameras ({rig.source.background_frames} background) "

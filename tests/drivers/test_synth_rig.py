@@ -157,3 +157,71 @@ def test_colour_only_cameras_have_no_depth(tmp_path, fusion_pf):
     assert proc.returncode == 2 and "needs --cameras 2 or more" in proc.stderr
     proc = fusion_pf("synth", tmp_path / "x.mcap", "--cameras", 2, "--colour-only", 3)
     assert proc.returncode == 2 and "must be in [0, cameras 2], got 3" in proc.stderr
+
+
+def _window(img, u, v, r=3):
+    u, v = int(round(u)), int(round(v))
+    return img[v - r : v + r + 1, u - r : u + r + 1]
+
+
+def test_a_card_hides_a_hand_from_one_camera_during_its_period_only():
+    scene = dict(frames=9, seed=41, size=(320, 200), background_frames=1, hands=2, depth_model="basic")
+    hidden = SynthRig(3, occlude="cam1:right_hand:3-5", **scene)
+    plain = SynthRig(3, **scene)
+    for i in range(1, 9):
+        (frames, visible), base = hidden.render(i), plain.frames(i)
+        xyz = hidden.truth_mm(i)["right_hand"]
+        during = 3 <= i <= 5
+        for name, frame in frames.items():
+            cam = hidden.poses[name].to_camera(xyz[None])
+            u, v = _project(frame.intrinsics, cam)[0]
+            assert 10 <= u < 310 and 10 <= v < 190, (name, i)  # the palm is inside every image
+            skin = _window(base[name].color, u, v).reshape(-1, 3).mean(axis=0)
+            assert skin[0] - skin[2] > 40, (name, i)  # without a card every camera shows the palm's skin
+            if name == "cam1" and during:
+                seen = _window(frame.color, u, v).reshape(-1, 3).mean(axis=0)
+                assert abs(seen[0] - seen[2]) < 25 and np.abs(seen - skin).max() > 60, i  # the card, not skin
+                depth = _window(frame.depth, u, v).astype(float)
+                assert np.median(depth[depth > 0]) < 0.6 * cam[0, 2], i  # the card is nearer than the palm
+                assert "right_hand" not in frame.joints and "right_wrist" not in frame.joints
+                assert "right_hand" not in visible[name] and "left_hand" in visible[name]
+            else:
+                assert np.array_equal(frame.color, base[name].color) and np.array_equal(frame.depth, base[name].depth)
+                assert frame.joints == base[name].joints
+                assert "right_hand" in visible[name], (name, i)
+
+
+def test_occlusions_are_recorded_with_the_visibility_and_auto_follows_the_seed(tmp_path, fusion_pf):
+    rec = tmp_path / "occluded.mcap"
+    args = ("--cameras", 2, "--frames", 8, "--background-frames", 2, "--size", "160x100", "--no-progress")
+    proc = fusion_pf("synth", rec, *args, "--occlude", "cam0:right_hand:4-5", "--seed", 3)
+    assert proc.returncode == 0, proc.stderr
+    with RigReplay(rec) as rig:
+        assert rig.replays["cam0"].metadata()["occlusions"] == "cam0:right_hand:4-5"
+        assert rig.visibility is not None
+        times = [int(t) for t in rig.timestamps]
+        assert sorted(rig.visibility) == times[2:]  # the person's instants
+        for k, t in enumerate(times[2:], start=2):
+            assert rig.visibility[t]["cam1"] == ("right_hand",)
+            assert rig.visibility[t]["cam0"] == (() if k in (4, 5) else ("right_hand",)), k
+    auto = [
+        SynthRig(3, occlude="auto", frames=200, background_frames=20, hands=2, seed=s).occlusions for s in (7, 7, 8)
+    ]
+    assert auto[0] == auto[1] and auto[0] != auto[2]
+    for periods in auto:
+        assert [o.target for o in periods] == ["right_hand", "left_hand"]
+        assert all(20 <= o.start <= o.end < 200 and o.end - o.start + 1 == 45 for o in periods)
+        assert periods[0].end < 110 <= periods[1].start  # each hand in its own half of the person frames
+    for bad, message in (
+        ("cam0:right_hand:5", "must be CAMERA:TARGET:START-END"),
+        ("cam0:right_hand:5-2", "END 2 is before START 5"),
+        ("cam7:right_hand:2-3", "no camera 'cam7'; the rig has cam0, cam1"),
+        ("cam0:left_hand:2-3", "no target 'left_hand'; the scene has right_hand"),
+        ("cam0:right_hand:2-8", "frames must lie in [0, 7], got 2-8"),
+    ):
+        proc = fusion_pf("synth", tmp_path / "x.mcap", *args, "--occlude", bad)
+        assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, (bad, proc.stderr)
+        assert message in proc.stderr, (bad, proc.stderr)
+        assert not (tmp_path / "x.mcap").exists()
+    proc = fusion_pf("synth", tmp_path / "x.mcap", "--occlude", "auto")
+    assert proc.returncode == 2 and "needs --cameras 2 or more" in proc.stderr
