@@ -39,6 +39,8 @@ from .motion import FrameClock
 from .resample import ess, residual_trusted
 
 __all__ = [
+    "DEFAULT_WORLD_NOISE_MM",
+    "DEFAULT_WORLD_PROCESS_NOISE",
     "OUTLIER_PROB",
     "OUTLIER_VOLUME_MM3",
     "PixelObservation",
@@ -50,6 +52,23 @@ __all__ = [
     "ray",
 ]
 
+#: Default measurement noise per source in the world (mm, 1 sigma per axis; ``--world-noise``): chosen on the
+#: synthetic two-hand rig, seeds 1 and 2 (320 x 200; 2 cameras, 3 with one colour-only, with and without a camera
+#: occluded; over colour {40, 60, 80, 90}, depth {25, 40, 60}, skeleton {20, 25, 30, 50}): the region cues'
+#: back-projected points are 25-40 mm off the palm's centre (forearm, fingers, the surface in front of the centre,
+#: depth noise), the skeleton joint's line of sight 10-15 mm (median) and far off during occlusion, which the robust
+#: likelihood absorbs.
+DEFAULT_WORLD_NOISE_MM = {
+    "colour": 60.0,
+    "depth": 60.0,
+    "skeleton": 30.0,
+    "skin_rgb": 60.0,
+    "skin_rg": 60.0,
+    "skin_lab": 60.0,
+    "hand": 10.0,
+}
+#: Default process noise of the world filter (mm, mm per frame step; ``--world-process-noise``), same tuning.
+DEFAULT_WORLD_PROCESS_NOISE = (10.0, 2.5)
 #: Prior probability that one observation is an outlier (the robust likelihood's ``eps``).
 OUTLIER_PROB = 0.1
 #: Volume of the uniform outlier density of 3-D points: a 4 m x 3 m x 3 m room, mm^3.

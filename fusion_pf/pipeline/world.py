@@ -19,12 +19,12 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    :func:`fusion_pf.geometry.depth_at`) and moved to the world, a 3-D point with a
    robust Gaussian likelihood in mm; in a colour-only camera (or without valid
    depth there, or a skeleton joint, :data:`PIXEL_ONLY`) the pixel, with a robust
-   reprojection likelihood in px. With several targets, two closer than
+   reprojection likelihood in px (``--world-noise`` mm at the target: ``mm x fx / z`` px). With several targets, two closer than
    :data:`COMBINE_MM` are combined and share detections in every camera
-   (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart. A source's
-   noise is its ``--noise`` in px of the reference scene converted to mm at the
-   reference palm's scale (:data:`MM_PER_REFERENCE_PX`, about 5.1 mm per px), so a
-   pixel measurement's noise is that many mm at the target's depth;
+   (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart.
+   A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
+   plus the predicted spread are another object and dropped (validation gate),
+   except its own skeleton joint (a certain label);
 4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
    triangulation of the most trusted measurement of every camera that saw the
    target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
@@ -97,6 +97,8 @@ MM_PER_REFERENCE_PX = PALM_LENGTH_MM / REFERENCE_PALM_PX
 PIXEL_ONLY = frozenset({"skeleton"})
 #: Two targets closer than this are combined (they share detections, paper 004 §5.2); farther than the second, apart (mm).
 COMBINE_MM, SEPARATE_MM = COMBINE_PX * MM_PER_REFERENCE_PX, SEPARATE_PX * MM_PER_REFERENCE_PX
+#: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
+GATE_SIGMAS = 4.0
 #: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
 ACQUIRE_GATE_MM = 80.0
 
@@ -222,7 +224,7 @@ class _Camera:
             m = cues.get(source)
             if m is None:
                 continue
-            sigma = quality_sigma(self.config.noise_px[source], m) * MM_PER_REFERENCE_PX
+            sigma = quality_sigma(self.config.world_noise_mm[source], m)
             z = None
             if frame.depth is not None and source not in PIXEL_ONLY:
                 z = depth_at(frame.depth, m.u, m.v, radius=self.config.depth_radius)
@@ -271,9 +273,7 @@ class _WorldTarget:
     def __init__(self, name: str, config: TrackConfig, rng: np.random.Generator) -> None:
         scale = MM_PER_REFERENCE_PX
         self.name = name
-        self.filter = WorldParticleFilter(
-            config.particles, (config.process_noise[0] * scale, config.process_noise[1] * scale), rng
-        )
+        self.filter = WorldParticleFilter(config.world_particles, config.world_process_noise, rng)
         self.status = TrackStatus()
         self.states = StateConfig(
             max_spread_px=config.max_spread * math.hypot(*REFERENCE_SIZE) * scale,
@@ -303,6 +303,8 @@ class _WorldTarget:
         self, t: int, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
     ) -> tuple[np.ndarray | None, float | None]:
         """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread."""
+        if self.filter.initialised:
+            seen = self._gated(seen)
         observations = [ob for *_, ob in seen]
         if not self.filter.initialised:
             best: dict[str, tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]] = {}
@@ -332,6 +334,40 @@ class _WorldTarget:
             self.reacquisitions += 1
         return estimate, spread
 
+    def _gated(
+        self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
+    ) -> list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]:
+        """The observations within :data:`GATE_SIGMAS` of their noise plus the predicted spread of the prediction.
+
+        An observation beyond is another object (the other hand, an occluder in front of one camera, a
+        region of the body): fused, a few of them pull the target off, which the robust likelihood alone
+        does not prevent once the particles spread between the two.
+        """
+        x = self.filter.particles[:, :3]
+        w = np.exp(self.filter.log_weights - self.filter.log_weights.max())
+        w /= w.sum()
+        mean = w @ x
+        d = x - mean
+        spread = math.sqrt(max(float(np.linalg.eigvalsh((w[:, None] * d).T @ d)[-1]), 0.0))
+        kept = []
+        for item in seen:
+            ob = item[3]
+            if item[2].source in PIXEL_ONLY:
+                kept.append(item)
+                continue
+            reach2 = GATE_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
+            if isinstance(ob, PointObservation):
+                ok = float(((ob.xyz_mm - mean) ** 2).sum()) <= reach2
+            else:
+                uv, z = project(mean[None], ob.pose, ob.intrinsics)
+                ok = (
+                    bool(np.isfinite(uv[0, 0]))
+                    and float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * (ob.intrinsics.fx / float(z[0])) ** 2
+                )
+            if ok:
+                kept.append(item)
+        return kept
+
     @staticmethod
     def _support(estimate: np.ndarray, spread: float, observations: list[PointObservation | PixelObservation]) -> int:
         """Observations within :data:`SUPPORT_SIGMAS` of their noise plus the posterior spread of ``estimate``."""
@@ -358,8 +394,8 @@ def track_world(
     sets : iterable of FrameSet
         E.g. a ``drivers.rig.RigReplay``; every view's frame has its intrinsics, every camera its pose.
     config : TrackConfig
-        The single-camera options: cues, sources, noises (px of the reference scene, converted to mm),
-        process noise, particles, supervision, seed.
+        The cue options, sources, ``world_noise_mm``, ``world_particles``, ``world_process_noise``,
+        supervision (``silent_frames``; ``max_spread`` converted to mm) and seed.
     rng : numpy.random.Generator, int or None
         Seed of the first target's filter (None: ``config.seed``); the others' are spawned from ``config.seed``.
 
