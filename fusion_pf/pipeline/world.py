@@ -64,6 +64,7 @@ from ..filter.world import (
     closest_point,
     in_view,
     project,
+    ray,
 )
 from ..frame import Frame, Intrinsics, Measurement
 from ..geometry import backproject, depth_at
@@ -237,16 +238,25 @@ class _Camera:
 
     def line_of_sight(self, m: Measurement, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """The world line of sight through ``m``'s pixel: (optical centre, direction)."""
-        d = backproject(np.array([[m.u, m.v]]), np.ones(1), intrinsics)[0]  # (x/z, y/z, 1), distortion undone
-        return self.pose.translation_mm.copy(), self.pose.rotation @ d
+        xy = backproject(np.array([[m.u, m.v]]), np.ones(1), intrinsics)[0, :2]  # (x/z, y/z), distortion undone
+        return ray(xy, self.pose)
 
 
 def _acquire(
     seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
 ) -> tuple[np.ndarray, float] | None:
-    """Where to start a target's filter from this instant's most trusted measurement per camera (module docstring, 4)."""
-    if len(seen) >= 2:
-        lines = [cam.line_of_sight(m, intr) for cam, intr, m, _ in seen]
+    """Where to start a target's filter from this instant's observations (module docstring, 4): the point and its spread.
+
+    The lines of sight of the most trusted measurement of every camera, triangulated; else the most trusted 3-D point.
+    """
+    best: dict[str, tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]] = {}
+    for item in seen:
+        name = item[0].name
+        if name not in best or item[3].sigma_mm < best[name][3].sigma_mm:
+            best[name] = item
+    if len(best) >= 2:
+        chosen = list(best.values())
+        lines = [cam.line_of_sight(m, intr) for cam, intr, m, _ in chosen]
         keep = list(range(len(lines)))
         while len(keep) >= 2:
             try:
@@ -256,14 +266,14 @@ def _acquire(
             except InputError:
                 break
             if dist.max() <= ACQUIRE_GATE_MM:
-                return point, max(float(dist.max()), min(ob.sigma_mm for *_, ob in seen))
+                return point, max(float(dist.max()), min(chosen[k][3].sigma_mm for k in keep))
             if len(keep) < 3:
                 break
             keep.pop(int(np.argmax(dist)))
     points = [ob for *_, ob in seen if isinstance(ob, PointObservation)]
     if points:
-        best = min(points, key=lambda ob: ob.sigma_mm)
-        return best.xyz_mm, best.sigma_mm
+        first = min(points, key=lambda ob: ob.sigma_mm)
+        return first.xyz_mm, first.sigma_mm
     return None
 
 
@@ -307,12 +317,7 @@ class _WorldTarget:
             seen = self._gated(seen)
         observations = [ob for *_, ob in seen]
         if not self.filter.initialised:
-            best: dict[str, tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]] = {}
-            for item in seen:
-                cam = item[0].name
-                if cam not in best or item[3].sigma_mm < best[cam][3].sigma_mm:
-                    best[cam] = item
-            start = _acquire(list(best.values()))
+            start = _acquire(seen)
             if start is not None:
                 self.filter.reset(start[0], start[1])
                 self.filter.predict(t)
