@@ -69,6 +69,9 @@ DEFAULT_WORLD_NOISE_MM = {
 }
 #: Default process noise of the world filter (mm, mm per frame step; ``--world-process-noise``), same tuning.
 DEFAULT_WORLD_PROCESS_NOISE = (10.0, 2.5)
+#: Velocity kept per frame step (``v <- rho v``): a hand seen along one line of sight only (one colour-only camera)
+#: has no depth measurement, and undamped velocity carried it metres along that line on the synthetic rig.
+VELOCITY_DAMPING = 0.5
 #: Prior probability that one observation is an outlier (the robust likelihood's ``eps``).
 OUTLIER_PROB = 0.1
 #: Volume of the uniform outlier density of 3-D points: a 4 m x 3 m x 3 m room, mm^3.
@@ -193,6 +196,8 @@ class WorldParticleFilter:
     n_particles : int
     process_noise_mm : (float, float)
         Std of the position (mm) and velocity (mm per frame step) noise added per step.
+    damping : float
+        Velocity kept per frame step (1: constant velocity, paper 003 eq. 4; 0: random walk).
     rng : numpy.random.Generator or int
     outlier_prob : float
         The robust likelihood's ``eps``.
@@ -205,6 +210,7 @@ class WorldParticleFilter:
         rng: np.random.Generator | int | None,
         *,
         outlier_prob: float = OUTLIER_PROB,
+        damping: float = VELOCITY_DAMPING,
     ) -> None:
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 1:
             raise InputError(f"n_particles must be an int >= 1, got {n_particles!r}")
@@ -216,6 +222,9 @@ class WorldParticleFilter:
         self.n_particles = int(n_particles)
         self.process_noise_mm = q
         self.outlier_prob = float(outlier_prob)
+        if not 0.0 <= float(damping) <= 1.0:
+            raise InputError(f"damping must be in [0, 1], got {damping!r}")
+        self.damping = float(damping)
         self.rng = as_rng(rng)
         self.clock = FrameClock("auto")
         self.particles = np.zeros((self.n_particles, 6))
@@ -240,8 +249,9 @@ class WorldParticleFilter:
         """Move every particle to ``timestamp_ns`` (constant velocity plus process noise)."""
         dt = self.clock.steps(timestamp_ns, self.last_ns)
         if self.last_ns is not None:
-            # x <- x + dt v + q_pos sqrt(dt) n,  v <- v + q_vel sqrt(dt) n'
+            # x <- x + dt v + q_pos sqrt(dt) n,  v <- rho^dt v + q_vel sqrt(dt) n'
             self.particles[:, :3] += dt * self.particles[:, 3:]
+            self.particles[:, 3:] *= self.damping**dt
             noise = self.rng.standard_normal((self.n_particles, 6))
             noise[:, :3] *= self.process_noise_mm[0] * math.sqrt(dt)
             noise[:, 3:] *= self.process_noise_mm[1] * math.sqrt(dt)
