@@ -75,7 +75,13 @@ def read_json_topic(path: str | Path, topic: str) -> list[tuple[int, dict]]:
 
 
 #: Topic of each kind the scorer reads (:data:`fusion_pf.score.inputs.TopicReader`).
-TOPICS = {"estimate": fmt.ESTIMATE_TOPIC, "cues": fmt.CUES_TOPIC, "ground_truth": fmt.GROUND_TRUTH_TOPIC}
+TOPICS = {
+    "estimate": fmt.ESTIMATE_TOPIC,
+    "cues": fmt.CUES_TOPIC,
+    "ground_truth": fmt.GROUND_TRUTH_TOPIC,
+    "world": fmt.WORLD_ESTIMATE_TOPIC,
+    "world_truth": fmt.WORLD_TRUTH_TOPIC,
+}
 
 
 def read_topic(path: str | Path, kind: str) -> list[tuple[int, dict]]:

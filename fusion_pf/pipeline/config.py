@@ -419,7 +419,7 @@ class TrackConfig:
 
         names = {f.name for f in dataclasses.fields(cls)}
         kwargs = {k: v for k, v in settings.items() if k in names}
-        for key in ("process_noise", "manoeuvre", "cues", "sources"):
+        for key in ("process_noise", "world_process_noise", "manoeuvre", "cues", "sources"):
             if isinstance(kwargs.get(key), list):
                 kwargs[key] = tuple(kwargs[key])
         opts = kwargs.get("cue_options")

@@ -19,8 +19,10 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    :func:`fusion_pf.geometry.depth_at`) and moved to the world, a 3-D point with a
    robust Gaussian likelihood in mm; in a colour-only camera (or without valid
    depth there, or a skeleton joint, :data:`PIXEL_ONLY`) the pixel, with a robust
-   reprojection likelihood in px (``--world-noise`` mm at the target: ``mm x fx / z`` px). With several targets, two closer than
-   :data:`COMBINE_MM` are combined and share detections in every camera
+   reprojection likelihood in px (the source's ``--world-noise`` mm at the target:
+   ``mm x fx / z`` px). With several targets, two closer than :data:`COMBINE_MM`
+   (20 px of the reference scene at its palm's scale, :data:`MM_PER_REFERENCE_PX`)
+   are combined and share detections in every camera
    (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart.
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
@@ -33,9 +35,9 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
 5. supervision per target (:func:`fusion_pf.filter.states.step_state`, in mm): an
    observation *supports* the estimate within 3 sigma of its noise plus the
    posterior spread; the track is lost after ``silent_frames`` instants without
-   support or when the posterior std stays above ``max_spread`` (converted to mm
-   as the noises are). A target hidden from one camera is carried by the others'
-   observations; one no camera measures keeps its motion until it is lost.
+   support or when the posterior std stays above ``max_spread`` (of the reference
+   image diagonal, converted to mm with :data:`MM_PER_REFERENCE_PX`). A target hidden from one camera is carried by the others'
+   observations; one no camera measures keeps its (damped) motion until it is lost.
 
 Identity comes from the per-camera association (skeleton joint labels are
 certain, handedness labels weigh, regions go to the nearest prediction).
