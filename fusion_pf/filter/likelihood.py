@@ -184,7 +184,7 @@ def quality_sigma(sigma: float, m: Measurement, q_min: float = MIN_QUALITY) -> f
 
 def robust_loglik(
     d2: np.ndarray,
-    sigma: float | np.ndarray,
+    sigma: float,
     outlier_prob: float,
     area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
     out: np.ndarray | None = None,
@@ -196,9 +196,8 @@ def robust_loglik(
     ----------
     d2 : ndarray, shape (N,)
         Squared distances (eq. 5).
-    sigma : float or ndarray, shape (N,)
-        Noise of the inlier Gaussian in px (already quality-widened if wanted);
-        one per distance when it varies (a reprojected 3-D particle's apparent noise).
+    sigma : float
+        Noise of the inlier Gaussian in px (already quality-widened if wanted; mm with ``dims=3``).
     outlier_prob : float
         ``eps`` in (0, 1): prior probability that the cue is an outlier.
     area_px2 : float
@@ -213,17 +212,11 @@ def robust_loglik(
     ndarray, shape (N,)
         ``log((1 - eps) exp(-L / 2 sigma^2) / (2 pi sigma^2)^(dims / 2) + eps / A)``.
     """
+    log_in = math.log1p(-outlier_prob) - 0.5 * dims * math.log(2.0 * math.pi * sigma * sigma)
     log_out = math.log(outlier_prob) - math.log(area_px2)
-    if isinstance(sigma, np.ndarray):
-        var = sigma * sigma
-        log_in_arr = math.log1p(-outlier_prob) - 0.5 * dims * np.log(2.0 * math.pi * var)
-        out = np.multiply(d2, -0.5 / var, out=out)
-        out += log_in_arr - log_out
-    else:
-        log_in = math.log1p(-outlier_prob) - 0.5 * dims * math.log(2.0 * math.pi * sigma * sigma)
-        # a - b = log((1 - eps) / (2 pi sigma^2)) - L / (2 sigma^2) - log(eps / A)
-        out = np.multiply(d2, -0.5 / (sigma * sigma), out=out)
-        out += log_in - log_out
+    # a - b = log((1 - eps) / (2 pi sigma^2)^(dims / 2)) - L / (2 sigma^2) - log(eps / A)
+    out = np.multiply(d2, -0.5 / (sigma * sigma), out=out)
+    out += log_in - log_out
     # log(e^a + e^b) = b + log(1 + e^(a - b))
     np.logaddexp(out, 0.0, out=out)
     out += log_out

@@ -177,7 +177,7 @@ class PixelObservation:
     uv : ndarray (2,)
         Pixel.
     sigma_mm : float
-        Noise per axis at the target, mm: ``sigma_mm fx / z`` px at each particle's depth ``z``.
+        Noise per axis at the target, mm: ``sigma_mm fx / z`` px at the particles' median depth ``z``.
     pose : CameraPose
     intrinsics : Intrinsics
     """
@@ -268,12 +268,15 @@ class WorldParticleFilter:
                 total += robust_loglik(d2, ob.sigma_mm, self.outlier_prob, OUTLIER_VOLUME_MM3, dims=3)
                 continue
             uv, z = project(x, ob.pose, ob.intrinsics)
-            # the target's apparent noise at each particle's depth; behind the camera: only the outlier term
-            sigma_px = ob.sigma_mm * ob.intrinsics.fx / np.maximum(z, MIN_DEPTH_MM)
+            # one pixel noise for all particles: the target's apparent noise at the particles' median depth (a
+            # noise per particle, sigma fx / z_i, would favour the particles far along the line of sight, whose
+            # Gaussian is narrower and taller: a depth a colour-only camera cannot see would drift away)
+            front = z > MIN_DEPTH_MM
+            depth = float(np.median(z[front])) if front.any() else MIN_DEPTH_MM
             d2 = ((uv - ob.uv) ** 2).sum(axis=1)
-            d2[~np.isfinite(d2)] = np.inf
+            d2[~np.isfinite(d2)] = np.inf  # behind the camera: only the outlier term
             area = float(ob.intrinsics.width * ob.intrinsics.height)
-            total += robust_loglik(d2, sigma_px, self.outlier_prob, area)
+            total += robust_loglik(d2, ob.sigma_mm * ob.intrinsics.fx / depth, self.outlier_prob, area)
         return total
 
     def update(self, observations: Sequence[PointObservation | PixelObservation]) -> None:

@@ -79,10 +79,6 @@ def test_robust_loglik_in_three_dimensions_is_the_mixture_density():
     sigma, eps, volume = 20.0, 0.1, 1e9
     ref = np.log((1 - eps) * np.exp(-d2 / (2 * sigma**2)) / (2 * math.pi * sigma**2) ** 1.5 + eps / volume)
     assert robust_loglik(d2.copy(), sigma, eps, volume, dims=3) == pytest.approx(ref, rel=1e-12)
-    # one sigma per distance: each term is the scalar one
-    sigmas = np.array([5.0, 10.0, 20.0, 40.0])
-    each = [robust_loglik(d2[i : i + 1].copy(), float(s), eps, 1e4)[0] for i, s in enumerate(sigmas)]
-    assert robust_loglik(d2.copy(), sigmas, eps, 1e4) == pytest.approx(each, rel=1e-12)
 
 
 def _run(observe, frames=30, seed=0):
@@ -115,12 +111,15 @@ def test_two_colour_only_cameras_triangulate_the_target():
     assert np.linalg.norm(est - POINT) < 15.0
 
 
-def test_one_colour_only_camera_leaves_the_depth_open():
-    # the same pixels of one camera only: the estimate stays on the line of sight but not at the point
+def test_one_colour_only_camera_leaves_the_depth_where_it_was():
+    # the same pixels of one camera only: the estimate moves onto the line of sight, and along it stays about
+    # where it started (a noise per particle, sigma fx / z_i, carried it 590 mm away from the camera)
+    start = POINT + [80.0, -60.0, 90.0]
+
     def observe():
         return [PixelObservation(project(POINT[None], LEFT, K)[0][0], 20.0, LEFT, K)]
 
     est, _ = _run(observe)
     o, d = _line(LEFT, project(POINT[None], LEFT, K)[0][0])
-    off_line = np.linalg.norm(np.cross(est - o, d))
-    assert off_line < 15.0 and np.linalg.norm(est - POINT) > 30.0
+    assert np.linalg.norm(np.cross(est - o, d)) < 15.0
+    assert abs(np.dot(est - start, d)) < 100.0  # measured 44 mm
