@@ -294,12 +294,18 @@ class WorldParticleFilter:
         else:
             self.log_weights = np.log(np.maximum(w, 1e-300))
 
-    def estimate(self) -> tuple[np.ndarray, float]:
-        """The robust mean of the positions (paper 003's top 10 %) and the posterior std along its widest axis, mm."""
+    def moments(self) -> tuple[np.ndarray, float]:
+        """The weighted mean of the positions and the std along the widest axis of their covariance, mm."""
         w = np.exp(self.log_weights - self.log_weights.max())
         w /= w.sum()
         x = self.particles[:, :3]
-        mean = robust_mean(x, w)
-        d = x - (w @ x)
+        mean = w @ x
+        d = x - mean
+        # C = sum_i w_i (x_i - m)(x_i - m)^T, sigma = sqrt(lambda_max(C))
         cov = (w[:, None] * d).T @ d
         return mean, math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+
+    def estimate(self) -> tuple[np.ndarray, float]:
+        """The robust mean of the positions (paper 003's top 10 %) and the posterior std along its widest axis, mm."""
+        w = np.exp(self.log_weights - self.log_weights.max())
+        return robust_mean(self.particles[:, :3], w / w.sum()), self.moments()[1]

@@ -58,7 +58,7 @@ from ..cues.roi import PALM_LENGTH_MM
 from ..errors import InputError
 from ..filter.kernel import warm_up
 from ..filter.likelihood import quality_sigma
-from ..filter.states import Evidence, StateConfig, TrackState, TrackStatus, step_state
+from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
 from ..filter.world import (
     PixelObservation,
     PointObservation,
@@ -296,9 +296,6 @@ class _WorldTarget:
             merge_px=1.0,
             split_px=1.0,
         )
-        self.spread: float | None = None
-        self.losses = 0
-        self.reacquisitions = 0
 
     @property
     def tracking(self) -> bool:
@@ -308,8 +305,7 @@ class _WorldTarget:
         """The predicted position (weighted mean of the moved particles), None without a track."""
         if not (self.filter.initialised and self.tracking):
             return None
-        w = np.exp(self.filter.log_weights - self.filter.log_weights.max())
-        return (w @ self.filter.particles[:, :3]) / w.sum()
+        return self.filter.moments()[0]
 
     def step(
         self, t: int, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
@@ -326,19 +322,14 @@ class _WorldTarget:
         if self.filter.initialised:
             self.filter.update(observations)
         estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
-        self.spread = spread
-        before = self.status.state
         support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
         position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
         self.status = step_state(
             self.status, Evidence(position, spread_px=math.nan if spread is None else spread, cues=support), self.states
         )
         if not self.tracking and estimate is not None:
-            self.losses += before in HOLDING
             self.filter.reset(None)
             return None, None
-        if self.tracking and before == TrackState.LOST:
-            self.reacquisitions += 1
         return estimate, spread
 
     def _gated(
@@ -350,12 +341,7 @@ class _WorldTarget:
         region of the body): fused, a few of them pull the target off, which the robust likelihood alone
         does not prevent once the particles spread between the two.
         """
-        x = self.filter.particles[:, :3]
-        w = np.exp(self.filter.log_weights - self.filter.log_weights.max())
-        w /= w.sum()
-        mean = w @ x
-        d = x - mean
-        spread = math.sqrt(max(float(np.linalg.eigvalsh((w[:, None] * d).T @ d)[-1]), 0.0))
+        mean, spread = self.filter.moments()
         kept = []
         for item in seen:
             ob = item[3]
