@@ -17,9 +17,9 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
 3. each measurement of a target becomes an observation: in a depth camera the
    pixel back-projected with the depth there (median of a window,
    :func:`fusion_pf.geometry.depth_at`) and moved to the world, a 3-D point with a
-   robust Gaussian likelihood in mm; in a colour-only camera (or without valid
-   depth there, or a skeleton joint, :data:`PIXEL_ONLY`) the pixel, with a robust
-   reprojection likelihood in px (the source's ``--world-noise`` mm at the target:
+   robust Gaussian likelihood in mm (a skeleton joint with its own depth, never the
+   depth image under it, :data:`PIXEL_ONLY`); in a colour-only camera (or without
+   valid depth there) the pixel, with a robust reprojection likelihood in px (the source's ``--world-noise`` mm at the target:
    ``mm x fx / z`` px). With several targets, two closer than :data:`COMBINE_MM`
    (20 px of the reference scene at its palm's scale, :data:`MM_PER_REFERENCE_PX`)
    are combined and share detections in every camera
@@ -95,8 +95,9 @@ __all__ = [
 
 #: Millimetres per pixel of the reference scene at the reference palm's distance (95 mm palm over 18.7 px).
 MM_PER_REFERENCE_PX = PALM_LENGTH_MM / REFERENCE_PALM_PX
-#: Sources always fused as pixels: the skeleton joint is biased off the hand during occlusion, where the depth under
-#: it is the body's or the wall's (back-projected, hundreds of mm off on the synthetic rig), its line of sight is not.
+#: Sources never back-projected with the depth image: the skeleton joint is biased off the hand during occlusion,
+#: where the depth under it is the body's or the wall's (hundreds of mm off on the synthetic rig). A joint with its
+#: own depth (a body tracker's 3-D joint, ``Joint.depth_mm``) seen by a depth camera is a 3-D point; else a pixel.
 PIXEL_ONLY = frozenset({"skeleton"})
 #: Two targets closer than this are combined (they share detections, paper 004 §5.2); farther than the second, apart (mm).
 COMBINE_MM, SEPARATE_MM = COMBINE_PX * MM_PER_REFERENCE_PX, SEPARATE_PX * MM_PER_REFERENCE_PX
@@ -219,9 +220,9 @@ class _Camera:
         self.sources = sources or names
 
     def observations(
-        self, frame: Frame, cues: Mapping[str, Measurement | None]
+        self, frame: Frame, target: str, cues: Mapping[str, Measurement | None]
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
-        """Each fused measurement of a target with its observation (a world point with depth there, else the pixel)."""
+        """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel)."""
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
             m = cues.get(source)
@@ -231,6 +232,10 @@ class _Camera:
             z = None
             if frame.depth is not None and source not in PIXEL_ONLY:
                 z = depth_at(frame.depth, m.u, m.v, radius=self.config.depth_radius)
+            elif frame.depth is not None and source == "skeleton":
+                joint = frame.joint(target)
+                if joint is not None and joint.depth_mm and (joint.u, joint.v) == (m.u, m.v):
+                    z = joint.depth_mm
             if z is None:
                 out.append((m, PixelObservation(np.array([m.u, m.v]), sigma, self.pose, frame.intrinsics)))
             else:
@@ -451,7 +456,7 @@ def track_world(
                 priors[t] = cam.stage.prior(frame, config.roi_prior, projected, t)
             rows = cam.stage.rows(fs.index, frame, 0, models.get(name), priors, palms, partners)
             for t in names:
-                for m, ob in cam.observations(frame, rows[t].cues):
+                for m, ob in cam.observations(frame, t, rows[t].cues):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
