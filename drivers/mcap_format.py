@@ -246,8 +246,9 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     WORLD_ESTIMATE_SCHEMA: {
         "$schema": _DRAFT,
         "title": WORLD_ESTIMATE_SCHEMA,
-        "description": "Multi-camera tracker output of one instant: per target its world position (mm), state, "
-        "uncertainty, the cameras that measured it and its pixel in each camera (null: not in that image).",
+        "description": "World estimates (mm) of every target at one instant of a multi-camera recording: state, "
+        "position (null without a track), posterior std, the cameras that measured it, and the position projected "
+        "into every camera (null where out of view or without a track).",
         "type": "object",
         "required": ["timestamp_ns", "targets"],
         "properties": {
@@ -256,10 +257,10 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
                 "type": "array",
                 "items": {
                     "type": "object",
-                    "required": ["target"],
+                    "required": ["target", "state", "position_mm", "sigma_mm", "cameras", "pixels"],
                     "properties": {
-                        "target": {"type": "string", "minLength": 1},
-                        "state": {"type": ["string", "null"]},
+                        "target": {"type": "string"},
+                        "state": {"type": "string"},
                         "position_mm": {"type": ["array", "null"], "items": _NUMBER, "minItems": 3, "maxItems": 3},
                         "sigma_mm": _NUMBER_OR_NULL,
                         "cameras": {"type": "array", "items": {"type": "string"}},

@@ -81,6 +81,8 @@ TOPICS = {
     "ground_truth": fmt.GROUND_TRUTH_TOPIC,
     "events": fmt.EVENTS_TOPIC,
     "true_events": fmt.GROUND_TRUTH_EVENTS_TOPIC,
+    "world": fmt.WORLD_ESTIMATE_TOPIC,
+    "world_truth": fmt.WORLD_TRUTH_TOPIC,
 }
 
 

@@ -186,6 +186,21 @@ def _score_targets(table, args: argparse.Namespace, target: str | None, read_top
     return 0
 
 
+def _score_world(table, args: argparse.Namespace, read_topic) -> int:
+    """A multi-camera run (``track MULTI.mcap``): 3-D RMSE per target against ``/ground_truth/world``."""
+    from fusion_pf.score.targets import score_world_recording, world_markdown
+
+    if args.plots is not None or args.reference is not None or from_args(ScoreOptions, args).sweep is not None:
+        raise InputError(f"{args.tracked} is a multi-camera run: score it with --ground-truth MULTI.mcap only")
+    result = score_world_recording(table, args.ground_truth, read_topic)
+    result.pop("errors")
+    if args.json:
+        print(json.dumps(result, indent=1, default=lambda x: None))
+    else:
+        print(world_markdown(result, args.tracked, args.ground_truth), end="")
+    return 0
+
+
 def _score_study(args: argparse.Namespace, opts: ScoreOptions, read_topic) -> int:
     """A study's output folder against a folder of recordings with ground truth: per recording and pooled."""
     from fusion_pf.score.study import score_study, study_markdown
@@ -225,7 +240,11 @@ def run(args: argparse.Namespace) -> int:
         inputs = (args.tracked, args.ground_truth, args.recording, source, *db_files)
         check_folder_outputs(Path(args.plots), (*REPORT_FILES, TARGETS_FIGURE), inputs, "--plots")
     if args.ground_truth is not None:
-        from fusion_pf.score.targets import read_targets
+        from fusion_pf.score.targets import read_targets, read_world
+
+        world = read_world(args.tracked, read_topic)
+        if world is not None:
+            return _score_world(world, args, read_topic)
 
         table = read_targets(args.tracked, read_topic)
         if table is not None:

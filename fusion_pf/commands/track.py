@@ -28,7 +28,10 @@ DESCRIPTION = (
     "millimetres. The same --seed gives a byte-identical CSV (latency columns are left empty unless "
     "--csv-latency). Outputs are finalised on Ctrl-C (exit 130), SIGTERM (143), SIGHUP (129) and errors (exit 2). A damaged "
     "recording is tracked as far as it can be read: the frames skipped and why are printed and the "
-    "exit status is 3 (partial)."
+    "exit status is 3 (partial). A multi-camera recording (fusion-pf synth --cameras, merge) is tracked in world "
+    "millimetres (one 3-D particle filter per target fed by every camera's cues): the CSV has one row per instant "
+    "and target (x_mm, y_mm, z_mm, sigma_mm, the cameras that measured it, u, v per camera) and OUT.mcap gets "
+    "/tracker/world and the camera poses on /tf."
 )
 
 
@@ -261,6 +264,15 @@ def run(args: argparse.Namespace) -> int:
     if args.color_format not in COLOR_FORMATS:
         raise InputError(f"--color-format must be one of {', '.join(COLOR_FORMATS)}, got {args.color_format!r}")
     _check_outputs(args, config)
+    if str(args.source).lower().endswith(".mcap") and Path(args.source).is_file():
+        from drivers.rig import is_rig
+
+        if is_rig(args.source):  # several cameras: tracked in world coordinates
+            if live_options.enabled:
+                raise InputError(f"the live view is for one camera; {args.source} is a multi-camera recording")
+            from ._rig_track import track_rig
+
+            return track_rig(args, config)
     background = None if config.background is None else load_background(config.background)
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)

@@ -44,8 +44,8 @@ def robust_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float 
 
     Parameters
     ----------
-    positions : ndarray, shape (N, 2)
-        Particle positions.
+    positions : ndarray, shape (N, d)
+        Particle positions (d = 2 image pixels, 3 world mm).
     weights : ndarray, shape (N,)
         Normalised weights.
     top_fraction : float
@@ -53,7 +53,7 @@ def robust_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float 
 
     Returns
     -------
-    ndarray, shape (2,)
+    ndarray, shape (d,)
         ``sum_(i in top) w_i p_i / sum_(i in top) w_i``.
     """
     if not (0.0 < top_fraction <= 1.0):
@@ -65,19 +65,18 @@ def robust_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float 
     top = weights.argpartition(n - k)[n - k :]
     w = weights.take(top)
     # x_hat = sum_top w_i p_i / sum_top w_i
-    u, v = positions[:, 0].take(top), positions[:, 1].take(top)
-    return np.array([dot_product(w, u), dot_product(w, v)]) / w.sum()
+    return np.array([dot_product(w, positions[:, j].take(top)) for j in range(positions.shape[1])]) / w.sum()
 
 
 def weighted_mean(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:
-    """Weighted mean of all particles, ``sum_i w_i p_i`` (``top_fraction`` is ignored).
+    """Weighted mean of all particles ``(N, d)``, ``sum_i w_i p_i`` (``top_fraction`` is ignored).
 
     Returns
     -------
-    ndarray, shape (2,)
+    ndarray, shape (d,)
     """
     # x_hat = sum_i w_i p_i / sum_i w_i
-    return np.array([dot_product(weights, positions[:, 0]), dot_product(weights, positions[:, 1])]) / weights.sum()
+    return np.array([dot_product(weights, positions[:, j]) for j in range(positions.shape[1])]) / weights.sum()
 
 
 def map_estimate(positions: np.ndarray, weights: np.ndarray, top_fraction: float = 1.0) -> np.ndarray:

@@ -188,6 +188,7 @@ def robust_loglik(
     outlier_prob: float,
     area_px2: float = DEFAULT_OUTLIER_AREA_PX2,
     out: np.ndarray | None = None,
+    dims: int = 2,
 ) -> np.ndarray:
     """Log of the Gaussian + uniform outlier mixture (beyond the paper).
 
@@ -196,22 +197,24 @@ def robust_loglik(
     d2 : ndarray, shape (N,)
         Squared distances (eq. 5).
     sigma : float
-        Noise of the inlier Gaussian in px (already quality-widened if wanted).
+        Noise of the inlier Gaussian in px (already quality-widened if wanted; mm with ``dims=3``).
     outlier_prob : float
         ``eps`` in (0, 1): prior probability that the cue is an outlier.
     area_px2 : float
-        Area ``A`` of the uniform outlier density, px^2.
+        Area ``A`` of the uniform outlier density, px^2 (a volume, mm^3, with ``dims=3``).
     out : ndarray, shape (N,), optional
         Output buffer (may be ``d2`` itself).
+    dims : int
+        Dimension of the measurement: 2 (pixels) or 3 (world points, mm).
 
     Returns
     -------
     ndarray, shape (N,)
-        ``log((1 - eps) exp(-L / 2 sigma^2) / (2 pi sigma^2) + eps / A)``.
+        ``log((1 - eps) exp(-L / 2 sigma^2) / (2 pi sigma^2)^(dims / 2) + eps / A)``.
     """
-    log_in = math.log1p(-outlier_prob) - math.log(2.0 * math.pi * sigma * sigma)
+    log_in = math.log1p(-outlier_prob) - 0.5 * dims * math.log(2.0 * math.pi * sigma * sigma)
     log_out = math.log(outlier_prob) - math.log(area_px2)
-    # a - b = log((1 - eps) / (2 pi sigma^2)) - L / (2 sigma^2) - log(eps / A)
+    # a - b = log((1 - eps) / (2 pi sigma^2)^(dims / 2)) - L / (2 sigma^2) - log(eps / A)
     out = np.multiply(d2, -0.5 / (sigma * sigma), out=out)
     out += log_in - log_out
     # log(e^a + e^b) = b + log(1 + e^(a - b))

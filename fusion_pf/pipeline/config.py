@@ -16,6 +16,7 @@ from ..errors import InputError
 from ..filter.likelihood import DEFAULT_NOISE_PX, LIKELIHOODS
 from ..filter.motion import DEFAULT_PROCESS_NOISE
 from ..filter.proposal import PROPOSALS, check_manoeuvre
+from ..filter.world import DEFAULT_WORLD_NOISE_MM, DEFAULT_WORLD_PROCESS_NOISE
 from ..geometry import DEFAULT_DEPTH_RADIUS
 from ..options import option, parse_pairs, parse_tuple, validate
 
@@ -39,22 +40,28 @@ def _show_pairs(pairs: Mapping[str, float]) -> str:
     return ",".join(f"{k}={v:g}" for k, v in pairs.items()) or "none"
 
 
-def _check_noise(label: str, value) -> dict[str, float]:
+def _check_noise(
+    label: str, value, defaults: Mapping[str, float] = DEFAULT_NOISE_PX, unit: str = "px"
+) -> dict[str, float]:
     if not isinstance(value, Mapping):
-        raise InputError(f"{label} must map source names to px, e.g. colour=12,depth=4, got {value!r}")
+        raise InputError(f"{label} must map source names to {unit}, e.g. colour=12,depth=4, got {value!r}")
     unknown = sorted(set(value) - set(CUES))
     if unknown:
         raise InputError(f"{label} has unknown source(s) {', '.join(unknown)}; expected among {', '.join(CUES)}")
     out = {}
-    for s, sigma in {**DEFAULT_NOISE_PX, **value}.items():
+    for s, sigma in {**defaults, **value}.items():
         try:
             x = float(sigma)
         except (TypeError, ValueError):
             x = float("nan")
         if not 0.01 <= x <= 10_000.0:
-            raise InputError(f"{label}: {s} must be a number in [0.01, 10000] px, got {sigma!r}")
+            raise InputError(f"{label}: {s} must be a number in [0.01, 10000] {unit}, got {sigma!r}")
         out[s] = x
     return out
+
+
+def _check_world_noise(label: str, value) -> dict[str, float]:
+    return _check_noise(label, value, DEFAULT_WORLD_NOISE_MM, "mm")
 
 
 def _check_manoeuvre(label: str, value) -> tuple[float, float]:
@@ -197,6 +204,34 @@ class TrackConfig:
         show=_show_pairs,
         unit="px, 1 sigma per axis",
         help="measurement noise per source (unnamed sources keep their default)",
+    )
+    world_noise_mm: Mapping[str, float] = option(
+        factory=lambda: dict(DEFAULT_WORLD_NOISE_MM),
+        parse=parse_pairs,
+        check=_check_world_noise,
+        flag="--world-noise",
+        metavar="SRC=MM,...",
+        show=_show_pairs,
+        unit="mm, 1 sigma per axis",
+        help="multi-camera recordings (tracked in world mm): measurement noise per source at the target, of a "
+        "depth camera's back-projected detection and of a colour-only camera's pixel (px = mm x fx / depth)",
+    )
+    world_particles: int = option(
+        300,
+        kind="int",
+        lo=1,
+        hi=100_000,
+        metavar="N",
+        help="multi-camera recordings: particles of each target's world filter (3-D position and velocity)",
+    )
+    world_process_noise: tuple[float, float] = option(
+        DEFAULT_WORLD_PROCESS_NOISE,
+        parse=parse_tuple(2),
+        check=_check_pair,
+        metavar="POS,VEL",
+        show=lambda v: f"{v[0]:g},{v[1]:g}",
+        unit="mm, mm/frame",
+        help="multi-camera recordings: process noise std per frame step of the world filter",
     )
     process_noise: tuple[float, float] = option(
         DEFAULT_PROCESS_NOISE,
@@ -384,7 +419,7 @@ class TrackConfig:
 
         names = {f.name for f in dataclasses.fields(cls)}
         kwargs = {k: v for k, v in settings.items() if k in names}
-        for key in ("process_noise", "manoeuvre", "cues", "sources"):
+        for key in ("process_noise", "world_process_noise", "manoeuvre", "cues", "sources"):
             if isinstance(kwargs.get(key), list):
                 kwargs[key] = tuple(kwargs[key])
         opts = kwargs.get("cue_options")

@@ -20,6 +20,7 @@ from ..errors import InputError
 from .config import TrackConfig
 from .events import events_cell
 from .run import TrackResult, stages
+from .world import WorldResult
 
 __all__ = [
     "CSV_COLUMNS",
@@ -32,6 +33,9 @@ __all__ = [
     "targets_csv_row",
     "targets_cues_json",
     "targets_json",
+    "world_csv_columns",
+    "world_csv_row",
+    "world_json",
 ]
 
 
@@ -240,4 +244,50 @@ def targets_cues_json(result: TrackResult) -> dict:
             t: {k: v for k, v in cues_json(r).items() if k not in ("frame", "timestamp_ns")}
             for t, r in result.targets.items()
         },
+    }
+
+
+def world_csv_columns(cameras: Sequence[str]) -> tuple[str, ...]:
+    """CSV columns of a multi-camera run: one row per instant and target (docs/architecture.md, "Several cameras")."""
+    return (
+        "frame",
+        "timestamp_ns",
+        "target",
+        "state",
+        "x_mm",
+        "y_mm",
+        "z_mm",
+        "sigma_mm",
+        "cameras",
+        *(f"{c}_{k}" for c in cameras for k in ("u", "v")),
+    )
+
+
+def world_csv_row(result: WorldResult, target: str, cameras: Sequence[str]) -> list[str]:
+    """The CSV cells of ``target`` at one instant, in :func:`world_csv_columns` order (empty cells without a value)."""
+    w = result.targets[target]
+    xyz = (None, None, None) if w.position_mm is None else tuple(float(v) for v in w.position_mm)
+    cells = [str(result.index), str(result.timestamp_ns), target, w.state]
+    cells += [_f(v, 1) for v in xyz] + [_f(w.sigma_mm, 1), " ".join(w.cameras)]
+    for c in cameras:
+        uv = w.pixels.get(c)
+        cells += ["", ""] if uv is None else [_f(uv[0], 3), _f(uv[1], 3)]
+    return cells
+
+
+def world_json(result: WorldResult) -> dict:
+    """The ``/tracker/world`` message of one instant (schema ``fusion_pf.WorldEstimate``, docs/recording-format.md)."""
+    return {
+        "timestamp_ns": int(result.timestamp_ns),
+        "targets": [
+            {
+                "target": t,
+                "state": w.state,
+                "position_mm": None if w.position_mm is None else [float(v) for v in w.position_mm],
+                "sigma_mm": _finite_or_none(w.sigma_mm),
+                "cameras": list(w.cameras),
+                "pixels": {c: None if uv is None else [float(uv[0]), float(uv[1])] for c, uv in w.pixels.items()},
+            }
+            for t, w in result.targets.items()
+        ],
     }

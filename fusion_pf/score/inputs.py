@@ -48,6 +48,8 @@ from fusion_pf.errors import InputError
 #: What the scorer reads from MCAP files, by kind (``drivers.tracker_topics.TOPICS``
 #: maps each kind to its topic of docs/recording-format.md).
 ESTIMATE_TOPIC, CUES_TOPIC, GROUND_TRUTH_TOPIC = "estimate", "cues", "ground_truth"
+#: Kinds of a multi-camera run: ``/tracker/world`` and ``/ground_truth/world``.
+WORLD_TOPIC, WORLD_TRUTH_TOPIC = "world", "world_truth"
 
 #: Keys of a ``/tracker/cues`` message that are not sources.
 _CUES_FIELDS = ("frame", "timestamp_ns", "roi")

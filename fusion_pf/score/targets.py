@@ -18,13 +18,25 @@ import numpy as np
 
 from fusion_pf.errors import InputError
 
-from .inputs import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, FrameSize, TopicReader, file_kind
+from .inputs import (
+    ESTIMATE_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    WORLD_TOPIC,
+    WORLD_TRUTH_TOPIC,
+    FrameSize,
+    TopicReader,
+    file_kind,
+)
 from .metrics import rmse
 
 __all__ = [
     "SINGLE_PALM_TARGET",
     "TargetsTable",
     "count_swaps",
+    "read_world",
+    "score_world",
+    "score_world_recording",
+    "world_markdown",
     "read_targets_csv",
     "read_targets_topic",
     "read_targets",
@@ -38,6 +50,8 @@ __all__ = [
 #: Hands closer than this fraction of the image diagonal are joined: an identity is not defined there
 #: (25 px at 320 x 200, about 8 cm at the hands).
 JOINED_FRACTION = 25.0 / math.hypot(320, 200)
+#: The same in the world (mm): 25 px of the 320 x 200 reference scene at its palm's scale (5.08 mm per px).
+JOINED_MM = 127.0
 
 
 @dataclass(frozen=True)
@@ -139,16 +153,20 @@ def count_swaps(ea: np.ndarray, eb: np.ndarray, ta: np.ndarray, tb: np.ndarray, 
 
     Parameters
     ----------
-    ea, eb : ndarray, shape (n, 2)
-        Estimates of targets a and b (NaN: none).
-    ta, tb : ndarray, shape (n, 2)
+    ea, eb : ndarray, shape (n, d)
+        Estimates of targets a and b (NaN: none): pixels (d = 2) or world mm (d = 3).
+    ta, tb : ndarray, shape (n, d)
         Their true positions.
     min_separation_px : float
-        Only frames where the truths are at least this far apart count (joined hands are ambiguous).
+        Only frames where the truths are at least this far apart count (joined hands are ambiguous), in their unit.
     """
-    sep = np.hypot(*(ta - tb).T)
-    straight = np.hypot(*(ea - ta).T) + np.hypot(*(eb - tb).T)
-    crossed = np.hypot(*(ea - tb).T) + np.hypot(*(eb - ta).T)
+
+    def dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.hypot(*(a - b).T) if a.shape[1] == 2 else np.sqrt(((a - b) ** 2).sum(axis=1))
+
+    sep = dist(ta, tb)
+    straight = dist(ea, ta) + dist(eb, tb)
+    crossed = dist(ea, tb) + dist(eb, ta)
     ok = (sep >= min_separation_px) & np.isfinite(straight) & np.isfinite(crossed)
     flags = np.concatenate([[False], (crossed < straight)[ok]])
     return int(np.count_nonzero(flags[1:] != flags[:-1]))
@@ -267,5 +285,140 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
         lines += [
             "",
             f"Identity swaps between right_hand and left_hand (frames where they are apart): {result['swaps']}.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def score_world(
+    positions: dict[str, np.ndarray],
+    truths: dict[str, np.ndarray],
+    states: dict[str, list[str]],
+    *,
+    min_separation_mm: float = JOINED_MM,
+) -> dict:
+    """3-D accuracy per target of a multi-camera run against the world ground truth (``/ground_truth/world``).
+
+    Parameters
+    ----------
+    positions, truths : dict of str to ndarray (n, 3)
+        Per target the world estimates and truths of the same ``n`` instants, mm (NaN: none).
+    states : dict of str to list of str
+        Per target the track state of each instant.
+
+    Returns
+    -------
+    dict
+        ``targets``: per target ``rmse_mm``, ``median_mm``, ``p95_mm``, ``coverage`` (instants with an estimate
+        among those with a truth), ``states``; ``errors``: per target ``(n,)`` mm (NaN: none); ``swaps`` between
+        the hands (None unless both are scored).
+    """
+    out: dict = {"targets": {}, "errors": {}, "swaps": None}
+    for t, p in positions.items():
+        ref = truths[t]
+        err = np.sqrt(((p - ref) ** 2).sum(axis=1))
+        out["errors"][t] = err
+        summary = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), states[t])
+        out["targets"][t] = {
+            "rmse_mm": summary["rmse_px"],
+            "median_mm": summary["median_px"],
+            "p95_mm": summary["p95_px"],
+            **{k: summary[k] for k in ("coverage", "n_reference", "states")},
+        }
+    if "right_hand" in positions and "left_hand" in positions:
+        out["swaps"] = count_swaps(
+            positions["right_hand"],
+            positions["left_hand"],
+            truths["right_hand"],
+            truths["left_hand"],
+            min_separation_mm,
+        )
+    return out
+
+
+@dataclass(frozen=True)
+class WorldTable:
+    """A multi-camera tracker output: per target ``(n, 3)`` world positions (mm, NaN: none) and ``(n,)`` states."""
+
+    path: str
+    timestamp_ns: np.ndarray
+    xyz: dict[str, np.ndarray]
+    states: dict[str, list[str]]
+
+
+def _number(value: object) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+
+
+def read_world(path: str | Path, read_topic: TopicReader) -> WorldTable | None:
+    """The world estimates of a ``track MULTI.mcap`` output (its CSV or ``/tracker/world``), None when it is not one."""
+    rows: dict[int, dict[str, tuple[np.ndarray, str]]] = {}
+    if file_kind(path) == "csv":
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            if not {"target", "x_mm", "cameras"} <= set(reader.fieldnames or ()):
+                return None
+            for row in reader:
+                try:
+                    t = int(row["timestamp_ns"])
+                    xyz = np.array([float(row[k]) if row[k] else math.nan for k in ("x_mm", "y_mm", "z_mm")])
+                except (KeyError, ValueError, TypeError):
+                    raise InputError(
+                        f"{path}: a row is not a world estimate (timestamp_ns, x_mm, y_mm, z_mm): {row}"
+                    ) from None
+                rows.setdefault(t, {})[row["target"]] = (xyz, row["state"])
+    else:
+        for t, m in read_topic(str(path), WORLD_TOPIC):
+            targets = m.get("targets") if isinstance(m, dict) else None
+            if not isinstance(targets, list):
+                raise InputError(f"{path}: /tracker/world message at {t} ns has no targets list")
+            for item in targets:
+                p = item.get("position_mm") if isinstance(item, dict) else None
+                xyz = np.array([_number(v) for v in p]) if isinstance(p, list) and len(p) == 3 else np.full(3, math.nan)
+                rows.setdefault(int(t), {})[str(item.get("target"))] = (xyz, str(item.get("state", "")))
+    if not rows:
+        return None
+    ts = np.array(sorted(rows), dtype=np.int64)
+    targets = list(dict.fromkeys(t for r in rows.values() for t in r))
+    none = (np.full(3, math.nan), "")
+    positions = {t: np.array([rows[int(k)].get(t, none)[0] for k in ts]).reshape(-1, 3) for t in targets}
+    states = {t: [rows[int(k)].get(t, none)[1] for k in ts] for t in targets}
+    return WorldTable(str(path), ts, positions, states)
+
+
+def score_world_recording(table: WorldTable, recording: str | Path, read_topic: TopicReader) -> dict:
+    """:func:`score_world` of ``table`` against the ``/ground_truth/world`` of the multi-camera ``recording``."""
+    truth: dict[str, dict[int, np.ndarray]] = {}
+    for t, m in read_topic(str(recording), WORLD_TRUTH_TOPIC):
+        p = m.get("xyz_mm") if isinstance(m, dict) else None
+        if isinstance(p, list) and len(p) == 3:
+            truth.setdefault(str(m.get("target")), {})[int(t)] = np.array([_number(v) for v in p])
+    if not truth:
+        raise InputError(f"{recording} has no world ground truth (/ground_truth/world)")
+    none = np.full(3, math.nan)
+    truths = {t: np.array([truth.get(t, {}).get(int(k), none) for k in table.timestamp_ns]) for t in table.xyz}
+    return score_world(table.xyz, truths, table.states)
+
+
+def world_markdown(result: dict, tracked: str, reference: str) -> str:
+    """The world report as Markdown."""
+    lines = [
+        "## 3-D accuracy per target against the world ground truth",
+        "",
+        f"Tracker output `{tracked}`, reference `{reference}` (`/ground_truth/world`).",
+        "",
+        "| target | RMSE (mm) | median (mm) | p95 (mm) | coverage | instants per state |",
+        "|---|---:|---:|---:|---:|---|",
+    ]
+    for t, r in result["targets"].items():
+        states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
+        cov = r["coverage"]
+        lines.append(
+            f"| {t} | {r['rmse_mm']:.1f} | {r['median_mm']:.1f} | {r['p95_mm']:.1f} | "
+            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {states} |"
+        )
+    if result["swaps"] is not None:
+        lines += [
+            "",
+            f"Identity swaps between right_hand and left_hand (instants where they are apart): {result['swaps']}.",
         ]
     return "\n".join(lines) + "\n"

@@ -1,0 +1,489 @@
+"""Tracking in world coordinates with several calibrated cameras (issue 26, paper 004 §6): frame sets -> per-camera cues -> one 3-D filter per target.
+
+Per instant (a :class:`~fusion_pf.rig.FrameSet`):
+
+1. every target's :class:`~fusion_pf.filter.world.WorldParticleFilter` moves to
+   the instant; its predicted position is projected into every camera
+   (:func:`~fusion_pf.filter.world.project`);
+2. per camera, the single-camera cue stage (:class:`fusion_pf.pipeline.run._CueStage`:
+   the configured cues, their windows and the association of their detections to the
+   targets by label and distance, :func:`fusion_pf.association.associate`) runs
+   with each target's projected prediction as its prior (the skeleton joint while
+   confident, as with one camera, ``roi_prior``) and a window sized by the palm's
+   apparent length at the projected depth (``fx x 95 mm / z``); a target without a
+   prediction in that camera (lost, uninitialised, out of view) is looked for
+   around its joint, else in the whole frame. Colour-only cameras run the cues
+   that need no depth;
+3. each measurement of a target becomes an observation: in a depth camera the
+   pixel back-projected with the depth there (median of a window,
+   :func:`fusion_pf.geometry.depth_at`) and moved to the world, a 3-D point with a
+   robust Gaussian likelihood in mm (a skeleton joint with its own depth, never the
+   depth image under it, :data:`PIXEL_ONLY`); in a colour-only camera (or without
+   valid depth there) the pixel, with a robust reprojection likelihood in px (the source's ``--world-noise`` mm at the target:
+   ``mm x fx / z`` px). With several targets, two closer than :data:`COMBINE_MM`
+   (the one-camera pipeline's :data:`COMBINE_PALMS` palm lengths of 95 mm)
+   are combined and share detections in every camera
+   (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart.
+   A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
+   plus the predicted spread are another object and dropped (validation gate),
+   except its own skeleton joint (a certain label);
+4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
+   triangulation of the most trusted measurement of every camera that saw the
+   target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
+   :data:`ACQUIRE_GATE_MM` from the others' point is dropped while three or more
+   remain), else one depth camera's 3-D point; the filter starts there;
+5. supervision per target (:func:`fusion_pf.filter.states.step_state`, in mm): an
+   observation *supports* the estimate within 3 sigma of its noise plus the
+   posterior spread; the track is lost after ``silent_frames`` instants without
+   support or when the posterior std stays above ``max_spread`` (of the reference
+   image diagonal, converted to mm with :data:`MM_PER_REFERENCE_PX`). A target hidden from one camera is carried by the others'
+   observations; one no camera measures keeps its (damped) motion until it is lost.
+
+Identity comes from the per-camera association (skeleton joint labels are
+certain, handedness labels weigh, regions go to the nearest prediction).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..cues.background import AdaptiveBackground, BackgroundModel
+from ..cues.registry import CUES
+from ..cues.roi import PALM_LENGTH_MM
+from ..errors import InputError
+from ..filter.kernel import warm_up
+from ..filter.likelihood import quality_sigma
+from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
+from ..filter.world import (
+    PixelObservation,
+    PointObservation,
+    WorldParticleFilter,
+    closest_point,
+    in_view,
+    project,
+    ray,
+)
+from ..frame import Frame, Intrinsics, Measurement
+from ..geometry import backproject, depth_at
+from ..rig import CameraPose, FrameSet
+from .config import TrackConfig
+from .run import (
+    COMBINE_PALMS,
+    DEGRADED_FRAMES,
+    HOLDING,
+    REFERENCE_PALM_PX,
+    REFERENCE_SIZE,
+    SEPARATE_PALMS,
+    SUPPORT_SIGMAS,
+    _CueStage,
+    cue_names,
+    targets_of,
+)
+
+__all__ = [
+    "ACQUIRE_GATE_MM",
+    "MM_PER_REFERENCE_PX",
+    "WorldResult",
+    "WorldTarget",
+    "track_world",
+]
+
+#: Millimetres per pixel of the reference scene at the reference palm's distance (95 mm palm over 18.7 px).
+MM_PER_REFERENCE_PX = PALM_LENGTH_MM / REFERENCE_PALM_PX
+#: Sources never back-projected with the depth image: the skeleton joint is biased off the hand during occlusion,
+#: where the depth under it is the body's or the wall's (hundreds of mm off on the synthetic rig). A joint with its
+#: own depth (a body tracker's 3-D joint, ``Joint.depth_mm``) seen by a depth camera is a 3-D point; else a pixel.
+PIXEL_ONLY = frozenset({"skeleton"})
+#: Two targets closer than this are combined (they share detections, paper 004 §5.2); farther than the second, apart (mm).
+COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_LENGTH_MM
+#: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
+GATE_SIGMAS = 4.0
+#: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
+ACQUIRE_GATE_MM = 80.0
+
+
+@dataclass
+class WorldTarget:
+    """One target at one instant.
+
+    Attributes
+    ----------
+    target : str
+    state : str
+        ``uninitialised``, ``tracking`` or ``lost`` (paper 004 §5.2).
+    position_mm : ndarray (3,) or None
+        World position (None without a track).
+    sigma_mm : float or None
+        Posterior std along its widest axis, mm.
+    cameras : tuple of str
+        The cameras that measured the target at this instant.
+    pixels : dict of str to (u, v) or None
+        The world estimate projected into every camera of the rig (None: no estimate, or out of that camera's view).
+    truth_mm : ndarray (3,) or None
+        The recording's world ground truth of the target.
+    """
+
+    target: str
+    state: str
+    position_mm: np.ndarray | None
+    sigma_mm: float | None
+    cameras: tuple[str, ...]
+    pixels: dict[str, tuple[float, float] | None]
+    truth_mm: np.ndarray | None = None
+
+
+@dataclass
+class WorldResult:
+    """The world tracker's output for one instant (a frame set)."""
+
+    index: int
+    timestamp_ns: int
+    background: bool
+    targets: dict[str, WorldTarget] = field(default_factory=dict)
+    frameset: FrameSet | None = None
+
+
+def _with_backgrounds(
+    sets: Iterable[FrameSet], config: TrackConfig
+) -> Iterator[tuple[FrameSet, dict[str, BackgroundModel] | None]]:
+    """Frame sets with each camera's background model (None for background sets), as :func:`fusion_pf.pipeline.run.track` does per stream.
+
+    The cameras' background frames when every camera has some, else an adaptive
+    model learnt from the first ``background_k`` sets (read ahead, then tracked).
+    """
+    it = iter(sets)
+    empties: dict[str, list[Frame]] = {}
+    models: dict[str, BackgroundModel] | None = None
+    for fs in it:
+        if fs.background:
+            for name, view in fs.views.items():
+                empties.setdefault(name, []).append(view.frame)
+            yield fs, None
+            continue
+        if models is None:
+            first = next(iter(fs.views.values())).frame
+            if not any("background" in CUES[c].needs for c in cue_names(config, first)):
+                models = {name: BackgroundModel(None, None) for name in fs.views}
+            elif empties and all(name in empties for name in fs.views):
+                models = {name: BackgroundModel.from_frames(frames) for name, frames in empties.items()}
+            else:
+                ahead = [fs]
+                for item in it:
+                    if item.background:
+                        raise InputError(
+                            f"background frame set {item.index} comes after tracked ones; background frames must lead"
+                        )
+                    ahead.append(item)
+                    if len(ahead) >= config.background_k:
+                        break
+                cameras = dict.fromkeys(name for s in ahead for name in s.views)
+                adaptive = {
+                    name: AdaptiveBackground(
+                        [s.views[name].frame for s in ahead if name in s.views], history=10 * config.background_k
+                    )
+                    for name in cameras
+                }
+                for s in ahead:
+                    yield s, dict(adaptive)
+                    for name, view in s.views.items():
+                        adaptive[name].adapt(view.frame)
+                models = dict(adaptive)
+                continue
+        yield fs, models
+        for name, view in fs.views.items():
+            model = models.get(name)
+            if isinstance(model, AdaptiveBackground):
+                model.adapt(view.frame)
+
+
+class _Camera:
+    """One camera's cue stage: the configured cues (those needing no depth on a colour-only camera)."""
+
+    def __init__(self, name: str, config: TrackConfig, frame: Frame, pose: CameraPose) -> None:
+        names = cue_names(config, frame)
+        if frame.depth is None:
+            names = tuple(n for n in names if "depth" not in CUES[n].needs)
+        if not names:
+            raise InputError(
+                f"camera {name} has no depth and none of the cues {', '.join(cue_names(config, frame))} runs without it"
+            )
+        sources = None if config.sources is None else tuple(s for s in config.sources if s in names) or None
+        self.name = name
+        self.pose = pose
+        self.config = dataclasses.replace(config, cues=names, sources=sources)
+        self.stage = _CueStage(self.config)
+        self.sources = sources or names
+
+    def observations(
+        self, frame: Frame, target: str, cues: Mapping[str, Measurement | None]
+    ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
+        """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel)."""
+        out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
+        for source in self.sources:
+            m = cues.get(source)
+            if m is None:
+                continue
+            sigma = quality_sigma(self.config.world_noise_mm[source], m)
+            z = None
+            if frame.depth is not None and source not in PIXEL_ONLY:
+                z = depth_at(frame.depth, m.u, m.v, radius=self.config.depth_radius)
+            elif frame.depth is not None and source == "skeleton":
+                joint = frame.joint(target)
+                if joint is not None and joint.depth_mm and (joint.u, joint.v) == (m.u, m.v):
+                    z = joint.depth_mm
+            if z is None:
+                out.append((m, PixelObservation(np.array([m.u, m.v]), sigma, self.pose, frame.intrinsics)))
+            else:
+                xyz = self.pose.to_world(backproject(np.array([[m.u, m.v]]), np.array([z]), frame.intrinsics))[0]
+                out.append((m, PointObservation(xyz, sigma)))
+        return out
+
+    def line_of_sight(self, m: Measurement, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+        """The world line of sight through ``m``'s pixel: (optical centre, direction)."""
+        xy = backproject(np.array([[m.u, m.v]]), np.ones(1), intrinsics)[0, :2]  # (x/z, y/z), distortion undone
+        return ray(xy, self.pose)
+
+
+def _acquire(
+    seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
+) -> tuple[np.ndarray, float] | None:
+    """Where to start a target's filter from this instant's observations (module docstring, 4): the point and its spread.
+
+    The lines of sight of the most trusted measurement of every camera, triangulated; else the most trusted 3-D point.
+    """
+    best: dict[str, tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]] = {}
+    for item in seen:
+        name = item[0].name
+        if name not in best or item[3].sigma_mm < best[name][3].sigma_mm:
+            best[name] = item
+    if len(best) >= 2:
+        chosen = list(best.values())
+        lines = [cam.line_of_sight(m, intr) for cam, intr, m, _ in chosen]
+        keep = list(range(len(lines)))
+        while len(keep) >= 2:
+            try:
+                point, dist = closest_point(
+                    np.array([lines[k][0] for k in keep]), np.array([lines[k][1] for k in keep])
+                )
+            except InputError:
+                break
+            if dist.max() <= ACQUIRE_GATE_MM:
+                return point, max(float(dist.max()), min(chosen[k][3].sigma_mm for k in keep))
+            if len(keep) < 3:
+                break
+            keep.pop(int(np.argmax(dist)))
+    points = [ob for *_, ob in seen if isinstance(ob, PointObservation)]
+    if points:
+        first = min(points, key=lambda ob: ob.sigma_mm)
+        return first.xyz_mm, first.sigma_mm
+    return None
+
+
+class _WorldTarget:
+    """One target's filter, track state and supervision (module docstring, 5)."""
+
+    def __init__(self, name: str, config: TrackConfig, rng: np.random.Generator) -> None:
+        scale = MM_PER_REFERENCE_PX
+        self.name = name
+        self.filter = WorldParticleFilter(config.world_particles, config.world_process_noise, rng)
+        self.status = TrackStatus()
+        self.states = StateConfig(
+            max_spread_px=config.max_spread * math.hypot(*REFERENCE_SIZE) * scale,
+            min_likelihood=0.0,
+            silent_frames=config.silent_frames,
+            degraded_frames=DEGRADED_FRAMES,
+            image_size=None,
+            merge_px=1.0,
+            split_px=1.0,
+        )
+
+    @property
+    def tracking(self) -> bool:
+        return self.status.state in HOLDING
+
+    def predicted(self) -> np.ndarray | None:
+        """The predicted position (weighted mean of the moved particles), None without a track."""
+        if not (self.filter.initialised and self.tracking):
+            return None
+        return self.filter.moments()[0]
+
+    def step(
+        self, t: int, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
+    ) -> tuple[np.ndarray | None, float | None]:
+        """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread."""
+        if self.filter.initialised:
+            seen = self._gated(seen)
+        observations = [ob for *_, ob in seen]
+        if not self.filter.initialised:
+            start = _acquire(seen)
+            if start is not None:
+                self.filter.reset(start[0], start[1])
+                self.filter.predict(t)
+        if self.filter.initialised:
+            self.filter.update(observations)
+        estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
+        support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
+        position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
+        self.status = step_state(
+            self.status, Evidence(position, spread_px=math.nan if spread is None else spread, cues=support), self.states
+        )
+        if not self.tracking and estimate is not None:
+            self.filter.reset(None)
+            return None, None
+        return estimate, spread
+
+    def _gated(
+        self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
+    ) -> list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]:
+        """The observations within :data:`GATE_SIGMAS` of their noise plus the predicted spread of the prediction.
+
+        An observation beyond is another object (the other hand, an occluder in front of one camera, a
+        region of the body): fused, a few of them pull the target off, which the robust likelihood alone
+        does not prevent once the particles spread between the two.
+        """
+        mean, spread = self.filter.moments()
+        kept = []
+        for item in seen:
+            ob = item[3]
+            if item[2].source in PIXEL_ONLY:
+                kept.append(item)
+                continue
+            reach2 = GATE_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
+            if isinstance(ob, PointObservation):
+                ok = float(((ob.xyz_mm - mean) ** 2).sum()) <= reach2
+            else:
+                uv, z = project(mean[None], ob.pose, ob.intrinsics)
+                ok = (
+                    bool(np.isfinite(uv[0, 0]))
+                    and float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * (ob.intrinsics.fx / float(z[0])) ** 2
+                )
+            if ok:
+                kept.append(item)
+        return kept
+
+    @staticmethod
+    def _support(estimate: np.ndarray, spread: float, observations: list[PointObservation | PixelObservation]) -> int:
+        """Observations within :data:`SUPPORT_SIGMAS` of their noise plus the posterior spread of ``estimate``."""
+        count = 0
+        for ob in observations:
+            reach2 = SUPPORT_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
+            if isinstance(ob, PointObservation):
+                count += float(((ob.xyz_mm - estimate) ** 2).sum()) <= reach2
+                continue
+            uv, z = project(estimate[None], ob.pose, ob.intrinsics)
+            if np.isfinite(uv[0, 0]):
+                px_per_mm = ob.intrinsics.fx / float(z[0])
+                count += float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * px_per_mm**2
+        return count
+
+
+def track_world(
+    sets: Iterable[FrameSet], config: TrackConfig, *, rng: np.random.Generator | int | None = None
+) -> Iterator[WorldResult]:
+    """Track ``config``'s targets (``--targets``, else the single palm) in world mm through frame sets (module docstring).
+
+    Parameters
+    ----------
+    sets : iterable of FrameSet
+        E.g. a ``drivers.rig.RigReplay``; every view's frame has its intrinsics, every camera its pose.
+    config : TrackConfig
+        The cue options, sources, ``world_noise_mm``, ``world_particles``, ``world_process_noise``,
+        supervision (``silent_frames``; ``max_spread`` converted to mm) and seed.
+    rng : numpy.random.Generator, int or None
+        Seed of the first target's filter (None: ``config.seed``); the others' are spawned from ``config.seed``.
+
+    Yields
+    ------
+    WorldResult
+        One per frame set, background sets included (no targets).
+    """
+    if config.filter != "pf":
+        raise InputError(f"tracking in world coordinates runs the particle filter (--filter pf), got {config.filter!r}")
+    if config.background is not None:
+        raise InputError(
+            "--background is one camera's empty scene; a multi-camera recording needs its own background frames"
+        )
+    warm_up()
+    names = targets_of(config)
+    targets = {
+        t: _WorldTarget(
+            t,
+            config,
+            np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(4, k)))
+            if k or rng is None
+            else np.random.default_rng(rng),
+        )
+        for k, t in enumerate(names)
+    }
+    cameras: dict[str, _Camera] = {}
+    partners: dict[str, str] = {}
+    intrinsics: dict[str, Intrinsics] = {}
+    poses: dict[str, CameraPose] = {}
+    for fs, models in _with_backgrounds(sets, config):
+        for name, view in fs.views.items():
+            intrinsics[name], poses[name] = view.frame.intrinsics, view.pose
+        if models is None:
+            yield WorldResult(fs.index, fs.timestamp_ns, True, {}, fs)
+            continue
+        predicted: dict[str, np.ndarray | None] = {}
+        for t, target in targets.items():
+            if target.filter.initialised:
+                target.filter.predict(fs.timestamp_ns)
+            predicted[t] = target.predicted()
+        partners = _partners(predicted, partners)
+        seen: dict[str, list] = {t: [] for t in names}
+        for name, view in fs.views.items():
+            frame = view.frame
+            if name not in cameras:
+                cameras[name] = _Camera(name, config, frame, view.pose)
+            cam = cameras[name]
+            priors: dict[str, tuple[float, float] | None] = {}
+            palms: dict[str, float | None] = {}
+            for t in names:
+                p = predicted[t]
+                projected = None
+                palms[t] = None
+                if p is not None:
+                    uv, z = project(p[None], view.pose, frame.intrinsics)
+                    if in_view(uv, frame.intrinsics)[0]:
+                        projected = (float(uv[0, 0]), float(uv[0, 1]))
+                        palms[t] = frame.intrinsics.fx * PALM_LENGTH_MM / float(z[0])
+                priors[t] = cam.stage.prior(frame, config.roi_prior, projected, t)
+            rows = cam.stage.rows(fs.index, frame, 0, models.get(name), priors, palms, partners)
+            for t in names:
+                for m, ob in cam.observations(frame, t, rows[t].cues):
+                    seen[t].append((cam, frame.intrinsics, m, ob))
+        out: dict[str, WorldTarget] = {}
+        for t, target in targets.items():
+            estimate, spread = target.step(fs.timestamp_ns, seen[t])
+            pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
+            if estimate is not None:
+                for name, intr in intrinsics.items():
+                    uv, _ = project(estimate[None], poses[name], intr)
+                    if in_view(uv, intr)[0]:
+                        pixels[name] = (float(uv[0, 0]), float(uv[0, 1]))
+            measured = tuple(dict.fromkeys(cam.name for cam, *_ in seen[t]))
+            truth = None if fs.truth_mm is None else fs.truth_mm.get(t)
+            out[t] = WorldTarget(t, target.status.state.value, estimate, spread, measured, pixels, truth)
+        yield WorldResult(fs.index, fs.timestamp_ns, False, out, fs)
+
+
+def _partners(predicted: Mapping[str, np.ndarray | None], before: Mapping[str, str]) -> dict[str, str]:
+    """Combined targets (each to its partner): predictions closer than :data:`COMBINE_MM`, or combined before and closer than :data:`SEPARATE_MM`."""
+    out: dict[str, str] = {}
+    names = [t for t, p in predicted.items() if p is not None]
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            if a in out or b in out:
+                continue
+            pa, pb = predicted[a], predicted[b]
+            assert pa is not None and pb is not None
+            gap = float(np.linalg.norm(pa - pb))
+            if gap < COMBINE_MM or (before.get(a) == b and gap < SEPARATE_MM):
+                out[a], out[b] = b, a
+    return out

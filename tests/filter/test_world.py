@@ -1,0 +1,125 @@
+"""The world filter's maths (fusion_pf.filter.world): projection, line-of-sight triangulation, the 3-D particle filter."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion_pf.errors import InputError
+from fusion_pf.filter.likelihood import robust_loglik
+from fusion_pf.filter.world import (
+    PixelObservation,
+    PointObservation,
+    WorldParticleFilter,
+    closest_point,
+    in_view,
+    project,
+    ray,
+)
+from fusion_pf.frame import Intrinsics
+from fusion_pf.rig import CameraPose
+
+K = Intrinsics(fx=249.6, fy=249.6, cx=79.5, cy=49.5, width=160, height=100)
+LEFT = CameraPose.from_rvec([0.02, 0.45, -0.01], [-900.0, 20.0, -1500.0])
+RIGHT = CameraPose.from_rvec([-0.03, -0.5, 0.02], [1000.0, -40.0, -1400.0])
+POINT = np.array([60.0, 35.0, 250.0])
+
+
+def test_project_matches_opencv():
+    pts = POINT + np.random.default_rng(0).normal(0, 200, (20, 3))
+    for pose in (LEFT, RIGHT):
+        uv, z = project(pts, pose, K)
+        w2c = pose.inverse()
+        ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(w2c.rotation)[0], w2c.translation_mm, K.K, None)
+        assert uv == pytest.approx(ref.reshape(-1, 2), abs=1e-9)
+        assert z == pytest.approx(pose.to_camera(pts)[:, 2], abs=1e-9)
+    behind, _ = project(LEFT.translation_mm - 100 * LEFT.rotation[:, 2], LEFT, K)
+    assert np.isnan(behind).all() and not in_view(behind, K)[0]
+
+
+def _line(pose, uv):
+    xy = (np.asarray(uv) - [K.cx, K.cy]) / [K.fx, K.fy]
+    return ray(xy, pose)
+
+
+def test_closest_point_recovers_a_point_seen_by_two_cameras():
+    lines = [_line(pose, project(POINT[None], pose, K)[0][0]) for pose in (LEFT, RIGHT)]
+    point, dist = closest_point(np.array([o for o, _ in lines]), np.array([d for _, d in lines]))
+    assert np.abs(point - POINT).max() < 1e-6
+    assert dist.max() < 1e-6
+
+
+def test_closest_point_of_two_skew_lines_is_the_papers_midpoint():
+    # paper 004 eq. 22-23, solved independently: [v1, -v2] c = p2 - p1 in the least-squares sense
+    # (the common perpendicular's feet), Z = (p1 + c1 v1 + p2 + c2 v2) / 2, eq. 24: half their gap
+    rng = np.random.default_rng(3)
+    uv1 = project(POINT[None], LEFT, K)[0][0] + rng.normal(0, 2, 2)
+    uv2 = project(POINT[None], RIGHT, K)[0][0] + rng.normal(0, 2, 2)
+    (p1, v1), (p2, v2) = _line(LEFT, uv1), _line(RIGHT, uv2)
+    c = np.linalg.lstsq(np.c_[v1, -v2], p2 - p1, rcond=None)[0]
+    a, b = p1 + c[0] * v1, p2 + c[1] * v2
+    point, dist = closest_point(np.array([p1, p2]), np.array([v1, v2]))
+    assert point == pytest.approx((a + b) / 2, abs=1e-6)
+    assert dist == pytest.approx([np.linalg.norm(a - b) / 2] * 2, abs=1e-6)
+    assert 1.0 < np.linalg.norm(point - POINT) < 60.0  # 2 px of noise at 2 m
+
+
+def test_closest_point_refuses_one_line_and_parallel_lines():
+    with pytest.raises(InputError, match="M >= 2"):
+        closest_point(np.zeros((1, 3)), np.ones((1, 3)))
+    with pytest.raises(InputError, match="parallel"):
+        closest_point(np.array([[0.0, 0, 0], [10.0, 0, 0]]), np.array([[0.0, 0, 1], [0.0, 0, 1]]))
+
+
+def test_robust_loglik_in_three_dimensions_is_the_mixture_density():
+    d2 = np.array([0.0, 100.0, 2500.0, 1e6])
+    sigma, eps, volume = 20.0, 0.1, 1e9
+    ref = np.log((1 - eps) * np.exp(-d2 / (2 * sigma**2)) / (2 * math.pi * sigma**2) ** 1.5 + eps / volume)
+    assert robust_loglik(d2.copy(), sigma, eps, volume, dims=3) == pytest.approx(ref, rel=1e-12)
+
+
+def _run(observe, frames=30, seed=0):
+    pf = WorldParticleFilter(300, (10.0, 2.5), seed)
+    pf.reset(POINT + [80.0, -60.0, 90.0], 60.0)
+    for k in range(frames):
+        pf.predict(k * 33_333_333)
+        pf.update(observe())
+    return pf.estimate()
+
+
+def test_points_hold_the_target():
+    rng = np.random.default_rng(1)
+    est, spread = _run(lambda: [PointObservation(POINT + rng.normal(0, 10, 3), 10.0)])
+    assert np.linalg.norm(est - POINT) < 12.0 and spread < 30.0
+
+
+def test_two_colour_only_cameras_triangulate_the_target():
+    # pixels alone (no depth anywhere): two lines of sight fix the depth as well
+    rng = np.random.default_rng(2)
+
+    def observe():
+        out = []
+        for pose in (LEFT, RIGHT):
+            uv = project(POINT[None], pose, K)[0][0] + rng.normal(0, 1.0, 2)
+            out.append(PixelObservation(uv, 20.0, pose, K))  # 20 mm: about 3 px at 1.7 m
+        return out
+
+    est, _ = _run(observe)
+    assert np.linalg.norm(est - POINT) < 15.0
+
+
+def test_one_colour_only_camera_leaves_the_depth_where_it_was():
+    # the same pixels of one camera only: the estimate moves onto the line of sight, and along it stays about
+    # where it started (a noise per particle, sigma fx / z_i, carried it 590 mm away from the camera)
+    start = POINT + [80.0, -60.0, 90.0]
+
+    def observe():
+        return [PixelObservation(project(POINT[None], LEFT, K)[0][0], 20.0, LEFT, K)]
+
+    est, _ = _run(observe)
+    o, d = _line(LEFT, project(POINT[None], LEFT, K)[0][0])
+    assert np.linalg.norm(np.cross(est - o, d)) < 15.0
+    assert abs(np.dot(est - start, d)) < 100.0  # measured 44 mm
