@@ -170,8 +170,9 @@ COMBINE_PALMS = 1.07
 #: ... combined ones farther apart than this separate ...
 SEPARATE_PALMS = 1.87
 #: ... and so do two targets whose own evidence (skeleton joints, two separate detections of one cue)
-#: lies farther apart than this (two palms side by side are one palm width, about 0.45 lengths, apart).
-APART_PALMS = 1.1
+#: lies farther apart than this (two palms side by side are one palm width, about 0.45 lengths, apart;
+#: at 1.1 a pair rubbing its hands separated and rejoined within 3-7 frames: false events on the scripted scene).
+APART_PALMS = 1.5
 #: A cue supports the estimate within this many of its noise plus the posterior spread
 #: (a 2-D Gaussian lies farther in 1.1 % of frames).
 SUPPORT_SIGMAS = 3.0
