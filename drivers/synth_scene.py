@@ -363,6 +363,18 @@ def _elbow(shoulder: np.ndarray, wrist: np.ndarray, pole: np.ndarray) -> np.ndar
     return shoulder + a * axis + bend * side
 
 
+def _body_at(m: Motion, t: float) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The swaying body at time ``t`` (frames): torso x and z (m), torso centre, head and both shoulders (m)."""
+    two_pi = 2.0 * math.pi
+    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
+    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
+    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
+    head = np.array([tx, -0.37, tz - 0.02])
+    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    return tx, tz, torso, head, r_sh, l_sh
+
+
 def pose_at(m: Motion, t: float) -> Pose:
     """The person's pose at person-frame ``t`` (frames since the first non-empty frame).
 
@@ -376,12 +388,7 @@ def pose_at(m: Motion, t: float) -> Pose:
     by two-link inverse kinematics; the left arm hangs and swings slightly.
     """
     two_pi = 2.0 * math.pi
-    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
-    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
-    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
-    head = np.array([tx, -0.37, tz - 0.02])
-    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
-    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    tx, tz, torso, head, r_sh, l_sh = _body_at(m, t)
 
     theta = (
         two_pi * t / m.palm_period
@@ -989,12 +996,7 @@ def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
     inverse kinematics.
     """
     two_pi = 2.0 * math.pi
-    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
-    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
-    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
-    head = np.array([tx, -0.37, tz - 0.02])
-    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
-    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    tx, tz, torso, head, r_sh, l_sh = _body_at(m, t)
     d, dy = wash_schedule(t, w.keys)
     crossing = dy / w.cross_height
     # 1 while joined (|d| = 0.04 m), fading out by |d| = 0.14 m; no rubbing while crossing
@@ -1206,13 +1208,7 @@ def script_pose_at(m: Motion, s: ScriptMotion, t: float) -> tuple[Pose, np.ndarr
     grip over the key interval in which the holder changes. Both arms follow by
     two-link inverse kinematics.
     """
-    two_pi = 2.0 * math.pi
-    tx = m.x0 + 0.025 * math.sin(two_pi * t / m.sway_period + m.sway_phase)
-    tz = m.z0 + 0.02 * math.sin(two_pi * t / m.depth_sway_period + m.depth_sway_phase)
-    torso = np.array([tx, (SHOULDER_Y + HIP_Y) / 2.0, tz])
-    head = np.array([tx, -0.37, tz - 0.02])
-    r_sh = np.array([tx - SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
-    l_sh = np.array([tx + SHOULDER_HALF_WIDTH, SHOULDER_Y + 0.045, tz])
+    tx, tz, torso, head, r_sh, l_sh = _body_at(m, t)
     places = _script_places(m, s, tx, tz, head)
     i = min(max(int(np.searchsorted(s.times, t, side="right")) - 1, 0), len(s.times) - 2)
     t0, t1 = s.times[i], s.times[i + 1]
