@@ -60,9 +60,11 @@ from ..filter.kernel import warm_up
 from ..filter.likelihood import quality_sigma
 from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
 from ..filter.world import (
+    SURFACE_DEPTH_MM,
     PixelObservation,
     PointObservation,
     WorldParticleFilter,
+    beyond,
     closest_point,
     in_view,
     project,
@@ -240,6 +242,8 @@ class _Camera:
                 out.append((m, PixelObservation(np.array([m.u, m.v]), sigma, self.pose, frame.intrinsics)))
             else:
                 xyz = self.pose.to_world(backproject(np.array([[m.u, m.v]]), np.array([z]), frame.intrinsics))[0]
+                if source not in PIXEL_ONLY:  # the surface seen, not the centre behind it
+                    xyz = beyond(xyz, self.pose.translation_mm, SURFACE_DEPTH_MM)
                 out.append((m, PointObservation(xyz, sigma)))
         return out
 
