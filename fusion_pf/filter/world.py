@@ -50,6 +50,7 @@ __all__ = [
     "beyond",
     "closest_point",
     "in_view",
+    "measured_point",
     "normalised",
     "off_line_mm",
     "project",
@@ -190,10 +191,14 @@ class PointObservation:
     xyz_mm : ndarray (3,)
     sigma_mm : float
         Noise per axis, mm.
+    partner_mm : ndarray (3,) or None
+        A detection shared by two joined targets (one blob): the partner's predicted position; the observation
+        measures the pair's midpoint ``(x + partner) / 2`` (:func:`measured_point`), not the target alone.
     """
 
     xyz_mm: np.ndarray
     sigma_mm: float
+    partner_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -208,12 +213,22 @@ class PixelObservation:
         Noise per axis at the target across the pixel's line of sight, mm.
     pose : CameraPose
     intrinsics : Intrinsics
+    partner_mm : ndarray (3,) or None
+        As :attr:`PointObservation.partner_mm`.
     """
 
     uv: np.ndarray
     sigma_mm: float
     pose: CameraPose
     intrinsics: Intrinsics
+    partner_mm: np.ndarray | None = None
+
+
+def measured_point(points_mm: np.ndarray, partner_mm: np.ndarray | None) -> np.ndarray:
+    """The point ``(N, 3)`` an observation measures at target positions ``points_mm``: the positions themselves, or
+    with a partner (a detection two joined targets share) the midpoint ``(x + partner) / 2`` of the pair."""
+    x = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    return x if partner_mm is None else 0.5 * (x + np.asarray(partner_mm, dtype=np.float64).reshape(1, 3))
 
 
 class WorldParticleFilter:
@@ -288,9 +303,9 @@ class WorldParticleFilter:
 
     def log_likelihood(self, observations: Sequence[PointObservation | PixelObservation]) -> np.ndarray:
         """The joint log-likelihood ``(N,)`` of ``observations`` at every particle (independent terms summed)."""
-        x = self.particles[:, :3]
         total = np.zeros(self.n_particles)
         for ob in observations:
+            x = measured_point(self.particles[:, :3], ob.partner_mm)
             if isinstance(ob, PointObservation):
                 d2 = ((x - ob.xyz_mm) ** 2).sum(axis=1)
                 total += robust_loglik(d2, ob.sigma_mm, self.outlier_prob, OUTLIER_VOLUME_MM3, dims=3)

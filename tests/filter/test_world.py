@@ -11,12 +11,14 @@ import pytest
 from fusion_pf.errors import InputError
 from fusion_pf.filter.likelihood import robust_loglik
 from fusion_pf.filter.world import (
+    OUTLIER_VOLUME_MM3,
     PixelObservation,
     PointObservation,
     WorldParticleFilter,
     beyond,
     closest_point,
     in_view,
+    measured_point,
     normalised,
     off_line_mm,
     project,
@@ -77,6 +79,25 @@ def test_a_pixel_weighs_particles_by_their_distance_in_mm_from_its_line_whatever
     pf.particles[:, :3] = [POINT + 15 * side, POINT + 600 * d + 15 * side, POINT + 40 * side]
     ll = pf.log_likelihood([PixelObservation(uv, 20.0, LEFT, K)])
     assert ll[0] == pytest.approx(ll[1], abs=1e-9) and ll[2] < ll[0] - 1.0
+
+
+def test_a_detection_two_joined_targets_share_measures_their_midpoint():
+    # one blob of two joined hands: it lies between them, so the target is where the blob is the midpoint of it and
+    # its partner (the mirror of the partner about the blob), not on the blob
+    blob, partner = np.array([0.0, 0.0, 0.0]), np.array([-60.0, 10.0, 5.0])
+    x = np.array([blob, 2 * blob - partner, blob + [25.0, -5.0, 40.0]])
+    assert measured_point(x, partner) == pytest.approx((x + partner) / 2)
+    assert measured_point(x, None) is not None and measured_point(x, None) == pytest.approx(x)
+    pf = WorldParticleFilter(3, (10.0, 2.5), 0)
+    pf.particles[:, :3] = x
+    ll = pf.log_likelihood([PointObservation(blob, 20.0, partner)])
+    d2 = (((x + partner) / 2 - blob) ** 2).sum(axis=1)
+    ref = np.log(0.9 * np.exp(-d2 / (2 * 20.0**2)) / (2 * math.pi * 20.0**2) ** 1.5 + 0.1 / OUTLIER_VOLUME_MM3)
+    assert ll == pytest.approx(ref, rel=1e-12) and int(np.argmax(ll)) == 1
+    # a pixel shared the same way: the best particle is the one whose midpoint with the partner is on the line
+    uv = project(POINT[None], LEFT, K)[0][0]
+    pf.particles[:, :3] = [POINT, 2 * POINT - partner, POINT + [30.0, 0.0, 0.0]]
+    assert int(np.argmax(pf.log_likelihood([PixelObservation(uv, 20.0, LEFT, K, partner)]))) == 1
 
 
 def _line(pose, uv):
