@@ -14,9 +14,10 @@ OpenCV). Units: world millimetres, pixels of the camera's colour image.
   ``(x, y, z, vx, vy, vz)``: constant-velocity motion (paper 003 eq. 4 in three
   dimensions), a joint robust likelihood of 3-D points (depth cameras'
   back-projected detections, Gaussian in mm plus a uniform outlier volume) and
-  of pixels (colour-only cameras' detections, Gaussian reprojection error in px
-  plus a uniform outlier area), residual resampling and the robust mean
-  (:mod:`fusion_pf.filter.resample`, :mod:`fusion_pf.filter.estimate`,
+  of pixels (colour-only cameras' detections: the particle's distance from the
+  pixel's line of sight, Gaussian in mm at the particle, plus a uniform outlier
+  density over the image seen at the particles' median depth), residual resampling and the weighted mean
+  (:mod:`fusion_pf.filter.resample`,
   :func:`fusion_pf.filter.likelihood.robust_loglik`).
 """
 
@@ -33,7 +34,6 @@ from fusion_pf.frame import Intrinsics
 from fusion_pf.rig import CameraPose
 from fusion_pf.rng import as_rng
 
-from .estimate import robust_mean
 from .likelihood import robust_loglik
 from .motion import FrameClock
 from .resample import ess, residual_trusted
@@ -45,9 +45,14 @@ __all__ = [
     "OUTLIER_VOLUME_MM3",
     "PixelObservation",
     "PointObservation",
+    "SURFACE_DEPTH_MM",
     "WorldParticleFilter",
+    "beyond",
     "closest_point",
     "in_view",
+    "measured_point",
+    "normalised",
+    "off_line_mm",
     "project",
     "ray",
 ]
@@ -76,6 +81,10 @@ VELOCITY_DAMPING = 0.5
 OUTLIER_PROB = 0.1
 #: Volume of the uniform outlier density of 3-D points: a 4 m x 3 m x 3 m room, mm^3.
 OUTLIER_VOLUME_MM3 = 4000.0 * 3000.0 * 3000.0
+#: How far the palm's centre lies behind the surface a depth camera sees (mm): a region cue's back-projected point is
+#: on the hand's near surface; on the synthetic two-hand rig (seeds 1 and 2, 640 x 400) the colour and depth regions'
+#: points lay a median 22 mm (hands apart) to 32 mm (joined) in front of the palm's centre along the line of sight.
+SURFACE_DEPTH_MM = 20.0
 #: Nearest depth in front of a camera at which a point projects (mm).
 MIN_DEPTH_MM = 1.0
 
@@ -112,6 +121,26 @@ def ray(normalised_xy: np.ndarray, pose: CameraPose) -> tuple[np.ndarray, np.nda
     xy = np.asarray(normalised_xy, dtype=np.float64).reshape(2)
     d = pose.rotation @ np.array([xy[0], xy[1], 1.0])
     return pose.translation_mm.copy(), d / np.linalg.norm(d)
+
+
+def normalised(uv: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """Normalised image coordinates ``(x/z, y/z) = ((u - cx) / fx, (v - cy) / fy)`` of a pixel (the inverse of :func:`project`'s pinhole)."""
+    u, v = np.asarray(uv, dtype=np.float64).reshape(2)
+    return np.array([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy])
+
+
+def off_line_mm(points_mm: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The distance ``(N,)`` of points ``(N, 3)`` from the line through ``origin`` along the unit ``direction``: ``|(I - d d^T)(x - o)|``."""
+    r = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3) - np.asarray(origin, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    return np.linalg.norm(r - np.outer(r @ d, d), axis=1)
+
+
+def beyond(point_mm: np.ndarray, origin: np.ndarray, offset_mm: float) -> np.ndarray:
+    """``point_mm`` moved ``offset_mm`` farther from ``origin`` along their line: ``x + offset (x - o) / |x - o|``."""
+    x = np.asarray(point_mm, dtype=np.float64).reshape(3)
+    r = x - np.asarray(origin, dtype=np.float64).reshape(3)
+    return x + offset_mm * r / np.linalg.norm(r)
 
 
 def closest_point(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,10 +191,14 @@ class PointObservation:
     xyz_mm : ndarray (3,)
     sigma_mm : float
         Noise per axis, mm.
+    partner_mm : ndarray (3,) or None
+        A detection shared by two joined targets (one blob): the partner's predicted position; the observation
+        measures the pair's midpoint ``(x + partner) / 2`` (:func:`measured_point`), not the target alone.
     """
 
     xyz_mm: np.ndarray
     sigma_mm: float
+    partner_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -177,15 +210,25 @@ class PixelObservation:
     uv : ndarray (2,)
         Pixel.
     sigma_mm : float
-        Noise per axis at the target, mm: ``sigma_mm fx / z`` px at the particles' median depth ``z``.
+        Noise per axis at the target across the pixel's line of sight, mm.
     pose : CameraPose
     intrinsics : Intrinsics
+    partner_mm : ndarray (3,) or None
+        As :attr:`PointObservation.partner_mm`.
     """
 
     uv: np.ndarray
     sigma_mm: float
     pose: CameraPose
     intrinsics: Intrinsics
+    partner_mm: np.ndarray | None = None
+
+
+def measured_point(points_mm: np.ndarray, partner_mm: np.ndarray | None) -> np.ndarray:
+    """The point ``(N, 3)`` an observation measures at target positions ``points_mm``: the positions themselves, or
+    with a partner (a detection two joined targets share) the midpoint ``(x + partner) / 2`` of the pair."""
+    x = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    return x if partner_mm is None else 0.5 * (x + np.asarray(partner_mm, dtype=np.float64).reshape(1, 3))
 
 
 class WorldParticleFilter:
@@ -260,23 +303,25 @@ class WorldParticleFilter:
 
     def log_likelihood(self, observations: Sequence[PointObservation | PixelObservation]) -> np.ndarray:
         """The joint log-likelihood ``(N,)`` of ``observations`` at every particle (independent terms summed)."""
-        x = self.particles[:, :3]
         total = np.zeros(self.n_particles)
         for ob in observations:
+            x = measured_point(self.particles[:, :3], ob.partner_mm)
             if isinstance(ob, PointObservation):
                 d2 = ((x - ob.xyz_mm) ** 2).sum(axis=1)
                 total += robust_loglik(d2, ob.sigma_mm, self.outlier_prob, OUTLIER_VOLUME_MM3, dims=3)
                 continue
-            uv, z = project(x, ob.pose, ob.intrinsics)
-            # one pixel noise for all particles: the target's apparent noise at the particles' median depth (a
-            # noise per particle, sigma fx / z_i, would favour the particles far along the line of sight, whose
-            # Gaussian is narrower and taller: a depth a colour-only camera cannot see would drift away)
+            # the particle's distance from the pixel's line of sight, in mm at the particle: one density for every
+            # depth along the line (a reprojection error in px, narrower in mm far away, favoured the particles far
+            # along the line, and a depth a colour-only camera cannot see drifted away from it)
+            z = ob.pose.to_camera(x)[:, 2]
+            origin, direction = ray(normalised(ob.uv, ob.intrinsics), ob.pose)
+            d2 = off_line_mm(x, origin, direction) ** 2
+            d2[z <= MIN_DEPTH_MM] = np.inf  # behind the camera: only the outlier term
             front = z > MIN_DEPTH_MM
             depth = float(np.median(z[front])) if front.any() else MIN_DEPTH_MM
-            d2 = ((uv - ob.uv) ** 2).sum(axis=1)
-            d2[~np.isfinite(d2)] = np.inf  # behind the camera: only the outlier term
-            area = float(ob.intrinsics.width * ob.intrinsics.height)
-            total += robust_loglik(d2, ob.sigma_mm * ob.intrinsics.fx / depth, self.outlier_prob, area)
+            # the image as an area in mm^2 at the particles' median depth: the outlier density
+            area = float(ob.intrinsics.width * ob.intrinsics.height) * depth**2 / (ob.intrinsics.fx * ob.intrinsics.fy)
+            total += robust_loglik(d2, ob.sigma_mm, self.outlier_prob, area)
         return total
 
     def update(self, observations: Sequence[PointObservation | PixelObservation]) -> None:
@@ -306,6 +351,10 @@ class WorldParticleFilter:
         return mean, math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
 
     def estimate(self) -> tuple[np.ndarray, float]:
-        """The robust mean of the positions (paper 003's top 10 %) and the posterior std along its widest axis, mm."""
-        w = np.exp(self.log_weights - self.log_weights.max())
-        return robust_mean(self.particles[:, :3], w / w.sum()), self.moments()[1]
+        """The weighted mean of the positions and the posterior std along its widest axis, mm (:meth:`moments`).
+
+        Not paper 003's robust mean of the top 10 % (the one-camera filter's): in 3-D, the 30 best of 300 particles
+        scatter along the directions a pixel does not constrain; on the synthetic two-hand rig (seeds 1 and 2,
+        640 x 400) the weighted mean lowered the mean per-hand RMSE from 20.9 to 19.8 mm.
+        """
+        return self.moments()

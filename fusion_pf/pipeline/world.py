@@ -23,7 +23,9 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    ``mm x fx / z`` px). With several targets, two closer than :data:`COMBINE_MM`
    (the one-camera pipeline's :data:`COMBINE_PALMS` palm lengths of 95 mm)
    are combined and share detections in every camera
-   (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart.
+   (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart; a
+   region detection both got in one camera (one blob) measures the pair's midpoint
+   (:func:`~fusion_pf.filter.world.measured_point`, the partner at its prediction).
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
    except its own skeleton joint (a certain label);
@@ -60,11 +62,14 @@ from ..filter.kernel import warm_up
 from ..filter.likelihood import quality_sigma
 from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
 from ..filter.world import (
+    SURFACE_DEPTH_MM,
     PixelObservation,
     PointObservation,
     WorldParticleFilter,
+    beyond,
     closest_point,
     in_view,
+    measured_point,
     project,
     ray,
 )
@@ -220,14 +225,27 @@ class _Camera:
         self.sources = sources or names
 
     def observations(
-        self, frame: Frame, target: str, cues: Mapping[str, Measurement | None]
+        self,
+        frame: Frame,
+        target: str,
+        cues: Mapping[str, Measurement | None],
+        partner: tuple[Mapping[str, Measurement | None], np.ndarray] | None = None,
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
-        """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel)."""
+        """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel).
+
+        ``partner``: a combined partner's measurements in this camera and predicted position; a region measurement
+        both have (the same detection: one blob) measures the pair's midpoint (``partner_mm``).
+        """
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
             m = cues.get(source)
             if m is None:
                 continue
+            shared = None
+            if partner is not None and source not in PIXEL_ONLY:
+                other = partner[0].get(source)
+                if other is not None and (other.u, other.v) == (m.u, m.v):
+                    shared = partner[1]
             sigma = quality_sigma(self.config.world_noise_mm[source], m)
             z = None
             if frame.depth is not None and source not in PIXEL_ONLY:
@@ -237,10 +255,12 @@ class _Camera:
                 if joint is not None and joint.depth_mm and (joint.u, joint.v) == (m.u, m.v):
                     z = joint.depth_mm
             if z is None:
-                out.append((m, PixelObservation(np.array([m.u, m.v]), sigma, self.pose, frame.intrinsics)))
+                out.append((m, PixelObservation(np.array([m.u, m.v]), sigma, self.pose, frame.intrinsics, shared)))
             else:
                 xyz = self.pose.to_world(backproject(np.array([[m.u, m.v]]), np.array([z]), frame.intrinsics))[0]
-                out.append((m, PointObservation(xyz, sigma)))
+                if source not in PIXEL_ONLY:  # the surface seen, not the centre behind it
+                    xyz = beyond(xyz, self.pose.translation_mm, SURFACE_DEPTH_MM)
+                out.append((m, PointObservation(xyz, sigma, shared)))
         return out
 
     def line_of_sight(self, m: Measurement, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -354,10 +374,11 @@ class _WorldTarget:
                 kept.append(item)
                 continue
             reach2 = GATE_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
+            at = measured_point(mean, ob.partner_mm)[0]
             if isinstance(ob, PointObservation):
-                ok = float(((ob.xyz_mm - mean) ** 2).sum()) <= reach2
+                ok = float(((ob.xyz_mm - at) ** 2).sum()) <= reach2
             else:
-                uv, z = project(mean[None], ob.pose, ob.intrinsics)
+                uv, z = project(at[None], ob.pose, ob.intrinsics)
                 ok = (
                     bool(np.isfinite(uv[0, 0]))
                     and float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * (ob.intrinsics.fx / float(z[0])) ** 2
@@ -372,10 +393,11 @@ class _WorldTarget:
         count = 0
         for ob in observations:
             reach2 = SUPPORT_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
+            at = measured_point(estimate, ob.partner_mm)[0]
             if isinstance(ob, PointObservation):
-                count += float(((ob.xyz_mm - estimate) ** 2).sum()) <= reach2
+                count += float(((ob.xyz_mm - at) ** 2).sum()) <= reach2
                 continue
-            uv, z = project(estimate[None], ob.pose, ob.intrinsics)
+            uv, z = project(at[None], ob.pose, ob.intrinsics)
             if np.isfinite(uv[0, 0]):
                 px_per_mm = ob.intrinsics.fx / float(z[0])
                 count += float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * px_per_mm**2
@@ -456,7 +478,10 @@ def track_world(
                 priors[t] = cam.stage.prior(frame, config.roi_prior, projected, t)
             rows = cam.stage.rows(fs.index, frame, 0, models.get(name), priors, palms, partners)
             for t in names:
-                for m, ob in cam.observations(frame, t, rows[t].cues):
+                mate = partners.get(t)
+                mate_at = None if mate is None else predicted[mate]
+                shared = None if mate is None or mate_at is None else (rows[mate].cues, mate_at)
+                for m, ob in cam.observations(frame, t, rows[t].cues, shared):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():

@@ -11,11 +11,16 @@ import pytest
 from fusion_pf.errors import InputError
 from fusion_pf.filter.likelihood import robust_loglik
 from fusion_pf.filter.world import (
+    OUTLIER_VOLUME_MM3,
     PixelObservation,
     PointObservation,
     WorldParticleFilter,
+    beyond,
     closest_point,
     in_view,
+    measured_point,
+    normalised,
+    off_line_mm,
     project,
     ray,
 )
@@ -38,6 +43,61 @@ def test_project_matches_opencv():
         assert z == pytest.approx(pose.to_camera(pts)[:, 2], abs=1e-9)
     behind, _ = project(LEFT.translation_mm - 100 * LEFT.rotation[:, 2], LEFT, K)
     assert np.isnan(behind).all() and not in_view(behind, K)[0]
+
+
+def test_normalised_matches_opencv_undistort_points():
+    uv = np.array([[0.0, 0.0], [79.5, 49.5], [151.25, 3.5], [17.0, 88.0]])
+    ref = cv2.undistortPoints(uv.reshape(-1, 1, 2), K.K, None).reshape(-1, 2)
+    assert np.array([normalised(p, K) for p in uv]) == pytest.approx(ref, abs=1e-12)
+
+
+def test_off_line_mm_is_the_cross_product_distance():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(0, 500, (30, 3))
+    origin, d = rng.normal(0, 300, 3), rng.normal(0, 1, 3)
+    d /= np.linalg.norm(d)
+    ref = np.linalg.norm(np.cross(pts - origin, d), axis=1)  # |r x d| = |r| sin(angle)
+    assert off_line_mm(pts, origin, d) == pytest.approx(ref, rel=1e-12)
+
+
+def test_beyond_moves_the_point_away_from_the_origin_on_its_line():
+    origin, x = np.array([100.0, -50.0, -1500.0]), np.array([40.0, 30.0, 200.0])
+    moved = beyond(x, origin, 20.0)
+    assert np.linalg.norm(moved - origin) == pytest.approx(np.linalg.norm(x - origin) + 20.0, abs=1e-9)
+    assert np.linalg.norm(np.cross(moved - origin, x - origin)) == pytest.approx(0.0, abs=1e-6)
+    assert np.linalg.norm(beyond(moved, origin, -20.0) - x) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_pixel_weighs_particles_by_their_distance_in_mm_from_its_line_whatever_their_depth():
+    # two particles 15 mm off the pixel's line of sight, one 600 mm farther along it: the same likelihood (a
+    # reprojection error in px favoured the far one, 15 mm being fewer pixels there)
+    uv = project(POINT[None], LEFT, K)[0][0]
+    o, d = _line(LEFT, uv)
+    side = np.cross(d, [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    pf = WorldParticleFilter(3, (10.0, 2.5), 0)
+    pf.particles[:, :3] = [POINT + 15 * side, POINT + 600 * d + 15 * side, POINT + 40 * side]
+    ll = pf.log_likelihood([PixelObservation(uv, 20.0, LEFT, K)])
+    assert ll[0] == pytest.approx(ll[1], abs=1e-9) and ll[2] < ll[0] - 1.0
+
+
+def test_a_detection_two_joined_targets_share_measures_their_midpoint():
+    # one blob of two joined hands: it lies between them, so the target is where the blob is the midpoint of it and
+    # its partner (the mirror of the partner about the blob), not on the blob
+    blob, partner = np.array([0.0, 0.0, 0.0]), np.array([-60.0, 10.0, 5.0])
+    x = np.array([blob, 2 * blob - partner, blob + [25.0, -5.0, 40.0]])
+    assert measured_point(x, partner) == pytest.approx((x + partner) / 2)
+    assert measured_point(x, None) is not None and measured_point(x, None) == pytest.approx(x)
+    pf = WorldParticleFilter(3, (10.0, 2.5), 0)
+    pf.particles[:, :3] = x
+    ll = pf.log_likelihood([PointObservation(blob, 20.0, partner)])
+    d2 = (((x + partner) / 2 - blob) ** 2).sum(axis=1)
+    ref = np.log(0.9 * np.exp(-d2 / (2 * 20.0**2)) / (2 * math.pi * 20.0**2) ** 1.5 + 0.1 / OUTLIER_VOLUME_MM3)
+    assert ll == pytest.approx(ref, rel=1e-12) and int(np.argmax(ll)) == 1
+    # a pixel shared the same way: the best particle is the one whose midpoint with the partner is on the line
+    uv = project(POINT[None], LEFT, K)[0][0]
+    pf.particles[:, :3] = [POINT, 2 * POINT - partner, POINT + [30.0, 0.0, 0.0]]
+    assert int(np.argmax(pf.log_likelihood([PixelObservation(uv, 20.0, LEFT, K, partner)]))) == 1
 
 
 def _line(pose, uv):
