@@ -292,3 +292,37 @@ def test_rig_recording_passes_rerun_and_rerun_reads_its_poses(rig_file, rerun_en
         t = [float(v) for v in translation.split(",")]
         assert q == pytest.approx(poses[name].quaternion(), abs=1e-6)  # float32
         assert t == pytest.approx(poses[name].translation_mm / 1000.0, abs=1e-6)
+
+
+def test_a_world_tracker_output_passes_rerun_with_its_camera_poses(tmp_path, rerun_env, fusion_pf):
+    """``track MULTI.mcap -o OUT.mcap``: ``/tracker/world`` and the copied ``/tf`` pass Rerun's check; Rerun places the cameras."""
+    from drivers.rig import RigReplay
+
+    rerun, env = rerun_env
+    multi, out = tmp_path / "multi.mcap", tmp_path / "out.mcap"
+    proc = fusion_pf(
+        "synth", multi, "--cameras", 2, "--hands", 2, "--frames", 12, "--background-frames", 3, "--size", "160x100"
+    )
+    assert proc.returncode == 0, proc.stderr
+    proc = fusion_pf("track", multi, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run([rerun, "mcap", "check", str(out)], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = {
+        line.split()[3]: line.split()[0]
+        for line in proc.stdout.splitlines()
+        if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
+    }
+    assert {"/tracker/world", "/tf"} <= set(rows) and set(rows.values()) == {"ok"}, proc.stdout
+    rrd = tmp_path / "out.rrd"
+    proc = subprocess.run([rerun, "mcap", "convert", str(out), "-o", str(rrd)], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run([rerun, "rrd", "print", "-vvv", str(rrd)], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    found = {m.group(1): m.group(3) for m in _RERUN_TF.finditer(proc.stdout)}
+    with RigReplay(multi) as rig:
+        poses = rig.poses
+    assert sorted(found) == sorted(poses), proc.stdout[-2000:]
+    for name, translation in found.items():
+        t = [float(v) for v in translation.split(",")]
+        assert t == pytest.approx(poses[name].translation_mm / 1000.0, abs=1e-6)
