@@ -261,6 +261,7 @@ class JointLikelihood:
         self.noise_px = check_noise_px(noise_px)
         self.likelihood = likelihood
         self.outlier_prob = float(outlier_prob)
+        self.source_outlier: dict[str, float] = {}
         self.use_quality = bool(use_quality)
         self.min_quality = float(min_quality)
         self.outlier_area_px2 = float(outlier_area_px2)
@@ -301,12 +302,22 @@ class JointLikelihood:
         return s * s / (1.0 - self.outlier(m)) if self.likelihood == "robust" else s * s
 
     def outlier(self, m: Measurement) -> float:
-        """The robust mixture's outlier probability for ``m``: ``outlier_prob``, or ``1 - quality``
-        (within [:data:`MIN_OUTLIER_PROB`, ``outlier_prob``]) for a :data:`PROBABILITY_QUALITY` source."""
+        """The robust mixture's outlier probability for ``m``: ``1 - quality`` (within
+        [:data:`MIN_OUTLIER_PROB`, ``outlier_prob``]) for a :data:`PROBABILITY_QUALITY` source, else
+        its source's :meth:`set_outlier` value, else ``outlier_prob``."""
         if m.source in PROBABILITY_QUALITY:
             # eps = 1 - P(the cue is right), bounded
             return min(max(1.0 - m.quality, MIN_OUTLIER_PROB), self.outlier_prob)
-        return self.outlier_prob
+        return self.source_outlier.get(m.source, self.outlier_prob)
+
+    def set_outlier(self, source: str, outlier_prob: float) -> None:
+        """Use ``outlier_prob`` (in (0, 1)) as ``source``'s outlier probability from now on (not for a
+        :data:`PROBABILITY_QUALITY` source, whose quality gives it)."""
+        if source not in self.noise_px:
+            raise InputError(f"unknown source {source!r}; the likelihood has {', '.join(self.noise_px)}")
+        if not (0.0 < float(outlier_prob) < 1.0):
+            raise InputError(f"outlier probability of {source} must be in (0, 1), got {outlier_prob!r}")
+        self.source_outlier[source] = float(outlier_prob)
 
     def stacked(self, measurements: Sequence[Measurement]) -> tuple[float, float, float, float]:
         """The Gaussian joint of eq. 7 as one Gaussian: ``(u, v)`` of ``z_bar``, precision ``P`` and ``C``.
