@@ -63,8 +63,8 @@ __all__ = [
 #: 115 px palm on 256 x 256 crops, 9.9 px for a 210 px palm at 1280 x 720,
 #: hand-graph-cnn dev frames 477-582), i.e. 3.5 % per axis (RMSE / sqrt 2), 0.7 px for
 #: the reference scene's 18.7 px palm; ``track`` scales every noise with the palm's
-#: apparent size and, with ``--adapt-noise``, learns each source's noise per quality
-#: band from the other cues (:mod:`fusion_pf.filter.calibration`).
+#: apparent size and, with ``--adapt-noise``, learns each source's noise and outlier
+#: probability per quality band in the recording (:mod:`fusion_pf.filter.calibration`).
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0,
     "depth": 4.0,

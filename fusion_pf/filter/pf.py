@@ -8,8 +8,9 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
    (see :mod:`fusion_pf.filter.motion`), optionally with manoeuvres (a
    heavy-tailed mixture, :mod:`fusion_pf.filter.proposal`); with
    ``proposal="guided"`` the particles are drawn from the optimal proposal
-   given the frame's most precise cue instead, which removes the bootstrap
-   filter's lag when the palm moves further than the process noise;
+   given the frame's most precise cue that the prediction explains instead,
+   which removes the bootstrap filter's lag when the palm moves further than
+   the process noise;
 3. observation model: squared distance per source (eq. 5), per-source
    likelihood (eq. 6, or the robust mixture), each normalised (step 3), joint
    likelihood as their product (eq. 7) -- all as sums of logs -- and the weight
@@ -94,7 +95,8 @@ class ParticleFilter(Tracker):
         Where particles move to. ``"prior"``: the paper's bootstrap filter,
         eq. 4 then weights from eqs. 5-7. ``"guided"``: the locally optimal
         proposal (Doucet, Godsill & Andrieu 2000) for the most precise source
-        of the frame (the *anchor*): each particle is drawn from
+        of the frame that the prediction explains (the *anchor*, see
+        :meth:`_anchor`): each particle is drawn from
         ``p(x_k | x_(k-1), z_anchor)``, exact for eq. 4's Gaussian position
         noise, the manoeuvre mixture and the robust outlier mixture (a mixture
         of up to four Gaussians per particle), and weighted by

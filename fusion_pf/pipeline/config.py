@@ -238,7 +238,7 @@ class TrackConfig:
         "auto",
         choices=ROI_PRIORS,
         help="centre of the cue window: the skeleton joint (paper), the filter prediction, "
-        "or auto: the joint while confident, else the prediction",
+        "or auto: the joint while confident, else the prediction (the whole frame while there is neither)",
     )
     prior_confidence: float = option(
         0.5,

@@ -1,4 +1,4 @@
-"""Where the cue window goes (fusion_pf/pipeline/run.py, _CueStage.prior): the joint, the prediction or the whole frame."""
+"""Acquisition window (_CueStage.prior: the joint, the prediction or the whole frame) and the learned process noise (--adapt-motion)."""
 
 from __future__ import annotations
 
@@ -34,3 +34,25 @@ def _frame(confidence: float) -> Frame:
 def test_window_prior(mode, confidence, prediction, expected):
     stage = _CueStage(TrackConfig(cues=("depth",)))
     assert stage.prior(_frame(confidence), mode, prediction) == expected
+
+
+def test_process_noise_is_learned_from_the_corrections_with_two_cues_or_more():
+    # a smoothly moving synthetic palm seen by three cues: the filter's corrections are far below the
+    # configured position noise, so --adapt-motion lowers it (to at least 0.3 x); off, it stays as configured
+    from drivers.synth import SynthSource
+    from fusion_pf.filter.calibration import MIN_PROCESS_SCALE
+    from fusion_pf.pipeline.run import _FilterStage, extract_cues
+
+    with SynthSource(frames=45, seed=3, size=(320, 200), background_frames=5) as src:
+        rows = extract_cues(src, TrackConfig(seed=1))
+    noise = {}
+    for adapt in (True, False):
+        stage = _FilterStage(TrackConfig(seed=1, adapt_motion=adapt), None)
+        for row in rows:
+            if not row.background:
+                stage(row)
+        assert stage.tracker is not None
+        noise[adapt] = stage.tracker.process_noise[0] / stage._scale  # at palm scale 1
+    configured = TrackConfig().process_noise[0]
+    assert noise[False] == pytest.approx(configured)
+    assert MIN_PROCESS_SCALE * configured - 1e-9 <= noise[True] < 0.8 * configured
