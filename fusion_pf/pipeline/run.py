@@ -710,7 +710,7 @@ def make_tracker(
         estimator="robust_mean",
         frame_period_ns="auto",
         init_spread_px=20.0 * s,
-        init_velocity_px=2.0,
+        init_velocity_px=2.0 * s,
         outlier_area_px2=DEFAULT_OUTLIER_AREA_PX2 if size is None else float(size[0] * size[1]),
         rng=config.seed if rng is None else rng,
     )
