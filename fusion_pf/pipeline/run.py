@@ -112,7 +112,7 @@ from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
-from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale
+from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale, starting_sigma
 from ..filter.estimate import largest_std
 from ..filter.kernel import warm_up
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
@@ -754,7 +754,7 @@ class _FilterStage:
         self._palm_k: float | None = None
         self._applied_k: float | None = None
         self._scale = 1.0
-        self._calibration = NoiseCalibration(self._prior) if config.adapt_noise else None
+        self._calibration = NoiseCalibration(self._starting_sigma) if config.adapt_noise else None
         self._moves: deque[float] = deque(maxlen=MOTION_WINDOW)
         self._motion_scale = 1.0
 
@@ -803,6 +803,10 @@ class _FilterStage:
     def _prior(self, m: Measurement) -> float:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
         return quality_sigma(self.config.noise_px[m.source], m)
+
+    def _starting_sigma(self, m: Measurement) -> float:
+        """The noise ``m``'s learned noise starts from at scale 1 (:func:`~fusion_pf.filter.calibration.starting_sigma` of its ``--noise``)."""
+        return starting_sigma(self.config.noise_px[m.source], m)
 
     def _calibrate(
         self, ms: Sequence[Measurement], trust: Mapping[str, float], predicted: tuple[float, float, float] | None

@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from fusion_pf.errors import InputError
-from fusion_pf.filter.calibration import FLOOR, PRIOR_COUNT, QUALITY_BINS, WINDOW, NoiseCalibration, quality_bin
+from fusion_pf.filter.calibration import (
+    FLOOR,
+    PRIOR_COUNT,
+    QUALITY_BINS,
+    WINDOW,
+    NoiseCalibration,
+    quality_bin,
+    starting_sigma,
+)
+from fusion_pf.filter.likelihood import DEFAULT_NOISE_PX, MIN_QUALITY, effective_sigma
 from fusion_pf.frame import Measurement
 
 
@@ -203,3 +212,20 @@ def test_a_lone_cue_keeps_its_prior_even_with_a_prediction():
     for _ in range(20):
         cal.update([m], {"a": 4.0}, 1.0, (100.0, 100.0, 0.0))
     assert cal.samples("a", 0.8) == 0 and cal.sigma(m) == 4.0
+
+
+def test_the_starting_noise_ranks_cues_by_quality_before_any_residual():
+    noise = DEFAULT_NOISE_PX
+    blob, joint = Measurement("depth", 0.0, 0.0, quality=0.16), Measurement("skeleton", 0.0, 0.0, quality=0.92)
+    # sigma / q: 4 / 0.16 = 25 px, 20 / 0.92 = 21.7 px
+    assert starting_sigma(noise["depth"], blob) == pytest.approx(25.0)
+    assert starting_sigma(noise["skeleton"], joint) == pytest.approx(20.0 / 0.92)
+    # the likelihood's sigma / sqrt(q) ranked the low-quality blob first (10 px < 20.9 px)
+    assert effective_sigma(noise["depth"], 0.16, MIN_QUALITY) < effective_sigma(noise["skeleton"], 0.92, MIN_QUALITY)
+    assert starting_sigma(noise["depth"], Measurement("depth", 0.0, 0.0, quality=0.0)) == pytest.approx(
+        4.0 / MIN_QUALITY
+    )
+    # the hand cue's quality is its outlier probability: its noise is not widened
+    assert starting_sigma(noise["hand"], Measurement("hand", 0.0, 0.0, quality=0.2)) == noise["hand"]
+    cal = NoiseCalibration(lambda m: starting_sigma(noise[m.source], m))
+    assert cal.sigma(joint) < cal.sigma(blob)
