@@ -14,9 +14,11 @@ Printed per scene: the RMSE (px) of each cue alone (its own coverage in brackets
 100 %), of the fused estimate, ``ratio`` = fused / best cue, the fused estimate's BestMax share
 (paper 003 §4.4: frames where it is the closest of all sources), its coverage, and ``2sd`` = the
 share of tracked frames whose error is below twice the reported ``sigma_px``. Then, separately for
-the ``tune`` scenes (used while changing the fusion) and the ``held`` ones (never looked at while
-tuning: other seeds and other combinations): the mean and worst ratio, the scenes where fused
-is not above the best cue, and the mean BestMax share.
+the ``tune`` scenes (used while changing the fusion), the ``held`` ones (never looked at while
+tuning: other seeds and other combinations; seen once by the first round of issue 23 C) and the
+``new`` ones (held out from the second round on) and the ``fresh`` ones (held out from the
+third round on): the mean and worst ratio, the scenes where
+fused is not above the best cue, and the mean BestMax share.
 """
 
 from __future__ import annotations
@@ -41,14 +43,15 @@ class Scene:
     """One synthetic scene of the matrix."""
 
     name: str
-    split: str  # "tune" or "held"
+    split: str  # "tune", "held", "new" or "fresh"
     seed: int
     size: str
     options: dict[str, float] = field(default_factory=dict)
 
 
-#: The matrix. ``tune``: seeds 1-2, looked at while changing the fusion; ``held``: seeds 5-8 and
-#: other combinations, only run to report.
+#: The matrix. ``tune``: seeds 1-4, looked at while changing the fusion; ``held``: seeds 5-8 and
+#: other combinations, only run to report (seen by the first round of issue 23 C); ``new``: seeds
+#: 9-12, held out from the second round on; ``fresh``: seeds 13-16, held out from the third.
 SCENES = (
     Scene("default-640", "tune", 1, "640x400"),
     Scene("skeleton-best", "tune", 2, "640x400", {"skeleton_bias": 0.0, "depth_noise": 8.0, "hand_front": 0.05}),
@@ -63,6 +66,81 @@ SCENES = (
     Scene("lighting-bias-960", "held", 8, "960x540", {"lighting": 3.0, "skeleton_bias": 2.0}),
     Scene("far-hand-noisy-640", "held", 5, "640x400", {"depth_noise": 3.0, "hand_front": 0.4}),
     Scene("colour-best-320", "held", 6, "320x200", {"skeleton_bias": 3.0, "depth_noise": 10.0, "hand_front": 0.04}),
+    # second round (issue 23 C): more tuning seeds, and held-out scenes not seen by the first round
+    Scene("skeleton-best-960", "tune", 3, "960x540", {"skeleton_bias": 0.0, "depth_noise": 6.0, "hand_front": 0.06}),
+    Scene("far-hand-noisy-320", "tune", 3, "320x200", {"depth_noise": 3.0, "hand_front": 0.4}),
+    Scene("lighting-bias-640", "tune", 4, "640x400", {"lighting": 3.0, "skeleton_bias": 2.0}),
+    Scene("far-hand-noisy-640b", "tune", 4, "640x400", {"depth_noise": 3.0, "hand_front": 0.4}),
+    # third round (issue 23 C): tune scenes reproducing the second round's held-out failures (an accurate
+    # skeleton beside a colour cue biased by lighting drift; a far hand with very accurate depth)
+    Scene(
+        "skeleton-lit-320",
+        "tune",
+        3,
+        "320x200",
+        {"skeleton_bias": 0.0, "depth_noise": 7.0, "hand_front": 0.05, "lighting": 2.0},
+    ),
+    Scene(
+        "skeleton-lit-400",
+        "tune",
+        4,
+        "400x250",
+        {"skeleton_bias": 0.0, "depth_noise": 6.0, "hand_front": 0.06, "lighting": 2.5},
+    ),
+    Scene(
+        "skeleton-lit-320b",
+        "tune",
+        1,
+        "320x200",
+        {"skeleton_bias": 0.0, "depth_noise": 8.0, "hand_front": 0.05, "lighting": 2.0},
+    ),
+    Scene(
+        "skeleton-lit-320c",
+        "tune",
+        2,
+        "320x200",
+        {"skeleton_bias": 0.0, "depth_noise": 7.0, "hand_front": 0.05, "lighting": 2.0},
+    ),
+    Scene("far-hand-sharp-960", "tune", 2, "960x540", {"depth_noise": 2.0, "hand_front": 0.4}),
+    Scene("colour-best-960", "new", 9, "960x540", {"skeleton_bias": 2.0, "depth_noise": 9.0, "hand_front": 0.05}),
+    Scene(
+        "skeleton-best-lit-320",
+        "new",
+        10,
+        "320x200",
+        {"skeleton_bias": 0.0, "depth_noise": 7.0, "hand_front": 0.05, "lighting": 2.0},
+    ),
+    Scene("dark-far-1280", "new", 11, "1280x720", {"skin_tone": 0.8, "hand_front": 0.3, "depth_noise": 2.0}),
+    Scene(
+        "all-close-640",
+        "new",
+        12,
+        "640x400",
+        {"depth_noise": 4.0, "skeleton_bias": 0.5, "hand_front": 0.15, "skin_tone": 0.3},
+    ),
+    # held out from the third round on (never run before its final table)
+    Scene(
+        "lit-skeleton-800",
+        "fresh",
+        13,
+        "800x450",
+        {"skeleton_bias": 0.0, "depth_noise": 6.0, "hand_front": 0.05, "lighting": 2.5},
+    ),
+    Scene("far-sharp-1024", "fresh", 14, "1024x576", {"depth_noise": 2.5, "hand_front": 0.35, "skin_tone": 0.4}),
+    Scene(
+        "mixed-480",
+        "fresh",
+        15,
+        "480x300",
+        {"lighting": 3.0, "skeleton_bias": 1.0, "depth_noise": 4.0, "hand_front": 0.1},
+    ),
+    Scene(
+        "dark-colour-best-360",
+        "fresh",
+        16,
+        "360x240",
+        {"skin_tone": 0.6, "skeleton_bias": 2.5, "depth_noise": 9.0, "hand_front": 0.04},
+    ),
 )
 
 
@@ -140,7 +218,7 @@ def print_table(rows: list[dict]) -> None:
             + " ".join(f"{c:>13}" for c in cells)
             + f" {r['fused']:7.2f} {r['ratio']:6.2f} {r['bestmax']:7.0%} {r['coverage']:6.0%} {r['cover2sd']:6.1%}"
         )
-    for split in ("tune", "held"):
+    for split in ("tune", "held", "new", "fresh"):
         part = [r for r in rows if r["scene"].split == split]
         if not part:
             continue
@@ -164,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("fusion_matrix_runs"), help="work directory")
     p.add_argument("--jobs", type=int, default=2, help="scenes run at the same time")
     p.add_argument("--frames", type=int, default=160, help="frames per scene (10 of them empty-scene)")
-    p.add_argument("--only", default=None, help="comma-separated scene names or splits (tune, held)")
+    p.add_argument("--only", default=None, help="comma-separated scene names or splits (tune, held, new, fresh)")
     args = p.parse_args(argv)
     scenes = SCENES
     if args.only:

@@ -63,8 +63,8 @@ __all__ = [
 #: 115 px palm on 256 x 256 crops, 9.9 px for a 210 px palm at 1280 x 720,
 #: hand-graph-cnn dev frames 477-582), i.e. 3.5 % per axis (RMSE / sqrt 2), 0.7 px for
 #: the reference scene's 18.7 px palm; ``track`` scales every noise with the palm's
-#: apparent size and, with ``--adapt-noise``, learns each source's noise per quality
-#: band from the other cues (:mod:`fusion_pf.filter.calibration`).
+#: apparent size and, with ``--adapt-noise``, learns each source's noise and outlier
+#: probability per quality band in the recording (:mod:`fusion_pf.filter.calibration`).
 DEFAULT_NOISE_PX: Mapping[str, float] = {
     "colour": 12.0,
     "depth": 4.0,
@@ -264,6 +264,7 @@ class JointLikelihood:
         self.noise_px = check_noise_px(noise_px)
         self.likelihood = likelihood
         self.outlier_prob = float(outlier_prob)
+        self.source_outlier: dict[str, float] = {}
         self.use_quality = bool(use_quality)
         self.min_quality = float(min_quality)
         self.outlier_area_px2 = float(outlier_area_px2)
@@ -304,12 +305,22 @@ class JointLikelihood:
         return s * s / (1.0 - self.outlier(m)) if self.likelihood == "robust" else s * s
 
     def outlier(self, m: Measurement) -> float:
-        """The robust mixture's outlier probability for ``m``: ``outlier_prob``, or ``1 - quality``
-        (within [:data:`MIN_OUTLIER_PROB`, ``outlier_prob``]) for a :data:`PROBABILITY_QUALITY` source."""
+        """The robust mixture's outlier probability for ``m``: ``1 - quality`` (within
+        [:data:`MIN_OUTLIER_PROB`, ``outlier_prob``]) for a :data:`PROBABILITY_QUALITY` source, else
+        its source's :meth:`set_outlier` value, else ``outlier_prob``."""
         if m.source in PROBABILITY_QUALITY:
             # eps = 1 - P(the cue is right), bounded
             return min(max(1.0 - m.quality, MIN_OUTLIER_PROB), self.outlier_prob)
-        return self.outlier_prob
+        return self.source_outlier.get(m.source, self.outlier_prob)
+
+    def set_outlier(self, source: str, outlier_prob: float) -> None:
+        """Use ``outlier_prob`` (in (0, 1)) as ``source``'s outlier probability from now on (not for a
+        :data:`PROBABILITY_QUALITY` source, whose quality gives it)."""
+        if source not in self.noise_px:
+            raise InputError(f"unknown source {source!r}; the likelihood has {', '.join(self.noise_px)}")
+        if not (0.0 < float(outlier_prob) < 1.0):
+            raise InputError(f"outlier probability of {source} must be in (0, 1), got {outlier_prob!r}")
+        self.source_outlier[source] = float(outlier_prob)
 
     def stacked(self, measurements: Sequence[Measurement]) -> tuple[float, float, float, float]:
         """The Gaussian joint of eq. 7 as one Gaussian: ``(u, v)`` of ``z_bar``, precision ``P`` and ``C``.

@@ -8,8 +8,9 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
    (see :mod:`fusion_pf.filter.motion`), optionally with manoeuvres (a
    heavy-tailed mixture, :mod:`fusion_pf.filter.proposal`); with
    ``proposal="guided"`` the particles are drawn from the optimal proposal
-   given the frame's most precise cue instead, which removes the bootstrap
-   filter's lag when the palm moves further than the process noise;
+   given the frame's most precise cue that the prediction explains instead,
+   which removes the bootstrap filter's lag when the palm moves further than
+   the process noise;
 3. observation model: squared distance per source (eq. 5), per-source
    likelihood (eq. 6, or the robust mixture), each normalised (step 3), joint
    likelihood as their product (eq. 7) -- all as sums of logs -- and the weight
@@ -47,7 +48,10 @@ from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, nois
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
 from .resample import RESAMPLERS, residual_trusted
 
-__all__ = ["ParticleFilter"]
+__all__ = ["GATE", "ParticleFilter"]
+
+#: Chi-square 99 % point of 2 degrees of freedom, ``-2 ln 0.01``: the guided proposal's anchor gate.
+GATE = -2.0 * math.log(0.01)
 
 
 class ParticleFilter(Tracker):
@@ -91,7 +95,8 @@ class ParticleFilter(Tracker):
         Where particles move to. ``"prior"``: the paper's bootstrap filter,
         eq. 4 then weights from eqs. 5-7. ``"guided"``: the locally optimal
         proposal (Doucet, Godsill & Andrieu 2000) for the most precise source
-        of the frame (the *anchor*): each particle is drawn from
+        of the frame that the prediction explains (the *anchor*, see
+        :meth:`_anchor`): each particle is drawn from
         ``p(x_k | x_(k-1), z_anchor)``, exact for eq. 4's Gaussian position
         noise, the manoeuvre mixture and the robust outlier mixture (a mixture
         of up to four Gaussians per particle), and weighted by
@@ -250,6 +255,49 @@ class ParticleFilter(Tracker):
         self.process_noise = check_process_noise(process_noise)
         self._std_unit = noise_std(self.process_noise, 1.0)
 
+    def set_estimator(self, estimator: str) -> None:
+        """Use ``estimator`` (one of :data:`~fusion_pf.filter.estimate.ESTIMATORS`) from the next step on."""
+        if estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+        self.estimator = estimator
+        self._estimator_code = ESTIMATOR_CODES[estimator]
+
+    def set_outlier_prob(self, source: str, outlier_prob: float) -> None:
+        """Robust likelihood: ``source``'s outlier probability from the next step on, in (0, 1)
+        (:meth:`~fusion_pf.filter.likelihood.JointLikelihood.set_outlier`)."""
+        self._like.set_outlier(source, outlier_prob)
+
+    def predicted(self, timestamp_ns: int) -> tuple[float, float, float] | None:
+        """The particles' prediction of the palm at ``timestamp_ns``, before that frame's cues.
+
+        The weighted mean of ``p + dt v`` and its per-axis variance, the particles'
+        weighted variance of ``p + dt v`` averaged over the two axes. Eq. 4's
+        position noise is left out: it is the most a hand may move in a step (the
+        manoeuvres' reach), not the error of a prediction of a hand that moves
+        smoothly (issue 23's scenes: the prediction is 1-5 px^2 per axis off, the
+        position noise alone 15-240 px^2). None while the filter holds no particles
+        or has not stepped yet.
+
+        Returns
+        -------
+        (u, v, var) or None
+            px, px, px^2.
+        """
+        if not self.initialised or self._last_ns is None:
+            return None
+        t = check_timestamp(timestamp_ns, self._last_ns)
+        dt = self._clock.steps(t, self._last_ns)
+        return self._moments(self._x[:2] + dt * self._x[2:])
+
+    def _moments(self, positions: np.ndarray) -> tuple[float, float, float]:
+        """Weighted mean ``(u, v)`` of ``positions`` (shape (2, N)) and their per-axis variance."""
+        w = self._w
+        # mu = sum_i w_i x_i
+        mu = positions @ w
+        d = positions - mu[:, None]
+        # var = sum_i w_i |x_i - mu|^2 / 2
+        return float(mu[0]), float(mu[1]), 0.5 * float(np.einsum("ij,ij,j->", d, d, w))
+
     def reset(self, prior=None) -> None:
         """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
         constructor's prior, if any) or from the next measurement."""
@@ -367,7 +415,7 @@ class ParticleFilter(Tracker):
             z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
             sigma, rest, outlier = 1.0 / math.sqrt(prec.sum()), [], None
         else:
-            anchor = min(ms, key=like.expected_variance)
+            anchor = self._anchor(ms, dt)
             z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
             rest = [m for m in ms if m is not anchor]
             outlier = (like.outlier(anchor), like.outlier_area_px2)
@@ -385,6 +433,23 @@ class ParticleFilter(Tracker):
         # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) prod_(other phi) p(z_phi | x_k)   (eq. 3 with the guided proposal)
         self._logw += log_ev
         self._weighed = 1 if rest else 2
+
+    def _anchor(self, ms: Sequence[Measurement], dt: float) -> Measurement:
+        """The guided proposal's anchor: the most precise of the cues the prediction can explain.
+
+        A cue the prediction explains lies within the chi-square 99 % gate of 2 degrees of freedom,
+        ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` with ``mu, P`` the particles' predicted mean
+        and per-axis variance (velocities already applied: ``self._x`` holds ``p + dt v``); without
+        such a cue, the most precise of all (the palm moved beyond the motion model). A precise cue
+        that jumped to a wrong blob then only weighs the particles (its robust likelihood), instead
+        of drawing them all to it through the manoeuvre component (issue 23: a depth blob 38 px off
+        pulled the estimate 22 px on skeleton-best, frame 4).
+        """
+        like = self._like
+        mu_u, mu_v, spread = self._moments(self._x[:2])
+        var = spread + dt * self.process_noise[0] ** 2
+        near = [m for m in ms if (m.u - mu_u) ** 2 + (m.v - mu_v) ** 2 <= GATE * (like.sigma(m) ** 2 + var)]
+        return min(near or ms, key=like.expected_variance)
 
     def _finish(self, t: int) -> Estimate:
         """Weight update (eqs. 3, 2) when the step had measurements, estimation phase, ESS and resampling."""

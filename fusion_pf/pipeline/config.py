@@ -273,7 +273,7 @@ class TrackConfig:
         "auto",
         choices=ROI_PRIORS,
         help="centre of the cue window: the skeleton joint (paper), the filter prediction, "
-        "or auto: the joint while confident, else the prediction",
+        "or auto: the joint while confident, else the prediction (the whole frame while there is neither)",
     )
     prior_confidence: float = option(
         0.5,
@@ -355,9 +355,17 @@ class TrackConfig:
     adapt_noise: bool = option(
         True,
         kind="bool",
-        help="learn each cue's noise per quality band (quarters of [0, 1]) in this recording, from "
-        "its distance to the other cues of the same frame (fusion_pf/filter/calibration.py), "
-        "starting from --noise widened by 1/sqrt(quality); off: --noise widened by 1/sqrt(quality)",
+        help="learn each cue's noise and outlier probability per quality band (quarters of [0, 1]) in "
+        "this recording, from its distance to the filter's prediction while tracking, else to the other "
+        "cues of the same frame (fusion_pf/filter/calibration.py), starting from --noise widened by "
+        "1/sqrt(quality); off: --noise widened by 1/sqrt(quality)",
+    )
+    adapt_motion: bool = option(
+        True,
+        kind="bool",
+        help="particle filter: learn the process noise from the filter's corrections (estimate minus "
+        "prediction) in frames with two cues or more, between 0.3 and 1 x --process-noise "
+        "(fusion_pf/filter/calibration.py, process_scale); off: --process-noise",
     )
     jump_sigmas: float = option(
         8.0,

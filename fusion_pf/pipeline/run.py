@@ -98,6 +98,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -111,7 +112,7 @@ from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
-from ..filter.calibration import NoiseCalibration
+from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale, starting_sigma
 from ..filter.estimate import largest_std
 from ..filter.kernel import warm_up
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
@@ -507,9 +508,13 @@ class _CueStage:
         if joint is not None and joint.confidence > 0:
             self.last_joint[target] = (joint.u, joint.v)
         last = self.last_joint.get(target)
+        confident = joint is not None and joint.confidence >= self.config.prior_confidence
+        if mode == "auto" and prediction is None and not confident:
+            return None  # acquisition without a confident joint: search the whole frame
         if mode == "skeleton" or prediction is None:
             return last
-        if mode == "auto" and joint is not None and joint.confidence >= self.config.prior_confidence:
+        if mode == "auto" and confident:
+            assert joint is not None  # confident
             return joint.u, joint.v
         return prediction
 
@@ -750,6 +755,7 @@ def make_tracker(
         estimator="robust_mean",
         frame_period_ns="auto",
         init_spread_px=20.0 * s,
+        init_velocity_px=2.0 * s,
         outlier_area_px2=DEFAULT_OUTLIER_AREA_PX2 if size is None else float(size[0] * size[1]),
         rng=config.seed if rng is None else rng,
     )
@@ -793,7 +799,9 @@ class _FilterStage:
         self._palm_k: float | None = None
         self._applied_k: float | None = None
         self._scale = 1.0
-        self._calibration = NoiseCalibration(self._prior) if config.adapt_noise else None
+        self._calibration = NoiseCalibration(self._starting_sigma) if config.adapt_noise else None
+        self._moves: deque[float] = deque(maxlen=MOTION_WINDOW)
+        self._motion_scale = 1.0
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
@@ -854,10 +862,17 @@ class _FilterStage:
         """Configured noise of ``m`` at scale 1: its source's ``--noise``, quality-widened (not a probability-quality cue)."""
         return quality_sigma(self.config.noise_px[m.source], m)
 
-    def _calibrate(self, ms: Sequence[Measurement], trust: Mapping[str, float]) -> None:
-        """Fuse this frame's cues with their calibrated noise (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
+    def _starting_sigma(self, m: Measurement) -> float:
+        """The noise ``m``'s learned noise starts from at scale 1 (:func:`~fusion_pf.filter.calibration.starting_sigma` of its ``--noise``)."""
+        return starting_sigma(self.config.noise_px[m.source], m)
 
-        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`).
+    def _calibrate(
+        self, ms: Sequence[Measurement], trust: Mapping[str, float], predicted: tuple[float, float, float] | None
+    ) -> None:
+        """Fuse this frame's cues with their calibrated noise and outlier probability (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
+
+        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`); the cues are learned
+        from against ``predicted`` (:meth:`_predicted`) when there is one.
         """
         calibration, tracker = self._calibration, self.tracker
         assert calibration is not None and tracker is not None  # adapt_noise; created by _start
@@ -865,7 +880,25 @@ class _FilterStage:
         for source, sigma in sigmas.items():
             tracker.set_noise(source, sigma)
             self._var[source] = sigma * sigma
-        calibration.update(ms, sigmas, self._scale)
+        if isinstance(tracker, ParticleFilter):
+            for m in ms:
+                tracker.set_outlier_prob(m.source, calibration.outlier(m))
+        calibration.update(ms, sigmas, self._scale, predicted)
+
+    def _predicted(self, timestamp_ns: int) -> tuple[float, float, float] | None:
+        """The filter's prediction of this frame and its per-axis variance (u, v px, px^2) while it tracks, else None.
+
+        The particle filter's own (:meth:`~fusion_pf.filter.pf.ParticleFilter.predicted`); for the
+        other filters the constant-velocity extrapolation of the last two estimates (:meth:`prediction`)
+        with the last posterior spread.
+        """
+        tracker = self.tracker
+        if not self.tracking or self.init is not None or tracker is None or not tracker.initialised:
+            return None
+        if isinstance(tracker, ParticleFilter):
+            return tracker.predicted(timestamp_ns)
+        spread, predicted = self._spread, self.prediction(timestamp_ns)
+        return None if spread is None or predicted is None else (*predicted, spread**2)
 
     def _jumped(self, m: Measurement, timestamp_ns: int) -> bool:
         """Whether a confident cue lies beyond the prediction's reach (``config.jump_sigmas`` of its noise plus the spread)."""
@@ -939,7 +972,8 @@ class _FilterStage:
             sigma = self.config.noise_px[source] * k
             tracker.set_noise(source, sigma)
             self._var[source] = sigma * sigma
-        tracker.set_process_noise((self.config.process_noise[0] * k, self.config.process_noise[1] * k))
+        r = self._motion_scale
+        tracker.set_process_noise((self.config.process_noise[0] * k * r, self.config.process_noise[1] * k * r))
         if isinstance(tracker, ParticleFilter):
             tracker.manoeuvre = (self.config.manoeuvre[0], self.config.manoeuvre[1] * k)
 
@@ -965,6 +999,23 @@ class _FilterStage:
             tracker.init_spread_px = tracker.noise_px[m.source]
         tracker.reset(prior=(m.u, m.v))
 
+    def _learn_motion(self, estimate: Estimate, predicted: tuple[float, float, float]) -> None:
+        """Learn the position process noise from this frame's correction (:func:`~fusion_pf.filter.calibration.process_scale`).
+
+        The correction ``estimate - prediction`` is kept at palm scale 1; from
+        :data:`~fusion_pf.filter.calibration.MOTION_MIN` of them on, the process
+        noise (position and velocity) is the configured one times the learned factor.
+        """
+        k = self._scale
+        self._moves.append(0.5 * ((estimate.u - predicted[0]) ** 2 + (estimate.v - predicted[1]) ** 2) / (k * k))
+        if len(self._moves) < MOTION_MIN:
+            return
+        self._motion_scale = process_scale(np.fromiter(self._moves, float), self.config.process_noise[0])
+        tracker = self.tracker
+        assert tracker is not None  # stepped
+        r = self._motion_scale
+        tracker.set_process_noise((self.config.process_noise[0] * k * r, self.config.process_noise[1] * k * r))
+
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
         return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
@@ -981,12 +1032,15 @@ class _FilterStage:
         trust = {m.source: self._trust(m) for m in ms}
         if self._observe_palm(row, ms, trust) and self.config.palm_scale and self.config.scale_noise:
             self._rescale()
+        # the prediction of this frame, what the cues and the motion are learned against (two cues or more)
+        predicted = self._predicted(row.timestamp_ns) if len(ms) >= 2 else None
         if self._calibration is not None and ms:
-            self._calibrate(ms, trust)
+            self._calibrate(ms, trust, predicted)
         best = min(ms, key=lambda m: trust[m.source]) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
+            predicted = None  # a restart is no correction of the motion model
         if not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
                 assert best is not None  # ms is not empty
@@ -996,7 +1050,18 @@ class _FilterStage:
                     tracker.init_spread_px = self._init_spread
                 tracker.reset(prior=self.init)
         self.init = None
+        if isinstance(tracker, ParticleFilter):
+            # several cues: the posterior mean averages their noise; one cue: the paper's robust mean
+            # stays on it (the weighted mean of a cloud one cue spread lags it, re-entering hands 3.5 px)
+            tracker.set_estimator("weighted_mean" if len(ms) >= 2 else "robust_mean")
         estimate = tracker.step(row.timestamp_ns, ms)
+        if (
+            predicted is not None
+            and estimate is not None
+            and self.config.adapt_motion
+            and isinstance(tracker, ParticleFilter)
+        ):
+            self._learn_motion(estimate, predicted)
         cov = None if estimate is None else estimate.cov
         spread = math.nan if cov is None else largest_std(cov)
         self._spread = None if cov is None else spread

@@ -1,4 +1,4 @@
-"""Online noise calibration (fusion_pf/filter/calibration.py): leave-one-out residuals per quality band."""
+"""Online noise calibration (fusion_pf/filter/calibration.py): residuals against the prediction or leave-one-out, per quality band."""
 
 import math
 
@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from fusion_pf.errors import InputError
-from fusion_pf.filter.calibration import FLOOR, PRIOR_COUNT, QUALITY_BINS, WINDOW, NoiseCalibration, quality_bin
+from fusion_pf.filter.calibration import (
+    FLOOR,
+    PRIOR_COUNT,
+    QUALITY_BINS,
+    WINDOW,
+    NoiseCalibration,
+    quality_bin,
+    starting_sigma,
+)
+from fusion_pf.filter.likelihood import DEFAULT_NOISE_PX, MIN_QUALITY, effective_sigma
 from fusion_pf.frame import Measurement
 
 
@@ -109,3 +118,114 @@ def test_a_cue_below_the_floor_is_learned_at_the_floor():
 def test_bad_floor_is_named(floor):
     with pytest.raises(InputError, match="floor"):
         NoiseCalibration(lambda m: 1.0, floor=floor)
+
+
+def test_core_and_outliers_recover_a_known_mixture():
+    # reference: the simulation's own parameters. A 2-D Gaussian core of per-axis sigma 2 px compared with
+    # references of varying per-axis variance p, and 20 % gross errors uniform over a 400 px square
+    from fusion_pf.filter.calibration import core_and_outliers
+
+    gen = np.random.default_rng(7)
+    n, sigma, eps = 20000, 2.0, 0.2
+    p = gen.uniform(0.0, 3.0, n)
+    d = gen.normal(0.0, 1.0, (n, 2)) * np.sqrt(sigma**2 + p)[:, None]
+    gross = gen.random(n) < eps
+    d[gross] = gen.uniform(-200, 200, (gross.sum(), 2))
+    var, share = core_and_outliers(0.5 * (d**2).sum(axis=1), p)
+    assert math.sqrt(var) == pytest.approx(sigma, rel=0.06)
+    assert share == pytest.approx(eps, abs=0.02)
+    # a clean core: no outliers, the median alone
+    clean = d[~gross]
+    var0, share0 = core_and_outliers(0.5 * (clean**2).sum(axis=1), p[~gross])
+    assert math.sqrt(var0) == pytest.approx(sigma, rel=0.05) and share0 < 0.01
+    # references that explain the whole residual: the core variance is 0, not negative
+    assert core_and_outliers(np.array([0.1, 0.2, 0.3]), np.array([5.0, 5.0, 5.0]))[0] == 0.0
+
+
+def test_process_scale_is_the_rms_correction_over_the_configured_noise():
+    from fusion_pf.filter.calibration import MIN_PROCESS_SCALE, process_scale
+
+    gen = np.random.default_rng(2)
+    # corrections of per-axis std 1.5 px against a configured 3 px: factor 0.5
+    c = gen.normal(0.0, 1.5, (50000, 2))
+    half = 0.5 * (c**2).sum(axis=1)
+    assert process_scale(half, 3.0) == pytest.approx(0.5, rel=0.02)
+    # bounded: never above the configured noise, never below MIN_PROCESS_SCALE of it
+    assert process_scale(half * 100.0, 3.0) == 1.0
+    assert process_scale(half * 1e-6, 3.0) == MIN_PROCESS_SCALE
+
+
+def _shared_error_frames(cal: NoiseCalibration, frames: int, with_prediction: bool) -> NoiseCalibration:
+    """Cues a and b share one 6 px error (both pulled the same way, as colour and depth to the forearm),
+    c is 1 px off; the prediction (when given) is 1 px off, and says so."""
+    gen = np.random.default_rng(5)
+    for _ in range(frames):
+        palm = gen.uniform(50, 250, 2)
+        shared = gen.normal(0, 6.0, 2)
+        ms = [
+            Measurement("a", *(palm + shared + gen.normal(0, 0.5, 2)), quality=0.9),
+            Measurement("b", *(palm + shared + gen.normal(0, 0.5, 2)), quality=0.9),
+            Measurement("c", *(palm + gen.normal(0, 1.0, 2)), quality=0.9),
+        ]
+        pred = (*(palm + gen.normal(0, 1.0, 2)), 1.0) if with_prediction else None
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, pred)
+    return cal
+
+
+def test_against_the_prediction_two_cues_wrong_the_same_way_do_not_blame_the_third():
+    sig = {s: lambda cal, s=s: cal.sigma(Measurement(s, 0, 0, quality=0.9)) for s in "abc"}
+    innov = _shared_error_frames(NoiseCalibration(lambda m: 5.0, floor=0.1), 400, with_prediction=True)
+    a, b, c = (sig[s](innov) for s in "abc")
+    # against the prediction (variance 1 subtracted): c is its own 1 px, a and b their 6 px
+    assert c == pytest.approx(1.0, rel=0.25) and a > 4.0 and b > 4.0
+    # against each other (leave-one-out, no prediction), a and b agree and c takes the blame
+    loo = _shared_error_frames(NoiseCalibration(lambda m: 5.0, floor=0.1), 400, with_prediction=False)
+    assert sig["c"](loo) > max(sig["a"](loo), sig["b"](loo))
+
+
+def test_a_cue_with_gross_errors_learns_its_outlier_probability():
+    from fusion_pf.filter.calibration import DEFAULT_EPS, MIN_EPS
+
+    cal = NoiseCalibration(lambda m: 5.0)
+    gen = np.random.default_rng(11)
+    a, b = Measurement("a", 0, 0, quality=0.9), Measurement("b", 0, 0, quality=0.9)
+    assert cal.outlier(a) == DEFAULT_EPS  # nothing learned yet
+    for _ in range(WINDOW):
+        palm = gen.uniform(50, 250, 2)
+        wrong = gen.random() < 0.3  # "b" is on another blob 30 % of the time
+        ms = [
+            Measurement("a", *(palm + gen.normal(0, 1.0, 2)), quality=0.9),
+            Measurement("b", *(palm + gen.normal(0, 1.0, 2) + (80.0 if wrong else 0.0)), quality=0.9),
+        ]
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, (*palm, 0.0))
+    w = WINDOW / (PRIOR_COUNT + WINDOW)
+    assert cal.outlier(b) == pytest.approx((1 - w) * DEFAULT_EPS + w * 0.3, abs=0.06)
+    assert cal.outlier(a) < 0.5 * DEFAULT_EPS and cal.outlier(a) >= MIN_EPS
+    # the gross errors do not widen b's core: both cues are ~1 px
+    assert cal.sigma(b) == pytest.approx(cal.sigma(a), rel=0.3)
+
+
+def test_a_lone_cue_keeps_its_prior_even_with_a_prediction():
+    # the prediction was made from that cue alone: nothing to tell its noise from the motion model's misfit
+    cal = NoiseCalibration(lambda m: 4.0)
+    m = Measurement("a", 110.0, 100.0, quality=0.8)
+    for _ in range(20):
+        cal.update([m], {"a": 4.0}, 1.0, (100.0, 100.0, 0.0))
+    assert cal.samples("a", 0.8) == 0 and cal.sigma(m) == 4.0
+
+
+def test_the_starting_noise_ranks_cues_by_quality_before_any_residual():
+    noise = DEFAULT_NOISE_PX
+    blob, joint = Measurement("depth", 0.0, 0.0, quality=0.16), Measurement("skeleton", 0.0, 0.0, quality=0.92)
+    # sigma / q: 4 / 0.16 = 25 px, 20 / 0.92 = 21.7 px
+    assert starting_sigma(noise["depth"], blob) == pytest.approx(25.0)
+    assert starting_sigma(noise["skeleton"], joint) == pytest.approx(20.0 / 0.92)
+    # the likelihood's sigma / sqrt(q) ranked the low-quality blob first (10 px < 20.9 px)
+    assert effective_sigma(noise["depth"], 0.16, MIN_QUALITY) < effective_sigma(noise["skeleton"], 0.92, MIN_QUALITY)
+    assert starting_sigma(noise["depth"], Measurement("depth", 0.0, 0.0, quality=0.0)) == pytest.approx(
+        4.0 / MIN_QUALITY
+    )
+    # the hand cue's quality is its outlier probability: its noise is not widened
+    assert starting_sigma(noise["hand"], Measurement("hand", 0.0, 0.0, quality=0.2)) == noise["hand"]
+    cal = NoiseCalibration(lambda m: starting_sigma(noise[m.source], m))
+    assert cal.sigma(joint) < cal.sigma(blob)

@@ -339,3 +339,21 @@ def test_largest_std_equals_the_largest_eigenvalue(var_u, var_v, corr):
     cov = np.array([[var_u, corr * math.sqrt(var_u * var_v)], [corr * math.sqrt(var_u * var_v), var_v]])
     reference = math.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))
     assert largest_std(cov) == pytest.approx(reference, rel=1e-9, abs=1e-9)
+
+
+def test_a_source_outlier_probability_set_online_is_the_one_the_robust_likelihood_uses():
+    like = JointLikelihood({"depth": 2.0, "skeleton": 5.0}, likelihood="robust", use_quality=False)
+    pos = np.random.default_rng(3).normal(100.0, 10.0, (300, 2))
+    m = Measurement("depth", 104.0, 97.0, 1.0)
+    like.set_outlier("depth", 0.3)
+    assert like.outlier(m) == 0.3 and like.outlier(Measurement("skeleton", 0, 0, 1.0)) == like.outlier_prob
+    joint, _ = like(pos, [m], np.empty(300))
+    # by hand: log((1 - eps) exp(-d^2 / 2 sigma^2) / (2 pi sigma^2) + eps / A), normalised by its maximum
+    d2 = ((pos - [104.0, 97.0]) ** 2).sum(axis=1)
+    ll = np.log(0.7 * np.exp(-d2 / 8.0) / (2 * np.pi * 4.0) + 0.3 / like.outlier_area_px2)
+    np.testing.assert_allclose(joint, ll - ll.max(), atol=1e-9)
+    for bad in (0.0, 1.0, math.nan):
+        with pytest.raises(InputError, match="outlier probability of depth"):
+            like.set_outlier("depth", bad)
+    with pytest.raises(InputError, match="unknown source"):
+        like.set_outlier("colour", 0.2)

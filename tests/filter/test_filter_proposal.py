@@ -128,3 +128,47 @@ def test_guided_pf_is_deterministic_and_rejects_unknown_proposal():
     assert run() == run()
     with pytest.raises(InputError, match="proposal"):
         ParticleFilter(proposal="optimal")
+
+
+def _held_at(x0: float, **kw) -> ParticleFilter:
+    """A guided robust PF with manoeuvres (as ``track`` runs it) that has tracked a still palm at (x0, 100)."""
+    pf = ParticleFilter(
+        n_particles=500,
+        likelihood="robust",
+        proposal="guided",
+        manoeuvre=(0.1, 20.0),
+        noise_px={"depth": 3.0, "skeleton": 6.0},
+        init_spread_px=2.0,
+        init_velocity_px=0.0,
+        rng=4,
+        **kw,
+    )
+    for k in range(5):
+        pf.step(k * 33_000_000, [Measurement("skeleton", x0, 100.0, 1.0)])
+    return pf
+
+
+def test_the_anchor_is_a_cue_the_prediction_explains():
+    # depth, the more precise cue, jumped 40 px to another blob; the skeleton is where the palm was.
+    # Anchored on depth, the manoeuvre component drew the particles to it (estimate ~20 px off); the
+    # gate makes the skeleton the anchor and depth only weighs the particles, as an outlier
+    pf = _held_at(100.0)
+    e = pf.step(5 * 33_000_000, [Measurement("depth", 140.0, 100.0, 1.0), Measurement("skeleton", 101.0, 100.0, 1.0)])
+    assert abs(e.u - 100.5) < 3.0
+    # when no cue is explained (the palm moved beyond the motion model), the most precise one anchors
+    pf = _held_at(100.0)
+    e = pf.step(5 * 33_000_000, [Measurement("depth", 160.0, 100.0, 1.0), Measurement("skeleton", 175.0, 100.0, 1.0)])
+    assert e.u > 140.0
+
+
+def test_predicted_is_the_weighted_mean_and_spread_of_p_plus_v():
+    pf = _held_at(100.0)
+    assert ParticleFilter(rng=1).predicted(0) is None  # nothing to predict from
+    x, w = pf.particles.copy(), pf.weights.copy()
+    u, v, var = pf.predicted(5 * 33_000_000)
+    # independent: numpy's weighted average and covariance of p + v (one frame step)
+    pos = x[:, :2] + x[:, 2:]
+    mean = np.average(pos, axis=0, weights=w)
+    cov = np.cov(pos.T, aweights=w, bias=True)
+    np.testing.assert_allclose([u, v], mean, atol=1e-9)
+    assert var == pytest.approx(np.trace(cov) / 2.0, rel=1e-9)
