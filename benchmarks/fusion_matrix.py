@@ -49,6 +49,9 @@ class Scene:
     options: dict[str, float] = field(default_factory=dict)
 
 
+#: The splits, in report order: ``tune`` (looked at while changing the fusion), then held-out sets in the
+#: order they were added (``held``, ``new``, ``fresh``), each run only to report.
+SPLITS = ("tune", "held", "new", "fresh")
 #: The matrix. ``tune``: seeds 1-4, looked at while changing the fusion; ``held``: seeds 5-8 and
 #: other combinations, only run to report (seen by the first round of issue 23 C); ``new``: seeds
 #: 9-12, held out from the second round on; ``fresh``: seeds 13-16, held out from the third.
@@ -218,7 +221,7 @@ def print_table(rows: list[dict]) -> None:
             + " ".join(f"{c:>13}" for c in cells)
             + f" {r['fused']:7.2f} {r['ratio']:6.2f} {r['bestmax']:7.0%} {r['coverage']:6.0%} {r['cover2sd']:6.1%}"
         )
-    for split in ("tune", "held", "new", "fresh"):
+    for split in SPLITS:
         part = [r for r in rows if r["scene"].split == split]
         if not part:
             continue

@@ -25,4 +25,4 @@ def test_one_scene_row_and_its_split_summary(tmp_path, capsys):
 def test_scene_names_are_unique_and_splits_known():
     names = [s.name for s in fusion_matrix.SCENES]
     assert len(names) == len(set(names))
-    assert {s.split for s in fusion_matrix.SCENES} == {"tune", "held"}
+    assert {s.split for s in fusion_matrix.SCENES} == set(fusion_matrix.SPLITS)
