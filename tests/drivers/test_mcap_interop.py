@@ -99,10 +99,8 @@ def rerun_env(tmp_path_factory):
     return str(rerun), env
 
 
-@pytest.mark.parametrize("color_format, depth_format", [("raw", "raw"), ("jpeg", "png")])
-def test_rerun_mcap_check_passes(tmp_path, make_frames, record, rerun_env, color_format, depth_format):
-    rerun, env = rerun_env
-    path = record(tmp_path / "ours.mcap", make_frames(10), color_format=color_format, depth_format=depth_format)
+def _rerun_check(rerun: str, env: dict, path) -> tuple[subprocess.CompletedProcess, dict[str, str]]:
+    """``rerun mcap check PATH`` (must exit 0) and its verdict per topic (``ok``, ``warn``, ``error``, ``fail``)."""
     proc = subprocess.run([rerun, "mcap", "check", str(path)], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     rows = {
@@ -110,6 +108,14 @@ def test_rerun_mcap_check_passes(tmp_path, make_frames, record, rerun_env, color
         for line in proc.stdout.splitlines()
         if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
     }
+    return proc, rows
+
+
+@pytest.mark.parametrize("color_format, depth_format", [("raw", "raw"), ("jpeg", "png")])
+def test_rerun_mcap_check_passes(tmp_path, make_frames, record, rerun_env, color_format, depth_format):
+    rerun, env = rerun_env
+    path = record(tmp_path / "ours.mcap", make_frames(10), color_format=color_format, depth_format=depth_format)
+    proc, rows = _rerun_check(rerun, env, path)
     assert rows == {topic: "ok" for topic in fmt.FRAME_TOPICS if topic != fmt.HAND_TOPIC}, proc.stdout  # no hands here
 
 
@@ -265,13 +271,7 @@ def test_rig_recording_passes_rerun_and_rerun_reads_its_poses(rig_file, rerun_en
     from drivers.rig import RigReplay
 
     rerun, env = rerun_env
-    proc = subprocess.run([rerun, "mcap", "check", str(rig_file)], env=env, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    rows = {
-        line.split()[3]: line.split()[0]
-        for line in proc.stdout.splitlines()
-        if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
-    }
+    proc, rows = _rerun_check(rerun, env, rig_file)
     with RigReplay(rig_file) as rig:
         poses = rig.poses
         assert {f"/{name}/camera/color" for name in rig.cameras} | {"/tf"} <= set(rows)
@@ -306,13 +306,7 @@ def test_a_world_tracker_output_passes_rerun_with_its_camera_poses(tmp_path, rer
     assert proc.returncode == 0, proc.stderr
     proc = fusion_pf("track", multi, "-o", out)
     assert proc.returncode == 0, proc.stderr
-    proc = subprocess.run([rerun, "mcap", "check", str(out)], env=env, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    rows = {
-        line.split()[3]: line.split()[0]
-        for line in proc.stdout.splitlines()
-        if line.split()[:1] and line.split()[0] in ("ok", "warn", "error", "fail")
-    }
+    proc, rows = _rerun_check(rerun, env, out)
     assert {"/tracker/world", "/tf"} <= set(rows) and set(rows.values()) == {"ok"}, proc.stdout
     rrd = tmp_path / "out.rrd"
     proc = subprocess.run([rerun, "mcap", "convert", str(out), "-o", str(rrd)], env=env, capture_output=True, text=True)
