@@ -985,6 +985,19 @@ def wash_schedule(t: float, keys: Sequence[tuple[float, float, float]] = WASH_KE
     return sign * (d0 + s * (d1 - d0)), y0 + s * (y1 - y0)
 
 
+def _two_arm_pose(
+    torso: np.ndarray, head: np.ndarray, r_sh: np.ndarray, l_sh: np.ndarray, r_palm: np.ndarray, l_palm: np.ndarray
+) -> Pose:
+    """The pose with both palms placed: each wrist :data:`HAND` back from its palm toward the shoulder, elbows by IK."""
+    hands = []
+    for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
+        to_palm = palm - sh
+        wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
+        hands.append((wr, _elbow(sh, wr, pole)))
+    (r_wr, r_el), (l_wr, l_el) = hands
+    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, r_palm, l_palm)
+
+
 def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
     """The two-hand pose at person-frame ``t``: both palms in front of the lower chest.
 
@@ -1007,13 +1020,7 @@ def wash_pose_at(m: Motion, w: WashMotion, t: float) -> Pose:
     front = m.hand_front + WASH_EXTRA_FRONT
     r_palm = np.array([cx - d / 2.0 + rub, cy - dy / 2.0 - rub, tz - front - 0.03 * crossing])
     l_palm = np.array([cx + d / 2.0 - rub, cy + dy / 2.0 + rub, tz - front])
-    hands = []
-    for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
-        to_palm = palm - sh
-        wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
-        hands.append((wr, _elbow(sh, wr, pole)))
-    (r_wr, r_el), (l_wr, l_el) = hands
-    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, r_palm, l_palm)
+    return _two_arm_pose(torso, head, r_sh, l_sh, r_palm, l_palm)
 
 
 def left_palm_mask(intr: Intrinsics, pose: Pose, clip: bool = True):
@@ -1222,13 +1229,7 @@ def script_pose_at(m: Motion, s: ScriptMotion, t: float) -> tuple[Pose, np.ndarr
         ball = places["object:rest"]
     else:
         ball = palms[h0] + grip if h1 == h0 else palms[h0] + grip + e * (palms[str(h1)] - palms[h0])
-    hands = []
-    for sh, palm, pole in ((r_sh, r_palm, np.array([-0.5, 1.0, 0.3])), (l_sh, l_palm, np.array([0.5, 1.0, 0.3]))):
-        to_palm = palm - sh
-        wr = palm - HAND * to_palm / np.linalg.norm(to_palm)
-        hands.append((wr, _elbow(sh, wr, pole)))
-    (r_wr, r_el), (l_wr, l_el) = hands
-    return Pose(torso, head, r_sh, l_sh, r_el, l_el, r_wr, l_wr, r_palm, l_palm), ball
+    return _two_arm_pose(torso, head, r_sh, l_sh, r_palm, l_palm), ball
 
 
 def object_part(intr: Intrinsics, centre: np.ndarray) -> Part | None:
