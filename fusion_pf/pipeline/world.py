@@ -170,6 +170,9 @@ def _with_backgrounds(
                 empties.setdefault(name, []).append(view.frame)
             yield fs, None
             continue
+        if models is None and not fs.views:  # no camera gave a frame: nothing to learn or track from
+            yield fs, {}
+            continue
         if models is None:
             first = next(iter(fs.views.values())).frame
             if not any("background" in CUES[c].needs for c in cue_names(config, first)):

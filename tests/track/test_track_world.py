@@ -96,6 +96,23 @@ def tracked_rig(tmp_path_factory):
     return rec, out, table, r.stderr
 
 
+def test_rows_without_a_track_have_no_position_and_no_pixels(rig2):
+    """Every camera blank from the first tracked instant to 14 (sets without a view): both hands uninitialised there,
+    with empty x, y, z and u, v; tracked after."""
+    from fusion_pf.pipeline.outputs import world_csv_columns, world_csv_row
+
+    _, results = errors(framesets(rig2, drop=lambda i, camera: BACKGROUND <= i < 15))
+    columns = world_csv_columns(("cam0", "cam1"))
+    empty = [k for k in columns if k[0] in "xyz" or k.endswith(("_u", "_v")) or k in ("sigma_mm", "cameras")]
+    for r in results:
+        for t in HANDS:
+            row = dict(zip(columns, world_csv_row(r, t, ("cam0", "cam1"))))
+            if r.index < 15:
+                assert row["state"] == "uninitialised" and all(row[k] == "" for k in empty), row
+            elif r.index > 20:
+                assert row["state"] == "tracking" and row["x_mm"] and any(row[f"{c}_u"] for c in ("cam0", "cam1")), row
+
+
 def test_track_writes_one_csv_row_per_instant_and_target(tracked_rig):
     _, _, table, stderr = tracked_rig
     with open(table, newline="") as fh:
