@@ -188,7 +188,7 @@ def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str]) -> di
     score = json.loads(_run(_cli("score", str(table), "--ground-truth", str(rec), "--json", "--no-progress")))
     src = score["sources"]
     fused_name = next(k for k in src if k not in CUES)
-    cues = {c: (src[c]["rmse_px"], src[c]["coverage"]) for c in CUES if c in src}
+    cues = {c: (src[c]["rmse_px"], src[c]["coverage"]) for c in CUES if c in src and src[c]["rmse_px"] is not None}
     best = min(cues, key=lambda c: cues[c][0])
     fused = src[fused_name]
     return {
