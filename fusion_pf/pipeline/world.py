@@ -24,8 +24,11 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    (the one-camera pipeline's :data:`COMBINE_PALMS` palm lengths of 95 mm)
    are combined and share detections in every camera
    (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart; a
-   region detection both got in one camera (one blob) measures the pair's midpoint
-   (:func:`~fusion_pf.filter.world.measured_point`, the partner at its prediction).
+   region detection both got in one camera measures the pair's midpoint
+   (:func:`~fusion_pf.filter.world.measured_point`, the partner at its prediction) when
+   its region holds both targets' projected predictions (one blob of the two); a region
+   holding one of them is that target's alone (the nearer projected prediction keeps it:
+   separating hands' two blobs, the partner took the other's).
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
    except its own skeleton joint (a certain label);
@@ -49,8 +52,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -233,11 +237,15 @@ class _Camera:
         target: str,
         cues: Mapping[str, Measurement | None],
         partner: tuple[Mapping[str, Measurement | None], np.ndarray] | None = None,
+        own_mm: np.ndarray | None = None,
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
         """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel).
 
         ``partner``: a combined partner's measurements in this camera and predicted position; a region measurement
-        both have (the same detection: one blob) measures the pair's midpoint (``partner_mm``).
+        both have (the same detection) measures the pair's midpoint (``partner_mm``) when its region holds both
+        targets' projected predictions (one blob of the two hands, :func:`_holds_both`); a region holding one of
+        them only is that target's alone (the nearer prediction keeps it, the other drops it). ``own_mm``: the
+        target's predicted position.
         """
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
@@ -248,7 +256,11 @@ class _Camera:
             if partner is not None and source not in PIXEL_ONLY:
                 other = partner[0].get(source)
                 if other is not None and (other.u, other.v) == (m.u, m.v):
-                    shared = partner[1]
+                    held = _holds_both(m, own_mm, partner[1], self.pose, frame.intrinsics)
+                    if held is None or held == "both":
+                        shared = partner[1]
+                    elif held == "partner":
+                        continue
             sigma = quality_sigma(self.config.world_noise_mm[source], m)
             z = None
             if frame.depth is not None and source not in PIXEL_ONLY:
@@ -270,6 +282,29 @@ class _Camera:
         """The world line of sight through ``m``'s pixel: (optical centre, direction)."""
         xy = backproject(np.array([[m.u, m.v]]), np.ones(1), intrinsics)[0, :2]  # (x/z, y/z), distortion undone
         return ray(xy, self.pose)
+
+
+def _holds_both(
+    m: Measurement, own_mm: np.ndarray | None, partner_mm: np.ndarray, pose: CameraPose, intrinsics: Intrinsics
+) -> str | None:
+    """Whose detection a region measurement two combined targets both got is: ``both`` when its region (the
+    ``bbox`` extra) holds both targets' predictions projected into the camera, else ``own`` or ``partner``
+    (the nearer projected prediction to the measurement); None when that cannot be told (no region box, no
+    prediction of the target, a prediction behind the camera).
+    """
+    box = m.extras.get("bbox")
+    if box is None or own_mm is None:
+        return None
+    uv, _ = project(
+        np.stack([np.asarray(own_mm, dtype=np.float64), np.asarray(partner_mm, dtype=np.float64)]), pose, intrinsics
+    )
+    if not np.isfinite(uv).all():
+        return None
+    x, y, w, h = (float(v) for v in cast("Sequence[float]", box))  # a region cue's [x, y, w, h], full-frame px
+    if all(x <= u <= x + w and y <= v <= y + h for u, v in uv):
+        return "both"
+    d = np.hypot(uv[:, 0] - m.u, uv[:, 1] - m.v)
+    return "own" if d[0] <= d[1] else "partner"
 
 
 def _acquire(
@@ -484,7 +519,7 @@ def track_world(
                 mate = partners.get(t)
                 mate_at = None if mate is None else predicted[mate]
                 shared = None if mate is None or mate_at is None else (rows[mate].cues, mate_at)
-                for m, ob in cam.observations(frame, t, rows[t].cues, shared):
+                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t]):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():

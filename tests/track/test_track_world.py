@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from drivers.synth_rig import SynthRig
+from fusion_pf.filter.world import PointObservation, project
+from fusion_pf.frame import Measurement
 from fusion_pf.pipeline import TrackConfig
-from fusion_pf.pipeline.world import track_world
+from fusion_pf.pipeline.world import _Camera, track_world
 from fusion_pf.rig import CameraView, FrameSet
 
 HANDS = ("right_hand", "left_hand")
@@ -196,3 +198,28 @@ def test_score_gives_the_3d_rmse_per_target_of_the_csv_and_of_the_mcap(tracked_r
             # the CSV rounds to 0.1 mm: the MCAP's full-precision RMSE is within 0.1 mm of the CSV's
             assert result["targets"][t]["rmse_mm"] == pytest.approx(rmse(np.array(errs[t])), abs=0.1), (tracked, t)
         assert result["swaps"] == 0
+
+
+def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_holds_both(rig2):
+    # one detection both combined hands got in cam0: with its region around both projected predictions it measures
+    # the pair's midpoint; around one of them it is that hand's alone (the other drops it), not a midpoint
+    frame, pose = rig2.frames(BACKGROUND)["cam0"], rig2.poses["cam0"]
+    cam = _Camera("cam0", TrackConfig(targets=HANDS, cues=("colour",)), frame, pose)
+    right, left = rig2.truth_mm(BACKGROUND)["right_hand"], rig2.truth_mm(BACKGROUND)["left_hand"]
+    (ur, vr), (ul, vl) = project(np.stack([right, left]), pose, frame.intrinsics)[0]
+
+    def seen(box):
+        m = Measurement("colour", ur, vr, 1.0, {"bbox": box})
+        out = {}
+        for t, own, mate in (("right_hand", right, left), ("left_hand", left, right)):
+            obs = cam.observations(frame, t, {"colour": m}, ({"colour": m}, mate), own)
+            assert all(isinstance(ob, PointObservation) for _, ob in obs)
+            out[t] = [ob.partner_mm for _, ob in obs]
+        return out
+
+    pad = 4.0
+    both = [min(ur, ul) - pad, min(vr, vl) - pad, abs(ur - ul) + 2 * pad, abs(vr - vl) + 2 * pad]
+    shared = seen(both)
+    assert shared["right_hand"][0] == pytest.approx(left) and shared["left_hand"][0] == pytest.approx(right)
+    alone = seen([ur - pad, vr - pad, 2 * pad, 2 * pad])  # the right hand's blob only
+    assert alone["right_hand"] == [None] and alone["left_hand"] == []
