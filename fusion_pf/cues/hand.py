@@ -55,6 +55,7 @@ import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -64,17 +65,20 @@ from ..errors import InputError
 from ..frame import HandObservation
 from .base import CueResult, Measurement
 
+if TYPE_CHECKING:
+    from .handflow import LandmarkFlow
+
 #: Landmark indices of the wrist and the four finger bases (index, middle, ring, little MCP).
 PALM_JOINTS = (0, 5, 9, 13, 17)
 #: Landmarks MediaPipe uses to size the tracking ROI (wrist, thumb CMC-IP, the finger MCP and PIP joints).
-_ROI_JOINTS = np.array([0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18])
+ROI_JOINTS = np.array([0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18])
 PALM_INPUT = 192  # palm detector input side, px
 LANDMARK_INPUT = 224  # landmark model input side, px
 #: MediaPipe ``SsdAnchorsCalculator`` options of the palm detector (palm_detection_cpu.pbtxt):
 #: strides of the 4 layers; aspect ratio 1.0 plus the interpolated scale -> 2 anchors per layer.
 PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
-MODES = ("detect", "track", "hint")
+MODES = ("detect", "track", "hint", "flow")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
@@ -114,6 +118,14 @@ class HandRoi:
         """The four corners ``(4, 2)``: top-left, top-right, bottom-right, bottom-left of the crop."""
         return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
 
+    def matrix(self, side: int) -> np.ndarray:
+        """The ``(2, 3)`` affine map from a ``side`` x ``side`` crop's pixels to frame pixels (:meth:`warp`'s sampling)."""
+        k = self.size / side
+        c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
+        h = side / 2
+        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
+        return np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])
+
     def warp(
         self, rgb: np.ndarray, side: int, *, zero_border: bool, out: tuple[np.ndarray, np.ndarray] | None = None
     ) -> np.ndarray:
@@ -129,11 +141,7 @@ class HandRoi:
         ``out``: a ``(side, side, 3)`` uint8 and a ``(1, side, side, 3)`` float32
         buffer to reuse (the float one is returned); new arrays when None.
         """
-        k = self.size / side
-        c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
-        h = side / 2
-        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
-        m = np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])  # tensor px -> frame px
+        m = self.matrix(side)
         border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
         u8, f32 = (
             out if out is not None else (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
@@ -319,7 +327,7 @@ def landmarks_roi(landmarks: np.ndarray) -> HandRoi:
     """
     xy = np.asarray(landmarks, dtype=np.float64)[:, :2]
     rot = _rotation(xy[0], 0.25 * (xy[5] + xy[13]) + 0.5 * xy[9])
-    pts = xy[_ROI_JOINTS]
+    pts = xy[ROI_JOINTS]
     centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     c, s = math.cos(rot), math.sin(rot)
     r = np.array([[c, -s], [s, c]])
@@ -335,7 +343,9 @@ def hand_measurement(obs: HandObservation, mode: str) -> Measurement:
 
     ``extras``: ``landmarks`` (21 x [u, v, z] lists, px), ``handedness``, ``mode``
     (``"detect"``: found by whole-frame palm detection; ``"track"``: followed
-    with the previous landmarks' ROI; ``"hint"``: found in the caller's ROI hint).
+    with the previous landmarks' ROI; ``"hint"``: found in the caller's ROI hint;
+    ``"flow"``: the previous landmarks carried by optical flow, no model call,
+    :mod:`~fusion_pf.cues.handflow`).
     """
     if mode not in MODES:
         raise InputError(f"hand measurement mode must be one of {MODES}, got {mode!r}")
@@ -711,15 +721,26 @@ class HandCue:
         Default: a new one with its defaults and ``num_threads``.
     num_threads : int, optional
         LiteRT threads of the default landmarker (its default when None).
+    flow : LandmarkFlow, optional
+        Carries the tracked hand's landmarks by optical flow on frames where
+        the landmark model is not needed (one hand, host models; measurement
+        mode ``"flow"``); None = the model on every tracked frame.
     """
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
     needs = frozenset({"color"})
     name = "hand"
 
-    def __init__(self, landmarker: HandLandmarker | None = None, *, num_threads: int | None = None) -> None:
+    def __init__(
+        self,
+        landmarker: HandLandmarker | None = None,
+        *,
+        num_threads: int | None = None,
+        flow: LandmarkFlow | None = None,
+    ) -> None:
         self._landmarker = landmarker
         self._num_threads = num_threads
+        self.flow = flow
         self.previous: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
 
@@ -735,6 +756,8 @@ class HandCue:
         """Forget the tracked hands."""
         self.previous = None
         self.hands = []
+        if self.flow is not None:
+            self.flow.reset()
 
     def measure(self, frame, ctx) -> CueResult:
         """The palm centre of the tracked hand in ``frame`` (None when no hand is seen); every hand with ``ctx.hands`` >= 2."""
@@ -757,7 +780,12 @@ class HandCue:
         # no hint from a prior off the image (its window is empty)
         if ctx.prior is not None and roi is not None and not roi.empty and not ctx.search:
             hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
-        obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+        obs = None if self.flow is None else self.flow.follow(frame.color, self.previous)
+        mode = "flow"
+        if obs is None:
+            obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+        if self.flow is not None:
+            self.flow.remember(frame.color, obs, carried=mode == "flow")
         self.previous = obs
         m = None if obs is None else hand_measurement(obs, mode)
         return CueResult(m, {}, time.perf_counter_ns() - t0)
