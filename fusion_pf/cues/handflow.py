@@ -66,6 +66,8 @@ FB_MAX = 0.05
 RESIDUAL_MAX = 0.05
 #: Default of ``max_frames`` (:class:`LandmarkFlow`): consecutive frames carried by the flow.
 MAX_FRAMES = 1
+#: Most frames the flow waits after failing before it tries again (:class:`LandmarkFlow`).
+BACKOFF_MAX = 4
 _CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
 
 
@@ -234,39 +236,51 @@ class LandmarkFlow:
 
     Use: :meth:`follow` before the model (a carried observation, or None when
     the model must run), then :meth:`remember` with the frame's observation.
+
+    A hand that is changing pose keeps changing it for a while, and a flow that
+    failed costs its crop and palm-joint flow on top of the model call: after a
+    failure the flow waits 1, 2, 4, ... frames (at most :data:`BACKOFF_MAX`)
+    before it tries again, back to every frame after a success.
     """
 
     def __init__(self, max_frames: int = MAX_FRAMES) -> None:
         if isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer)) or max_frames < 0:
             raise InputError(f"max_frames must be an int >= 0, got {max_frames!r}")
         self.max_frames = int(max_frames)
+        self.reset()
+        #: Frames carried by the flow, and frames where it was tried, so far.
+        self.frames = 0
+        self.tries = 0
+
+    def reset(self) -> None:
+        """Forget the crop and the back-off (a new track starts with the model)."""
         self.carried = 0
         self._template: np.ndarray | None = None
         self._roi: HandRoi | None = None
-        #: Frames carried by the flow so far.
-        self.frames = 0
-
-    def reset(self) -> None:
-        """Forget the template (a new track starts with the model)."""
-        self.carried = 0
-        self._template = None
-        self._roi = None
+        self._backoff = 1
+        self._idle = 0
 
     def follow(self, rgb: np.ndarray, previous: HandObservation | None) -> HandObservation | None:
         """``previous`` carried into ``rgb`` when :func:`landmark_call_needed` says the flow is enough, else None."""
+        if self._idle > 0:
+            self._idle -= 1
+            return None
         if previous is None or self._template is None or self._roi is None:
             return None
+        self.tries += 1
         step = carry(self._template, grey_crop(rgb, self._roi), self._roi, previous.landmarks)
         h, w = rgb.shape[:2]
         if landmark_call_needed(step, self.carried, self.max_frames, size=(w, h)):
+            self._idle, self._backoff = self._backoff, min(2 * self._backoff, BACKOFF_MAX)
             return None
+        self._backoff = 1
         self.frames += 1
         return HandObservation(step.landmarks, previous.score, previous.handedness)
 
     def remember(self, rgb: np.ndarray, obs: HandObservation | None, carried: bool) -> None:
         """Keep ``rgb``'s crop around ``obs`` (this frame's hand; ``carried``: by the flow) for the next frame."""
         self.carried = self.carried + 1 if carried else 0
-        if obs is None or self.carried >= self.max_frames:
+        if obs is None or self.carried >= self.max_frames or self._idle > 0:
             self._template = self._roi = None  # the next frame runs the model: no crop needed
             return
         r = landmarks_roi(obs.landmarks)

@@ -215,3 +215,33 @@ def test_flow_follows_nothing_without_a_previous_hand(photo):
     carried = flow.follow(rgb, prev)
     assert carried is not None and carried.score == 0.9 and carried.handedness == "right"
     np.testing.assert_allclose(carried.palm, prev.palm, atol=0.1)
+
+
+def test_flow_backs_off_after_failing(photo):
+    """After a failed flow the next 1, 2, 4, ... frames (at most BACKOFF_MAX) go straight to the model
+    without trying the flow (no crop, no Lucas-Kanade); a success resets the wait to one frame."""
+    from fusion_pf.cues.handflow import BACKOFF_MAX
+
+    rgb, lm = photo
+    gone = np.full_like(rgb, 128)  # the hand vanished: the flow fails
+    prev = HandObservation(lm, 0.9, "right")
+    flow = LandmarkFlow(1)
+
+    def waits_between_tries(n: int) -> list[int]:
+        out, wait = [], 0
+        while len(out) < n:
+            flow.remember(rgb, prev, carried=False)  # the model's frame: the photo
+            tries = flow.tries
+            assert flow.follow(gone, prev) is None
+            if flow.tries == tries:
+                wait += 1
+            else:
+                out.append(wait)
+                wait = 0
+        return out
+
+    assert waits_between_tries(5) == [0, 1, 2, 4, 4] and BACKOFF_MAX == 4
+    flow.remember(rgb, prev, carried=False)
+    while flow.follow(rgb, prev) is None:  # wait out the back-off; the photo onto itself is carried
+        flow.remember(rgb, prev, carried=False)
+    assert waits_between_tries(3) == [0, 1, 2]  # the success reset the wait
