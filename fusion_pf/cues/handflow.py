@@ -32,15 +32,20 @@ further off than the model is. Landmarks that did not come back follow the
 similarity; the palm centre is the mean of the five carried palm joints, as on
 a model frame.
 
-Measured on those development frames (1280 x 720, the hand moving up to 158 px
-and re-posing between frames, ``track`` defaults otherwise): with
-``max_frames`` = 1 (the default, :data:`MAX_FRAMES`) the flow carries 19 of the
-105 tracked frames and the fused palm RMSE is 10.20 px (10.37 px with the model
-on every frame); ``max_frames`` = 2 carries 27, 10.56 px; on the 256 x 256
-crops 5.92 px either way. A carried frame costs about 0.4 ms (two 128 x 128
-crops and Lucas-Kanade on 21 points) against 4.7-4.9 ms CPU for a landmark
-call; a frame where the palm joints do not come back costs the crop and the
-five palm joints' flow (about 0.2 ms) on top of the call.
+Measured on those development frames (1280 x 720; the hand moves up to 158 px
+and re-poses between most frames): with ``max_frames`` = 1 the flow is tried
+on 34 of the 105 tracked frames and carries 11 (8 of 105 on the 256 x 256
+crops). Hand cue alone, with and without the flow interleaved frame by frame
+in one process (3 passes, load average 7-8 on 2 cores): a carried frame costs
+0.95 ms CPU, a model frame 5.4-5.6 ms, and a failed try adds 0.45 ms to its
+model frame; per tracked frame the mean CPU falls 4.5 %, but the median rises
+3 % and the 95th percentile 12 % (the failed tries lengthen the model frames'
+tail). So the default is off (:data:`MAX_FRAMES` = 0). Fused palm RMSE
+(``track``): 10.34 px with ``max_frames`` = 1, 10.42 px with 2, 10.37 px
+without the flow; crops 5.90 / 5.92 / 5.92 px. The flow pays off where the
+hand moves rigidly for stretches of frames (held, or moving without
+re-posing): ``max_frames`` = k lets up to k of every k + 1 frames skip the
+model.
 """
 
 from __future__ import annotations
@@ -64,8 +69,8 @@ FLOW_LEVELS = 3
 FB_MAX = 0.05
 #: Largest RMS residual of the landmarks' flow about one similarity, palm lengths.
 RESIDUAL_MAX = 0.05
-#: Default of ``max_frames`` (:class:`LandmarkFlow`): consecutive frames carried by the flow.
-MAX_FRAMES = 1
+#: Default of ``max_frames`` (:class:`LandmarkFlow`, ``--hand-flow-frames``): off (module doc).
+MAX_FRAMES = 0
 #: Most frames the flow waits after failing before it tries again (:class:`LandmarkFlow`).
 BACKOFF_MAX = 4
 _CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)

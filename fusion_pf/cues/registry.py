@@ -138,7 +138,8 @@ class CueOptions:
         unit="frames",
         help="hand cue: most frames in a row whose landmarks optical flow carries from the last frame instead of "
         "a landmark-model call, and only while the palm joints track both ways and the hand moved rigidly "
-        "(cues/handflow.py); 0 = the model on every tracked frame (MediaPipe)",
+        "(cues/handflow.py); 0 = the model on every tracked frame (MediaPipe; on the real development "
+        "frames the flow's failed tries cost more than its carried frames save at the median and p95)",
     )
     cv_threads: int = option(
         1,

@@ -193,8 +193,7 @@ def test_without_flow_every_tracked_frame_calls_the_model(photo):
 def test_flow_option_reaches_the_cue():
     from fusion_pf.cues.registry import CueOptions, build_cues
 
-    cue = build_cues(["hand"])["hand"]
-    assert isinstance(cue.flow, LandmarkFlow) and cue.flow.max_frames == MAX_FRAMES
+    assert MAX_FRAMES == 0 and build_cues(["hand"])["hand"].flow is None  # off by default (module doc)
     assert build_cues(["hand"], CueOptions(hand_flow_frames=3))["hand"].flow.max_frames == 3
     assert build_cues(["hand"], CueOptions(hand_flow_frames=0))["hand"].flow is None
 
