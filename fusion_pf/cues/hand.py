@@ -427,6 +427,13 @@ def others_running(loadavg: str = "/proc/loadavg") -> bool | None:
         return None
 
 
+def _pack(interpreter, details: dict) -> None:
+    """One call on zeros: an interpreter's first call packs the weights for XNNPACK (several times a
+    call's cost, 14 ms more for the two hand models at 1280 x 720), paid here, at construction, and not by a frame."""
+    interpreter.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
+    interpreter.invoke()
+
+
 class _Model:
     """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
 
@@ -450,6 +457,7 @@ class _Model:
         self.interpreters = [self.interpreter]
         details = self.interpreter.get_input_details()[0]
         self.input = details["index"]
+        _pack(self.interpreter, details)
         by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
         self.outputs = [by_name[n] for n in outputs]
         self.mean_ns = [0.0, 0.0]
@@ -461,9 +469,7 @@ class _Model:
 
     def _add_twin(self, path: Path, details: dict) -> None:
         twin = _interpreter(path, 1)
-        # the first call packs the weights (several times a call): paid here, off the frames
-        twin.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
-        twin.invoke()
+        _pack(twin, details)
         self.interpreters.append(twin)
 
     def _pick(self) -> int:
@@ -485,11 +491,8 @@ class _Model:
         interpreter.set_tensor(self.input, x)
         interpreter.invoke()
         dt = time.perf_counter_ns() - t0
-        # moving average of the call time (the primary's first call packs its weights: not counted)
-        if self.calls[i] == int(i == 0):
-            self.mean_ns[i] = dt
-        elif self.calls[i] > 0:
-            self.mean_ns[i] = 0.8 * self.mean_ns[i] + 0.2 * dt
+        # moving average of the call time
+        self.mean_ns[i] = dt if self.calls[i] == 0 else 0.8 * self.mean_ns[i] + 0.2 * dt
         self.calls[i] += 1
         return [interpreter.get_tensor(j)[0] for j in self.outputs]
 
