@@ -67,7 +67,7 @@ FLOW_WINDOW = 15
 FLOW_LEVELS = 3
 #: Largest forward-backward error of a palm joint, palm lengths (:func:`landmark_call_needed`).
 FB_MAX = 0.05
-#: Largest RMS residual of the landmarks' flow about one similarity, palm lengths.
+#: Largest RMS residual of the ROI joints' flow about one similarity, palm lengths.
 RESIDUAL_MAX = 0.05
 #: Default of ``max_frames`` (:class:`LandmarkFlow`, ``--hand-flow-frames``): off (module doc).
 MAX_FRAMES = 0
