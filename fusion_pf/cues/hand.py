@@ -679,6 +679,44 @@ class HandLandmarker:
         return u, v, size
 
 
+#: Most frames a :class:`Backoff` waits after failures before it tries again.
+BACKOFF_MAX = 4
+
+
+class Backoff:
+    """Exponential back-off of an optional, costly try (the flow, the prior's ROI) that keeps failing.
+
+    A hand that is re-posing keeps re-posing, and a place where the landmark
+    model found no hand in one frame rarely holds one in the next: after a
+    failure the try is skipped on the next 1, 2, 4, ... frames (at most
+    ``most``), back to every frame after a success.
+    """
+
+    def __init__(self, most: int = BACKOFF_MAX) -> None:
+        self.most = most
+        self.reset()
+
+    def reset(self) -> None:
+        """Try on the next frame; the next wait is one frame."""
+        self.wait = 0
+        self._next = 1
+
+    def ready(self) -> bool:
+        """Whether to try in this frame (call once per frame; a skipped frame counts down the wait)."""
+        if self.wait > 0:
+            self.wait -= 1
+            return False
+        return True
+
+    def failed(self) -> None:
+        """The try failed: skip the next frames, twice as many as last time (at most ``most``)."""
+        self.wait, self._next = self._next, min(2 * self._next, self.most)
+
+    def succeeded(self) -> None:
+        """The try succeeded: the next wait is one frame again."""
+        self._next = 1
+
+
 #: Weight of one frame in a tracked hand's smoothed handedness (a time constant of 5 frames).
 HANDEDNESS_RATE = 0.2
 #: Most confidence a handedness label gets: the model's handedness is evidence, never certain.
@@ -708,6 +746,10 @@ class HandCue:
     :class:`HandLandmarker` runs on the host in MediaPipe's video mode: the
     previous landmarks' ROI, then a window around the prior (the filter's
     prediction, sized like the cue window), then whole-frame palm detection.
+    While no hand is found, a prior's window that held no hand is skipped on
+    the next 1, 2, 4, ... frames (:class:`Backoff`; palm detection still runs
+    on every frame, as MediaPipe's): another cue tracking a hand the model does
+    not see cost a landmark call per frame for nothing.
 
     Several hands (``ctx.hands`` >= 2, MediaPipe's ``max_num_hands``): every
     tracked hand is followed with its previous landmarks' ROI; while fewer than
@@ -744,6 +786,7 @@ class HandCue:
         self._landmarker = landmarker
         self._num_threads = num_threads
         self.flow = flow
+        self.hint = Backoff()
         self.previous: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
 
@@ -759,6 +802,7 @@ class HandCue:
         """Forget the tracked hands."""
         self.previous = None
         self.hands = []
+        self.hint.reset()
         if self.flow is not None:
             self.flow.reset()
 
@@ -783,10 +827,16 @@ class HandCue:
         # no hint from a prior off the image (its window is empty)
         if ctx.prior is not None and roi is not None and not roi.empty and not ctx.search:
             hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
+        if hint is not None and self.previous is None and not self.hint.ready():
+            hint = None  # no hand at the prior in the last frames: whole-frame detection only (MediaPipe's)
         obs = None if self.flow is None else self.flow.follow(frame.color, self.previous)
         mode = "flow"
         if obs is None:
             obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+            if obs is not None:
+                self.hint.reset()  # a hand: the prior's window is worth a try as soon as it is lost
+            elif hint is not None:  # the prior's window was tried and held no hand
+                self.hint.failed()
         if self.flow is not None:
             self.flow.remember(frame.color, obs, carried=mode == "flow")
         self.previous = obs

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..frame import HandObservation
-from .hand import PALM_JOINTS, ROI_JOINTS, HandRoi, landmarks_roi
+from .hand import PALM_JOINTS, ROI_JOINTS, Backoff, HandRoi, landmarks_roi
 
 #: Side of the grey crop the flow runs on, px.
 FLOW_SIDE = 128
@@ -71,8 +71,6 @@ FB_MAX = 0.05
 RESIDUAL_MAX = 0.05
 #: Default of ``max_frames`` (:class:`LandmarkFlow`, ``--hand-flow-frames``): off (module doc).
 MAX_FRAMES = 0
-#: Most frames the flow waits after failing before it tries again (:class:`LandmarkFlow`).
-BACKOFF_MAX = 4
 _CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
 
 
@@ -244,7 +242,8 @@ class LandmarkFlow:
 
     A hand that is changing pose keeps changing it for a while, and a flow that
     failed costs its crop and palm-joint flow on top of the model call: after a
-    failure the flow waits 1, 2, 4, ... frames (at most :data:`BACKOFF_MAX`)
+    failure the flow waits 1, 2, 4, ... frames (at most
+    :data:`~fusion_pf.cues.hand.BACKOFF_MAX`, :class:`~fusion_pf.cues.hand.Backoff`)
     before it tries again, back to every frame after a success.
     """
 
@@ -262,13 +261,11 @@ class LandmarkFlow:
         self.carried = 0
         self._template: np.ndarray | None = None
         self._roi: HandRoi | None = None
-        self._backoff = 1
-        self._idle = 0
+        self.backoff = Backoff()
 
     def follow(self, rgb: np.ndarray, previous: HandObservation | None) -> HandObservation | None:
         """``previous`` carried into ``rgb`` when :func:`landmark_call_needed` says the flow is enough, else None."""
-        if self._idle > 0:
-            self._idle -= 1
+        if not self.backoff.ready():
             return None
         if previous is None or self._template is None or self._roi is None:
             return None
@@ -276,16 +273,16 @@ class LandmarkFlow:
         step = carry(self._template, grey_crop(rgb, self._roi), self._roi, previous.landmarks)
         h, w = rgb.shape[:2]
         if landmark_call_needed(step, self.carried, self.max_frames, size=(w, h)):
-            self._idle, self._backoff = self._backoff, min(2 * self._backoff, BACKOFF_MAX)
+            self.backoff.failed()
             return None
-        self._backoff = 1
+        self.backoff.succeeded()
         self.frames += 1
         return HandObservation(step.landmarks, previous.score, previous.handedness)
 
     def remember(self, rgb: np.ndarray, obs: HandObservation | None, carried: bool) -> None:
         """Keep ``rgb``'s crop around ``obs`` (this frame's hand; ``carried``: by the flow) for the next frame."""
         self.carried = self.carried + 1 if carried else 0
-        if obs is None or self.carried >= self.max_frames or self._idle > 0:
+        if obs is None or self.carried >= self.max_frames or self.backoff.wait > 0:
             self._template = self._roi = None  # the next frame runs the model: no crop needed
             return
         r = landmarks_roi(obs.landmarks)

@@ -219,7 +219,7 @@ def test_flow_follows_nothing_without_a_previous_hand(photo):
 def test_flow_backs_off_after_failing(photo):
     """After a failed flow the next 1, 2, 4, ... frames (at most BACKOFF_MAX) go straight to the model
     without trying the flow (no crop, no Lucas-Kanade); a success resets the wait to one frame."""
-    from fusion_pf.cues.handflow import BACKOFF_MAX
+    from fusion_pf.cues.hand import BACKOFF_MAX
 
     rgb, lm = photo
     gone = np.full_like(rgb, 128)  # the hand vanished: the flow fails
