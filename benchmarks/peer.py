@@ -22,7 +22,8 @@ Per frame (background frames skipped):
    landmark call), else an acquisition frame (palm detection);
 3. **acquisition cost on every frame**: fusion-pf's cues of ``track`` reset and run on the
    whole frame with no prior (what a lost frame costs), and MediaPipe in static-image mode
-   (palm detection + landmarks).
+   (palm detection + landmarks). Both sides start up untimed first (MediaPipe's graph on a grey
+   frame, fusion-pf's cues on the first frame: the hand models' first calls pack their weights).
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
 both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
@@ -202,6 +203,11 @@ def _acquisition_cues(rec: Path, config):
         roi = full_roi(*frame.size, palm_area=DEFAULT_PALM_AREA * s * s)
         return CueContext(roi=roi, background=model, joint=config.joint, prior=None, search=True)
 
+    # start-up, untimed, as MediaPipe's graph start-up: the hand models' first calls pack their weights
+    # (about 14 ms more on the first 1280x720 frame), which a live run pays once, not per lost frame
+    for cue in cues.values():
+        cue.measure(first, context(first))
+        cue.reset()
     return cues, context
 
 

@@ -154,19 +154,24 @@ class DepthCue:
         self.clear_border = bool(clear_border)
         self.invalid_far = bool(invalid_far)
         self.source = str(source)
-        self._prev: tuple[np.ndarray, Roi, tuple[int, int]] | None = None
+        self._prev: tuple[np.ndarray, Roi, tuple[int, int], int] | None = None
 
     def reset(self) -> None:
         """Forget the previous frame's I_d5 (call when the stream restarts)."""
         self._prev = None
 
-    def _previous(self, roi: Roi, frame_shape: tuple[int, int]) -> np.ndarray | None:
-        """The previous I_d5 re-aligned to ``roi`` (empty outside the previous window)."""
+    def _previous(self, roi: Roi, frame_shape: tuple[int, int], step: int) -> np.ndarray | None:
+        """The previous I_d5 re-aligned to ``roi`` (empty outside the previous window), read every
+        ``step``-th row and column (as this frame's search)."""
         if self._prev is None:
             return None
-        mask, proi, shape = self._prev
+        mask, proi, shape, pstep = self._prev
         if shape != frame_shape:
             return None
+        if pstep == step and proi == roi:
+            return mask  # the same search window at the same resolution: as it was kept
+        if pstep > 1:  # kept at its search's resolution: back to full resolution (each pixel its block)
+            mask = np.repeat(np.repeat(mask, pstep, axis=0), pstep, axis=1)[: proi.shape[0], : proi.shape[1]]
         out = np.zeros(roi.shape, np.uint8)
         x0, y0 = max(roi.x0, proi.x0), max(roi.y0, proi.y0)
         x1, y1 = min(roi.x1, proi.x1), min(roi.y1, proi.y1)
@@ -174,7 +179,7 @@ class DepthCue:
             out[y0 - roi.y0 : y1 - roi.y0, x0 - roi.x0 : x1 - roi.x0] = mask[
                 y0 - proi.y0 : y1 - proi.y0, x0 - proi.x0 : x1 - proi.x0
             ]
-        return out
+        return out if step == 1 else np.ascontiguousarray(out[::step, ::step])
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
     needs = frozenset({"depth", "background"})
@@ -258,8 +263,8 @@ class DepthCue:
         b1 = roi.crop(background)[::step, ::step]
         if self.invalid_far:
             b1 = np.where(b1 > 0, b1, np.uint16(65535))  # no background depth: as far as can be
-        valid = (d1 > 0) & (b1 > 0)  # invalid current depth never counts as foreground
-        d2 = np.where(valid & (b1 > d1), b1 - d1, 0).astype(np.uint16)  # I_d2 = max(B - D, 0)
+        d2 = cv2.subtract(b1, d1)  # I_d2 = max(B - D, 0) (saturating)
+        d2[(d1 == 0) | (b1 == 0)] = 0  # invalid current depth never counts as foreground
         lo, hi = self.range_mm
         d3 = np.clip((d2.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)  # I_d3: 8-bit
         d4a = cv2.threshold(d3, self.lower, 255, cv2.THRESH_BINARY)[1]  # I_d4A = I_d3 > lower
@@ -270,14 +275,8 @@ class DepthCue:
             z0 = float(np.partition(near, near.size // 50)[near.size // 50])  # nearest surface: 2nd percentile
             d5[d1 > z0 + self.nearest_mm] = 0  # keep the slab of the nearest surface
             d5 = open_thin(d5, self.open_radius)  # the slab's ragged noisy edge removed
-        prev = self._previous(roi, (h, w)) if self.temporal else None
-        if step > 1:
-            # the previous mask at this search's resolution; this one kept at full resolution for the next frame
-            prev = None if prev is None else np.ascontiguousarray(prev[::step, ::step])
-            full = np.repeat(np.repeat(d5, step, axis=0), step, axis=1)[: roi.shape[0], : roi.shape[1]]
-            self._prev = (full, roi, (h, w))
-        else:
-            self._prev = (d5, roi, (h, w))
+        prev = self._previous(roi, (h, w), step) if self.temporal else None
+        self._prev = (d5, roi, (h, w), step)  # at this search's resolution: expanded only if the next frame needs it
         if prev is None:
             d6 = np.zeros_like(d5)
         else:

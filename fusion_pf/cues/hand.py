@@ -55,6 +55,7 @@ import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -64,17 +65,20 @@ from ..errors import InputError
 from ..frame import HandObservation
 from .base import CueResult, Measurement
 
+if TYPE_CHECKING:
+    from .handflow import LandmarkFlow
+
 #: Landmark indices of the wrist and the four finger bases (index, middle, ring, little MCP).
 PALM_JOINTS = (0, 5, 9, 13, 17)
 #: Landmarks MediaPipe uses to size the tracking ROI (wrist, thumb CMC-IP, the finger MCP and PIP joints).
-_ROI_JOINTS = np.array([0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18])
+ROI_JOINTS = np.array([0, 1, 2, 3, 5, 6, 9, 10, 13, 14, 17, 18])
 PALM_INPUT = 192  # palm detector input side, px
 LANDMARK_INPUT = 224  # landmark model input side, px
 #: MediaPipe ``SsdAnchorsCalculator`` options of the palm detector (palm_detection_cpu.pbtxt):
 #: strides of the 4 layers; aspect ratio 1.0 plus the interpolated scale -> 2 anchors per layer.
 PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
-MODES = ("detect", "track", "hint")
+MODES = ("detect", "track", "hint", "flow")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
@@ -114,6 +118,14 @@ class HandRoi:
         """The four corners ``(4, 2)``: top-left, top-right, bottom-right, bottom-left of the crop."""
         return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
 
+    def matrix(self, side: int) -> np.ndarray:
+        """The ``(2, 3)`` affine map from a ``side`` x ``side`` crop's pixels to frame pixels (:meth:`warp`'s sampling)."""
+        k = self.size / side
+        c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
+        h = side / 2
+        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
+        return np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])
+
     def warp(
         self, rgb: np.ndarray, side: int, *, zero_border: bool, out: tuple[np.ndarray, np.ndarray] | None = None
     ) -> np.ndarray:
@@ -129,11 +141,7 @@ class HandRoi:
         ``out``: a ``(side, side, 3)`` uint8 and a ``(1, side, side, 3)`` float32
         buffer to reuse (the float one is returned); new arrays when None.
         """
-        k = self.size / side
-        c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
-        h = side / 2
-        u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
-        m = np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])  # tensor px -> frame px
+        m = self.matrix(side)
         border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
         u8, f32 = (
             out if out is not None else (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
@@ -319,7 +327,7 @@ def landmarks_roi(landmarks: np.ndarray) -> HandRoi:
     """
     xy = np.asarray(landmarks, dtype=np.float64)[:, :2]
     rot = _rotation(xy[0], 0.25 * (xy[5] + xy[13]) + 0.5 * xy[9])
-    pts = xy[_ROI_JOINTS]
+    pts = xy[ROI_JOINTS]
     centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     c, s = math.cos(rot), math.sin(rot)
     r = np.array([[c, -s], [s, c]])
@@ -335,7 +343,9 @@ def hand_measurement(obs: HandObservation, mode: str) -> Measurement:
 
     ``extras``: ``landmarks`` (21 x [u, v, z] lists, px), ``handedness``, ``mode``
     (``"detect"``: found by whole-frame palm detection; ``"track"``: followed
-    with the previous landmarks' ROI; ``"hint"``: found in the caller's ROI hint).
+    with the previous landmarks' ROI; ``"hint"``: found in the caller's ROI hint;
+    ``"flow"``: the previous landmarks carried by optical flow, no model call,
+    :mod:`~fusion_pf.cues.handflow`).
     """
     if mode not in MODES:
         raise InputError(f"hand measurement mode must be one of {MODES}, got {mode!r}")
@@ -417,6 +427,13 @@ def others_running(loadavg: str = "/proc/loadavg") -> bool | None:
         return None
 
 
+def _pack(interpreter, details: dict) -> None:
+    """One call on zeros: an interpreter's first call packs the weights for XNNPACK (several times a
+    call's cost, 14 ms more for the two hand models at 1280 x 720), paid here, at construction, and not by a frame."""
+    interpreter.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
+    interpreter.invoke()
+
+
 class _Model:
     """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
 
@@ -440,6 +457,7 @@ class _Model:
         self.interpreters = [self.interpreter]
         details = self.interpreter.get_input_details()[0]
         self.input = details["index"]
+        _pack(self.interpreter, details)
         by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
         self.outputs = [by_name[n] for n in outputs]
         self.mean_ns = [0.0, 0.0]
@@ -451,9 +469,7 @@ class _Model:
 
     def _add_twin(self, path: Path, details: dict) -> None:
         twin = _interpreter(path, 1)
-        # the first call packs the weights (several times a call): paid here, off the frames
-        twin.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
-        twin.invoke()
+        _pack(twin, details)
         self.interpreters.append(twin)
 
     def _pick(self) -> int:
@@ -475,11 +491,8 @@ class _Model:
         interpreter.set_tensor(self.input, x)
         interpreter.invoke()
         dt = time.perf_counter_ns() - t0
-        # moving average of the call time (the primary's first call packs its weights: not counted)
-        if self.calls[i] == int(i == 0):
-            self.mean_ns[i] = dt
-        elif self.calls[i] > 0:
-            self.mean_ns[i] = 0.8 * self.mean_ns[i] + 0.2 * dt
+        # moving average of the call time
+        self.mean_ns[i] = dt if self.calls[i] == 0 else 0.8 * self.mean_ns[i] + 0.2 * dt
         self.calls[i] += 1
         return [interpreter.get_tensor(j)[0] for j in self.outputs]
 
@@ -666,6 +679,44 @@ class HandLandmarker:
         return u, v, size
 
 
+#: Most frames a :class:`Backoff` waits after failures before it tries again.
+BACKOFF_MAX = 4
+
+
+class Backoff:
+    """Exponential back-off of an optional, costly try (the flow, the prior's ROI) that keeps failing.
+
+    A hand that is re-posing keeps re-posing, and a place where the landmark
+    model found no hand in one frame rarely holds one in the next: after a
+    failure the try is skipped on the next 1, 2, 4, ... frames (at most
+    ``most``), back to every frame after a success.
+    """
+
+    def __init__(self, most: int = BACKOFF_MAX) -> None:
+        self.most = most
+        self.reset()
+
+    def reset(self) -> None:
+        """Try on the next frame; the next wait is one frame."""
+        self.wait = 0
+        self._next = 1
+
+    def ready(self) -> bool:
+        """Whether to try in this frame (call once per frame; a skipped frame counts down the wait)."""
+        if self.wait > 0:
+            self.wait -= 1
+            return False
+        return True
+
+    def failed(self) -> None:
+        """The try failed: skip the next frames, twice as many as last time (at most ``most``)."""
+        self.wait, self._next = self._next, min(2 * self._next, self.most)
+
+    def succeeded(self) -> None:
+        """The try succeeded: the next wait is one frame again."""
+        self._next = 1
+
+
 #: Weight of one frame in a tracked hand's smoothed handedness (a time constant of 5 frames).
 HANDEDNESS_RATE = 0.2
 #: Most confidence a handedness label gets: the model's handedness is evidence, never certain.
@@ -695,6 +746,10 @@ class HandCue:
     :class:`HandLandmarker` runs on the host in MediaPipe's video mode: the
     previous landmarks' ROI, then a window around the prior (the filter's
     prediction, sized like the cue window), then whole-frame palm detection.
+    While no hand is found, a prior's window that held no hand is skipped on
+    the next 1, 2, 4, ... frames (:class:`Backoff`; palm detection still runs
+    on every frame, as MediaPipe's): another cue tracking a hand the model does
+    not see cost a landmark call per frame for nothing.
 
     Several hands (``ctx.hands`` >= 2, MediaPipe's ``max_num_hands``): every
     tracked hand is followed with its previous landmarks' ROI; while fewer than
@@ -711,15 +766,27 @@ class HandCue:
         Default: a new one with its defaults and ``num_threads``.
     num_threads : int, optional
         LiteRT threads of the default landmarker (its default when None).
+    flow : LandmarkFlow, optional
+        Carries the tracked hand's landmarks by optical flow on frames where
+        the landmark model is not needed (one hand, host models; measurement
+        mode ``"flow"``); None = the model on every tracked frame.
     """
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
     needs = frozenset({"color"})
     name = "hand"
 
-    def __init__(self, landmarker: HandLandmarker | None = None, *, num_threads: int | None = None) -> None:
+    def __init__(
+        self,
+        landmarker: HandLandmarker | None = None,
+        *,
+        num_threads: int | None = None,
+        flow: LandmarkFlow | None = None,
+    ) -> None:
         self._landmarker = landmarker
         self._num_threads = num_threads
+        self.flow = flow
+        self.hint = Backoff()
         self.previous: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
 
@@ -735,6 +802,9 @@ class HandCue:
         """Forget the tracked hands."""
         self.previous = None
         self.hands = []
+        self.hint.reset()
+        if self.flow is not None:
+            self.flow.reset()
 
     def measure(self, frame, ctx) -> CueResult:
         """The palm centre of the tracked hand in ``frame`` (None when no hand is seen); every hand with ``ctx.hands`` >= 2."""
@@ -757,7 +827,18 @@ class HandCue:
         # no hint from a prior off the image (its window is empty)
         if ctx.prior is not None and roi is not None and not roi.empty and not ctx.search:
             hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
-        obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+        if hint is not None and self.previous is None and not self.hint.ready():
+            hint = None  # no hand at the prior in the last frames: whole-frame detection only (MediaPipe's)
+        obs = None if self.flow is None else self.flow.follow(frame.color, self.previous)
+        mode = "flow"
+        if obs is None:
+            obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+            if obs is not None:
+                self.hint.reset()  # a hand: the prior's window is worth a try as soon as it is lost
+            elif hint is not None:  # the prior's window was tried and held no hand
+                self.hint.failed()
+        if self.flow is not None:
+            self.flow.remember(frame.color, obs, carried=mode == "flow")
         self.previous = obs
         m = None if obs is None else hand_measurement(obs, mode)
         return CueResult(m, {}, time.perf_counter_ns() - t0)

@@ -24,6 +24,7 @@ from .base import Cue
 from .colour import ColourCue
 from .depth import DepthCue
 from .hand import HandCue, HandLandmarker
+from .handflow import LandmarkFlow
 from .skeleton import SkeletonCue
 from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
 
@@ -129,6 +130,17 @@ class CueOptions:
         "more adds a single-threaded twin that runs every call while another task is runnable "
         "(otherwise the faster of the two runs)",
     )
+    hand_flow_frames: int = option(
+        _default(LandmarkFlow, "max_frames"),
+        kind="int",
+        lo=0,
+        hi=1000,
+        unit="frames",
+        help="hand cue: most frames in a row whose landmarks optical flow carries from the last frame instead of "
+        "a landmark-model call, and only while the palm joints track both ways and the hand moved rigidly "
+        "(cues/handflow.py); 0 = the model on every tracked frame (MediaPipe; on the real development "
+        "frames the flow's failed tries cost more than its carried frames save at the median and p95)",
+    )
     cv_threads: int = option(
         1,
         kind="int",
@@ -208,7 +220,7 @@ def _skeleton(o: CueOptions) -> Cue:
 
 @register("hand", HandCue.needs, "learned palm detector + hand landmarks (MediaPipe models on LiteRT), or the camera's")
 def _hand(o: CueOptions) -> Cue:
-    return HandCue(num_threads=o.hand_threads)
+    return HandCue(num_threads=o.hand_threads, flow=LandmarkFlow(o.hand_flow_frames) if o.hand_flow_frames else None)
 
 
 @register("skin_rgb", SkinCue.needs, "paper 002 eq. 4: explicit RGB skin rule")

@@ -502,3 +502,39 @@ def test_prior_off_the_image_gives_no_hint_instead_of_ending_the_run(hl):
     ctx = CueContext(roi=Roi(w, h, w, h), background=None, joint="right_hand", prior=(w + 5.0, h + 5.0))
     result = HandCue(hl).measure(frame, ctx)
     assert result.measurement is not None  # found by detection over the frame
+
+
+def test_prior_window_without_a_hand_is_tried_less_and_less_often(hl):
+    """Issue 25: while another cue tracks and the hand cue finds no hand, the landmark model ran in the
+    prior's window on every frame (a call per frame on top of palm detection); after each failure the
+    window is now skipped for 1, 2, 4, 4 ... frames (hand.Backoff), and a hand that appears is still
+    found by the whole-frame palm detection on every frame, and a track just lost still tries it."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import BACKOFF_MAX, HandCue
+    from fusion_pf.cues.roi import Roi
+
+    image = load("asl_hand_000.jpg")
+    h, w = image.shape[:2]
+    empty = np.full_like(image, 128)  # no palm anywhere: only the prior's window costs a landmark call
+    ctx = CueContext(roi=Roi(w // 4, h // 4, 3 * w // 4, 3 * h // 4), prior=(w / 2, h / 2))
+    cue = HandCue(hl)
+    tried = []
+    for i in range(13):
+        n = hl.calls["landmark"]
+        assert cue.measure(_frame(empty, i), ctx).measurement is None
+        tried.append(hl.calls["landmark"] - n)
+    assert BACKOFF_MAX == 4
+    assert tried == [1, 0, 1, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0]
+    # the hand appears in a skipped frame: palm detection finds it there
+    m = cue.measure(_frame(image, 13), ctx).measurement
+    assert m is not None and m.extras["mode"] == "detect"
+    # found, then lost: the window is tried at once (a track just lost), and the back-off starts again
+    n = hl.calls["landmark"]
+    assert cue.measure(_frame(empty, 14), ctx).measurement is None
+    assert hl.calls["landmark"] - n == 2  # the previous landmarks' ROI, then the prior's window
+    tried = []
+    for i in range(15, 19):
+        n = hl.calls["landmark"]
+        cue.measure(_frame(empty, i), ctx)
+        tried.append(hl.calls["landmark"] - n)
+    assert tried == [0, 1, 0, 0]
