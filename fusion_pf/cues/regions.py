@@ -153,7 +153,7 @@ def core_centre(mask: np.ndarray) -> tuple[float, float]:
     the forearm's visible length, at every image size alike).
     """
     m = cv2.copyMakeBorder((mask > 0).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    dist = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = cv2.distanceTransform(m, cv2.DIST_L2, 5)
     weight = np.maximum(dist - CORE_FRACTION * float(dist.max()), 0.0)
     ys, xs = np.nonzero(weight)
     w = weight[ys, xs].astype(np.float64)
