@@ -288,13 +288,14 @@ def measure(
 SPLIT_ITERATIONS = 10
 
 
-def split_region(mask: np.ndarray, seeds: np.ndarray) -> list[Region] | None:
+def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> list[Region] | None:
     """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000).
 
     ``seeds`` (2 x 2, mask pixels) start the two means; every pixel goes to the
     nearer mean, each mean moves to its pixels' centroid, :data:`SPLIT_ITERATIONS`
     times (two joined palms seen as one region give one part each). Returns
-    the two parts in seed order, None when one is empty.
+    the two parts in seed order, None when one is empty. With ``core`` a part's
+    position is its :func:`core_centre` (a part holds its hand's forearm too).
     """
     ys, xs = np.nonzero(mask)
     pts = np.stack([xs, ys], axis=1).astype(np.float64)
@@ -311,7 +312,13 @@ def split_region(mask: np.ndarray, seeds: np.ndarray) -> list[Region] | None:
         p = pts[part]
         lo, hi = p.min(axis=0), p.max(axis=0)
         box = (int(lo[0]), int(lo[1]), int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
-        out.append(Region(float(p[:, 0].mean()), float(p[:, 1].mean()), int(part.sum()), box))
+        if core:
+            m = np.zeros(mask.shape, np.uint8)
+            m[ys[part], xs[part]] = 1
+            u, v = core_centre(m)
+        else:
+            u, v = float(p[:, 0].mean()), float(p[:, 1].mean())
+        out.append(Region(u, v, int(part.sum()), box))
     return out
 
 
@@ -362,7 +369,7 @@ def region_detections(
             region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
         pieces: list[tuple[Region, dict]] = [(region, {})]
         if seeds is not None and all(x <= a <= x + w and y <= b <= y + h for a, b in seeds):
-            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y))
+            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y), core=core)
             if split is not None:
                 pieces = [
                     (
