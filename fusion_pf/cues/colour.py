@@ -26,8 +26,8 @@ its centroid, as in the paper, but the centre of its core
 farthest inside it, weighted by that distance). A palm with its bare forearm is
 one skin region whose centroid lies toward the elbow by an amount that grows
 with the forearm's visible length; its core is on the palm. Measured with the
-default fused tracker: ``recordings/sample.mcap`` colour 5.80 -> 1.81 px RMSE
-(fused 1.07 -> 0.99); two-hand scenes at 960 x 540 (seeds 1018, 1020) colour
+default fused tracker: ``recordings/sample.mcap`` colour 5.80 -> 1.83 px RMSE
+(fused 1.07 -> 1.02); two-hand scenes at 960 x 540 (seeds 1018, 1020) colour
 13-15 -> 1-2 px RMSE while the hands are apart. Default thresholds come from the synthetic scene
 (``drivers.synth``, seeds 0-2, 68 person frames each at 640 x 400, 1st / 50th /
 99th percentile of the grayscale difference against the 30-frame mean
