@@ -22,6 +22,11 @@ from ..errors import InputError
 DEFAULT_PALM_AREA = 700.0
 #: Smallest region (px) the cues keep by default (colour, depth and skin).
 MIN_AREA_PX = 40
+#: A region's position is the centroid of its core: the pixels at least this fraction of the region's
+#: largest distance to its outline inside it (:func:`core_centre`). The palm is the widest part of a
+#: hand-and-forearm region (the synthetic palm 10 cm wide, the forearm 6.8 cm: 0.68 of it), so the
+#: core lies on the palm whatever length of forearm the region holds.
+CORE_FRACTION = 0.7
 
 
 def check_int(name: str, value: object, lo: int, hi: int) -> int:
@@ -137,6 +142,25 @@ def clear_border(mask: np.ndarray) -> np.ndarray:
     return _paint(labels, ~drop)
 
 
+def core_centre(mask: np.ndarray) -> tuple[float, float]:
+    """The centroid ``(u, v)`` of the core of the one region ``mask`` holds (non-zero pixels, mask coordinates).
+
+    The core is the pixels whose Euclidean distance to the nearest pixel
+    outside the region (the mask's edge counts as outside) is at least
+    :data:`CORE_FRACTION` of the largest such distance: the centre of the
+    widest part. A palm with a length of forearm attached keeps its centre
+    (the plain centroid moves toward the elbow by an amount that grows with
+    the forearm's visible length, at every image size alike).
+    """
+    m = cv2.copyMakeBorder((mask > 0).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    dist = cv2.distanceTransform(m, cv2.DIST_L2, 5)
+    weight = np.maximum(dist - CORE_FRACTION * float(dist.max()), 0.0)
+    ys, xs = np.nonzero(weight)
+    w = weight[ys, xs].astype(np.float64)
+    total = float(w.sum())
+    return float(xs @ w) / total - 1.0, float(ys @ w) / total - 1.0
+
+
 @dataclass(frozen=True, slots=True)
 class Region:
     """The largest connected region of a mask, in the mask's own pixels.
@@ -163,18 +187,21 @@ class Region:
         return min(1.0, self.area / (math.pi * side * side / 4.0))
 
 
-def largest_region(mask: np.ndarray, min_area: int = 1, near: tuple[float, float] | None = None) -> Region | None:
+def largest_region(
+    mask: np.ndarray, min_area: int = 1, near: tuple[float, float] | None = None, *, core: bool = False
+) -> Region | None:
     """The largest 8-connected region and its centroid (paper 003 §3.5.1 steps i-iii).
 
     (i) find all regions in the window, (ii) compute their areas, (iii) take the
     centroid of the largest. Returns None when no region has ``min_area`` pixels.
     With ``near`` (a point in mask pixels), the region of at least ``min_area``
     pixels whose centroid is nearest to it is taken instead (so a face next to
-    the tracked hand does not win for being larger).
+    the tracked hand does not win for being larger). With ``core`` its
+    position is :func:`core_centre` instead of the centroid.
     """
     if mask.size == 0 or not cv2.countNonZero(mask):
         return None
-    n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA]  # (ii) area of every region but the background
@@ -192,10 +219,10 @@ def largest_region(mask: np.ndarray, min_area: int = 1, near: tuple[float, float
     x, y, w, h = (
         int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
     )
-    cu, cv_ = float(centroids[best, 0]), float(centroids[best, 1])
-    if not (math.isfinite(cu) and math.isfinite(cv_)):
-        return None
-    return Region(cu, cv_, area, (x, y, w, h))
+    if not core:
+        return Region(float(centroids[best, 0]), float(centroids[best, 1]), area, (x, y, w, h))
+    cu, cv_ = core_centre(labels[y : y + h, x : x + w] == best)
+    return Region(cu + x, cv_ + y, area, (x, y, w, h))
 
 
 def region_quality(region: Region, palm_area: float) -> float:
@@ -223,6 +250,7 @@ def measure(
     extras: dict | None = None,
     near: tuple[float, float] | None = None,
     step: int = 1,
+    core: bool = False,
 ):
     """Turn a cue's final mask into a full-frame :class:`Measurement` (or None).
 
@@ -232,14 +260,15 @@ def measure(
     ``extras`` gets ``area`` (px) and ``bbox`` (full-frame ``[x, y, w, h]``).
     ``step`` > 1: ``final`` holds every ``step``-th row and column of the window
     (a reduced whole-frame search); ``min_area`` and ``palm_area`` are full-resolution
-    pixels and everything returned is in full-resolution pixels.
+    pixels and everything returned is in full-resolution pixels. ``core``: the
+    region's :func:`core_centre` instead of its centroid.
     """
     from .base import Measurement
 
     x0, y0 = offset
     k2 = step * step
     near_w = None if near is None else ((near[0] - x0) / step, (near[1] - y0) / step)
-    region = largest_region(final, min_area // k2, near_w)
+    region = largest_region(final, min_area // k2, near_w, core=core)
     if region is None:
         return None
     info = dict(extras or {})
@@ -259,13 +288,14 @@ def measure(
 SPLIT_ITERATIONS = 10
 
 
-def split_region(mask: np.ndarray, seeds: np.ndarray) -> list[Region] | None:
+def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> list[Region] | None:
     """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000).
 
     ``seeds`` (2 x 2, mask pixels) start the two means; every pixel goes to the
     nearer mean, each mean moves to its pixels' centroid, :data:`SPLIT_ITERATIONS`
     times (two joined palms seen as one region give one part each). Returns
-    the two parts in seed order, None when one is empty.
+    the two parts in seed order, None when one is empty. With ``core`` a part's
+    position is its :func:`core_centre` (a part holds its hand's forearm too).
     """
     ys, xs = np.nonzero(mask)
     pts = np.stack([xs, ys], axis=1).astype(np.float64)
@@ -282,7 +312,13 @@ def split_region(mask: np.ndarray, seeds: np.ndarray) -> list[Region] | None:
         p = pts[part]
         lo, hi = p.min(axis=0), p.max(axis=0)
         box = (int(lo[0]), int(lo[1]), int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
-        out.append(Region(float(p[:, 0].mean()), float(p[:, 1].mean()), int(part.sum()), box))
+        if core:
+            m = np.zeros(mask.shape, np.uint8)
+            m[ys[part], xs[part]] = 1
+            u, v = core_centre(m)
+        else:
+            u, v = float(p[:, 0].mean()), float(p[:, 1].mean())
+        out.append(Region(u, v, int(part.sum()), box))
     return out
 
 
@@ -297,6 +333,7 @@ def region_detections(
     max_regions: int = 8,
     step: int = 1,
     parts: tuple[tuple[float, float], ...] = (),
+    core: bool = False,
 ) -> tuple:
     """Every region of ``final`` of at least ``min_area`` px as a full-frame :class:`Detection`, largest first.
 
@@ -305,6 +342,7 @@ def region_detections(
     A region whose box holds both of the two points ``parts`` (full-frame px:
     two joined targets' predictions) is given as its two parts instead
     (:func:`split_region`; extras ``part`` 0 or 1, the point it began at).
+    ``core`` as in :func:`measure`.
     """
     from ..association.base import Detection
     from .base import Measurement
@@ -324,10 +362,14 @@ def region_detections(
         x, y, w, h = (
             int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
         )
-        region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
+        if core:
+            cu, cv_ = core_centre(labels[y : y + h, x : x + w] == i + 1)
+            region = Region(cu + x, cv_ + y, area, (x, y, w, h))
+        else:
+            region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
         pieces: list[tuple[Region, dict]] = [(region, {})]
         if seeds is not None and all(x <= a <= x + w and y <= b <= y + h for a, b in seeds):
-            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y))
+            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y), core=core)
             if split is not None:
                 pieces = [
                     (
@@ -359,15 +401,16 @@ def window_regions(
     step: int,
     candidates: bool,
     parts: tuple[tuple[float, float], ...] = (),
+    core: bool = False,
 ):
     """A region cue's answer in ``roi``: ``(measurement, candidates)``.
 
     The measurement is :func:`measure`'s (the largest region); with
     ``candidates`` every region is also a :class:`Detection` (:func:`region_detections`,
     several targets: the association picks; ``parts`` as there) and the
-    measurement is the first of them.
+    measurement is the first of them. ``core`` as in :func:`measure`.
     """
-    kw = {"palm_area": roi.palm_area, "min_area": min_area, "extras": extras, "step": step}
+    kw = {"palm_area": roi.palm_area, "min_area": min_area, "extras": extras, "step": step, "core": core}
     if not candidates:
         return measure(final, roi.offset, source, **kw), ()
     found = region_detections(final, roi.offset, source, parts=parts, **kw)

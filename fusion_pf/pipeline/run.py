@@ -180,6 +180,14 @@ SUPPORT_SIGMAS = 3.0
 #: Several targets: a tracked target's association gate of a source is at least this many of
 #: its apparent palm lengths (:meth:`_FilterStage.source_gates`).
 GATE_FLOOR_PALMS = 1.0
+#: A combined target's share of the region it shares with its partner is moved this many of its apparent
+#: palm lengths toward the side it entered the combination from (:meth:`_Targets.offsets`): half the
+#: distance between two palms side by side.
+SHARED_OFFSET_PALMS = 0.225
+#: A pair combining again within this many frames of separating keeps the sides it first entered from
+#: (:meth:`_Targets.offsets`): it was never apart, and its estimates right after a brief separation
+#: are no evidence of where each hand is.
+REJOIN_FRAMES = 5
 #: A combined pair's region is split between them (:func:`fusion_pf.cues.regions.split_region`) while
 #: their priors are at least this many apparent palm lengths apart (the hands side by side).
 SPLIT_PALMS = 0.85
@@ -570,12 +578,15 @@ class _CueStage:
         palms: Mapping[str, float | None] | None = None,
         partners: Mapping[str, str] | None = None,
         source_gates: Mapping[str, Mapping[str, float] | None] | None = None,
+        offsets: Mapping[str, tuple[float, float]] | None = None,
     ) -> dict[str, CueRow]:
         """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets.
 
         Several targets: a target's detection of a source lies within its
         window's gate (:meth:`_gate`) and its ``source_gates`` of that source
-        (:meth:`_FilterStage.source_gates`).
+        (:meth:`_FilterStage.source_gates`). A combined target's copy of the
+        region detection it shares with its partner is moved by its
+        ``offsets`` (:meth:`_Targets.offsets`).
         """
         if self.cues is None:
             self.names = cue_names(self.config, frame)
@@ -628,6 +639,8 @@ class _CueStage:
             partners=partners,
             merge_px=MERGE_PX * pixel_scale(frame.size, self.config),
         )
+        if several and partners and offsets:
+            assigned = _offset_shared(assigned, partners, offsets)
         out = {}
         for t in targets:
             cues: dict[str, Measurement | None] = dict.fromkeys(self.names)
@@ -676,6 +689,28 @@ class _CueStage:
             intrinsics=frame.intrinsics,
             ground_truth=frame.ground_truth if target is None else (frame.ground_truths or {}).get(target),
         )
+
+
+def _offset_shared(
+    assigned: Mapping[str, list[Detection]], partners: Mapping[str, str], offsets: Mapping[str, tuple[float, float]]
+) -> dict[str, list[Detection]]:
+    """Each combined target's copy of a region detection it shares with its partner, moved by its offset.
+
+    Labelled detections (skeleton joints, the hand model) and the parts of a
+    split region are each target's own and stay.
+    """
+    out = {t: list(ds) for t, ds in assigned.items()}
+    for t, q in partners.items():
+        if t not in assigned or q not in assigned or t not in offsets:
+            continue
+        du, dv = offsets[t]
+        for k, d in enumerate(assigned[t]):
+            if d.label is not None or not any(d is e for e in assigned[q]):
+                continue
+            m = d.measurement
+            moved = Measurement(m.source, m.u + du, m.v + dv, m.quality, {**m.extras, "shared": True})
+            out[t][k] = Detection(moved, d.label, d.label_score, d.depth_mm)
+    return out
 
 
 def _joined_priors(
@@ -1134,6 +1169,7 @@ class _Targets:
             for k, t in enumerate(names)
         }
         self.entry: dict[str, tuple[float, float]] = {}
+        self.parted: dict[str, int] = {}
 
     def partners(self) -> dict[str, str]:
         """The combined targets, each to its partner."""
@@ -1142,6 +1178,22 @@ class _Targets:
             p = f.status.partner
             if f.status.state == TrackState.COMBINED and p is not None:
                 out[t] = self.names[p]
+        return out
+
+    def offsets(self) -> dict[str, tuple[float, float]]:
+        """Per combined target, where it lies from the region it shares with its partner.
+
+        :data:`SHARED_OFFSET_PALMS` of its apparent palm length from the pair's
+        middle, toward the side it entered the combination from: joined palms
+        lie side by side, so their shared region is centred between them.
+        """
+        out = {}
+        for t in self.partners():
+            e, palm = self.entry.get(t), self.stages[t].palm_px
+            n = 0.0 if e is None else math.hypot(*e)
+            if e is None or palm is None or n < 1e-6:
+                continue
+            out[t] = (SHARED_OFFSET_PALMS * palm * e[0] / n, SHARED_OFFSET_PALMS * palm * e[1] / n)
         return out
 
     def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
@@ -1180,10 +1232,17 @@ class _Targets:
         after = combine_states(before, positions, config, labels, apart)
         for k, (b, a) in enumerate(zip(before, after)):
             t = self.names[k]
-            if a.state == TrackState.COMBINED and b.state != TrackState.COMBINED and a.partner is not None:
+            rejoined = t in self.entry and self.parted.get(t, REJOIN_FRAMES + 1) <= REJOIN_FRAMES
+            if (
+                a.state == TrackState.COMBINED
+                and b.state != TrackState.COMBINED
+                and a.partner is not None
+                and not rejoined
+            ):
                 p, q = positions[k], positions[a.partner]
                 if p is not None and q is not None:
                     self.entry[t] = (p[0] - (p[0] + q[0]) / 2, p[1] - (p[1] + q[1]) / 2)
+            self.parted[t] = 0 if a.state == TrackState.COMBINED else self.parted.get(t, REJOIN_FRAMES) + 1
         for k, (b, a) in enumerate(zip(before, after)):
             j = b.partner
             if b.state == TrackState.COMBINED and a.state == TrackState.UNLABELLED and j is not None and k < j:
@@ -1342,7 +1401,8 @@ def track(
                 priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
                 palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
             gates = {t: f.source_gates() for t, f in targets.stages.items()}
-            result = targets(cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates), frame.size)
+            rows = cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates, targets.offsets())
+            result = targets(rows, frame.size)
             result.latency_ns["total"] = time.perf_counter_ns() - t0
             for r in result.targets.values():
                 r.latency_ns["total"] = result.latency_ns["total"]

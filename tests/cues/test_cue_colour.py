@@ -106,3 +106,16 @@ def test_mismatched_background_is_an_input_error(scene):
     s = scene()
     with pytest.raises(InputError, match="background"):
         colour_cue(s["color"], s["background"][:10])
+
+
+def test_the_palm_centre_not_the_centroid_of_palm_and_forearm():
+    # a palm disc (radius 25 at (80, 100)) with a bare forearm running 110 px to its right:
+    # the cue's position is the palm's centre (the plain centroid lies ~25 px along the forearm)
+    background = np.full((200, 240, 3), 100, np.uint8)
+    color = background.copy()
+    yy, xx = np.mgrid[:200, :240]
+    skin = ((xx - 80) ** 2 + (yy - 100) ** 2 <= 25**2) | ((yy >= 92) & (yy <= 108) & (xx >= 80) & (xx < 215))
+    color[skin] = 140
+    m = ColourCue()(color, background).measurement
+    assert m is not None
+    assert math.hypot(m.u - 80.0, m.v - 100.0) < 1.0

@@ -151,3 +151,42 @@ def test_a_region_holding_two_joined_targets_is_split_between_them():
     assert len(far) == 1 and "part" not in far[0].measurement.extras
     # a mask whose pixels all lie nearer one seed cannot be split
     assert split_region(m[:, :60] > 0, np.array([[40.0, 30.0], [110.0, 30.0]])) is None
+
+
+def _palm_and_forearm(h=200, w=240):
+    """A palm disc (radius 25, centre (80, 100)) with a forearm bar (16 px wide) running 110 px to its right."""
+    m = np.zeros((h, w), np.uint8)
+    yy, xx = np.mgrid[:h, :w]
+    m[(xx - 80) ** 2 + (yy - 100) ** 2 <= 25**2] = 255
+    m[92:109, 80:215] = 255
+    return m
+
+
+def test_core_centre_is_the_palm_centre_whatever_forearm_is_attached():
+    m = _palm_and_forearm()
+    plain = largest_region(m)
+    core = largest_region(m, core=True)
+    assert plain is not None and core is not None
+    assert plain.u - 80 > 20  # the centroid is pulled along the forearm
+    assert (core.u, core.v) == pytest.approx((80.0, 100.0), abs=0.5)
+    assert (core.area, core.bbox) == (plain.area, plain.bbox)
+    shifted = np.roll(m, (7, -11), axis=(0, 1))
+    moved = measure(shifted, (3, 5), "colour", palm_area=2000.0, core=True)
+    assert (moved.u, moved.v) == pytest.approx((80.0 - 11 + 3, 100.0 + 7 + 5), abs=0.5)
+
+
+def test_split_parts_with_core_are_the_palm_centres_not_pulled_up_the_forearms():
+    from fusion_pf.cues.regions import split_region
+
+    yy, xx = np.mgrid[:200, :200]
+    m = np.zeros((200, 200), bool)
+    for cx in (75, 125):  # two joined palms side by side (radius 25, 50 px apart) ...
+        m |= (xx - cx) ** 2 + (yy - 120) ** 2 <= 25**2
+    m[20:120, 60:70] = m[20:120, 130:140] = True  # ... each with its forearm running up
+    seeds = np.array([[75.0, 120.0], [125.0, 120.0]])
+    plain = split_region(m, seeds)
+    core = split_region(m, seeds, core=True)
+    assert plain is not None and core is not None
+    assert all(120 - p.v > 15 for p in plain)  # the centroids lie up the forearms
+    assert [(p.u, p.v) for p in core] == [pytest.approx((75, 120), abs=1.0), pytest.approx((125, 120), abs=1.0)]
+    assert [(p.area, p.bbox) for p in core] == [(p.area, p.bbox) for p in plain]

@@ -165,3 +165,72 @@ def test_a_combined_pair_side_by_side_has_its_region_split():
     assert _joined_priors(apart, {}, None, palms) == ()  # not combined: nothing to split
     assert _joined_priors(apart, partners, Roi(0, 0, 120, 200, 100.0), palms) == ()  # one outside the window
     assert _joined_priors(apart, partners, None, {}) == ()  # no palm size yet
+
+
+def test_joined_hands_keep_their_sides_of_the_region_they_share(washing):
+    """While the hands are joined (320 x 200, ~70 frames), each target's copy of the shared colour and
+    depth region is moved toward the side it entered from: each estimate stays on its own hand
+    (joined RMSE ~3.0 px each; 5.1 px when both take the region's centre)."""
+    est, _, truth = _run(washing, TrackConfig(targets=HANDS))
+    joined = np.hypot(*(truth["right_hand"] - truth["left_hand"]).T) < JOINED_FRACTION * math.hypot(320, 200)
+    assert joined.sum() > 50
+    for t in HANDS:
+        err = np.hypot(*(est[t] - truth[t]).T)
+        assert np.sqrt(np.mean(err[joined] ** 2)) < 4.0, t
+
+
+def test_a_shared_detection_is_moved_by_each_targets_offset_and_nothing_else():
+    from fusion_pf.association import Detection
+    from fusion_pf.frame import Measurement
+    from fusion_pf.pipeline.run import _offset_shared
+
+    shared = Detection(Measurement("colour", 100.0, 50.0, 0.5, {"area": 900}))
+    joint_r = Detection(Measurement("skeleton", 90.0, 52.0), label="right_hand")
+    joint_l = Detection(Measurement("skeleton", 111.0, 49.0), label="left_hand")
+    part_r = Detection(Measurement("depth", 92.0, 50.0, 0.5, {"part": 0}))
+    part_l = Detection(Measurement("depth", 108.0, 50.0, 0.5, {"part": 1}))
+    assigned = {"right_hand": [shared, joint_r, part_r], "left_hand": [shared, joint_l, part_l]}
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    out = _offset_shared(assigned, partners, {"right_hand": (-9.0, 0.0), "left_hand": (9.0, 1.0)})
+    r, left = out["right_hand"], out["left_hand"]
+    assert (r[0].u, r[0].v, left[0].u, left[0].v) == (91.0, 50.0, 109.0, 51.0)
+    assert r[0].source == "colour" and r[0].measurement.quality == 0.5 and r[0].measurement.extras["shared"]
+    assert r[1:] == [joint_r, part_r] and left[1:] == [joint_l, part_l]  # labelled and split detections are their own
+    assert assigned["right_hand"][0] is shared  # the input is not changed
+    assert _offset_shared(assigned, {}, {"right_hand": (-9.0, 0.0)}) == assigned  # not combined: nothing moves
+
+
+def test_a_pair_rejoining_at_once_keeps_the_sides_it_first_entered_from():
+    """A combined pair torn apart for one frame (a false separation) whose estimates then sit on the
+    wrong sides combines again with the sides of its first entry, not with those estimates."""
+    from fusion_pf.filter.states import TrackState, TrackStatus
+    from fusion_pf.frame import Estimate
+    from fusion_pf.pipeline.run import REJOIN_FRAMES, CueRow, TrackResult, _Targets
+
+    targets = _Targets(TrackConfig(targets=HANDS), 0)
+    for f in targets.stages.values():
+        f.status = TrackStatus(TrackState.TRACKING)
+        f._palm_k = 1.0  # an apparent palm length measured
+    rows = {t: CueRow(0, 0, False, {}, {}, None, None, (0, 0), INTR) for t in HANDS}
+
+    def frame(right, left):
+        results = {
+            t: TrackResult(0, 0, False, Estimate(0, u, 50.0, 1.0, False, 1, np.eye(2)), {}, None, {})
+            for t, u in zip(HANDS, (right, left))
+        }
+        targets._supervise(rows, results, (160, 100))
+        return {t: f.status.state for t, f in targets.stages.items()}
+
+    frame(70.0, 90.0)
+    assert frame(78.0, 82.0)["right_hand"] == TrackState.COMBINED  # the right hand entered from the left
+    first = targets.offsets()
+    assert first["right_hand"][0] < 0 < first["left_hand"][0]
+    assert frame(40.0, 120.0)["right_hand"] == TrackState.UNLABELLED  # torn apart for a frame ...
+    for _ in range(REJOIN_FRAMES - 1):
+        frame(40.0, 120.0)
+    assert frame(81.0, 79.0)["right_hand"] == TrackState.COMBINED  # ... and back, the estimates crossed
+    assert targets.offsets() == first
+    targets.parted = {}  # long apart (or never combined): the sides come from the estimates
+    frame(120.0, 40.0)
+    frame(81.0, 79.0)
+    assert targets.offsets()["right_hand"][0] > 0
