@@ -21,13 +21,18 @@ def track_rig(args: argparse.Namespace, config) -> int:
     from fusion_pf.annotate.db import recording_sha256
     from fusion_pf.errors import PARTIAL_EXIT_CODE, InputError
     from fusion_pf.pipeline.outputs import world_csv_columns, world_csv_row, world_json
+    from fusion_pf.pipeline.run import targets_of
     from fusion_pf.pipeline.world import track_world
+    from fusion_pf.pipeline.world_events import with_events
     from fusion_pf.signals import sigint_deferred
+
+    from .track import _events_line
 
     for flag, value in (("--copy-input", args.copy_input), ("--export-ply", args.export_ply)):
         if value:
             raise InputError(f"{flag} is for one camera; {args.source} is a multi-camera recording")
     counts: dict[str, dict[str, int]] = {}
+    events: dict[str, int] = {}
     tracked = n_background = 0
     with RigReplay(args.source) as rig, ExitStack() as stack:
         cameras = list(rig.cameras)
@@ -48,7 +53,7 @@ def track_rig(args: argparse.Namespace, config) -> int:
             tqdm(total=len(rig), unit="instant", desc=str(args.source), disable=True if args.no_progress else None)
         )
         posed = False
-        for result in track_world(rig, config):
+        for result in with_events(track_world(rig, config), targets_of(config)):
             with sigint_deferred():
                 if not posed:
                     for name, pose in rig.poses.items():
@@ -59,6 +64,9 @@ def track_rig(args: argparse.Namespace, config) -> int:
                     recorder.write_json(
                         fmt.WORLD_ESTIMATE_TOPIC, fmt.WORLD_ESTIMATE_SCHEMA, world_json(result), result.timestamp_ns
                     )
+                    for event in result.events:
+                        recorder.write_json(fmt.EVENTS_TOPIC, fmt.EVENT_SCHEMA, event.as_json(), result.timestamp_ns)
+                        events[event.event] = events.get(event.event, 0) + 1
                     if writer is not None:
                         for t in result.targets:
                             writer.writerow(world_csv_row(result, t, cameras))
@@ -78,6 +86,7 @@ def track_rig(args: argparse.Namespace, config) -> int:
     )
     for t, c in counts.items():
         print(f"{t}: " + ", ".join(f"{n} {s}" for s, n in sorted(c.items())), file=sys.stderr)
+    print(_events_line(events), file=sys.stderr)
     if partial:
         print("fusion-pf: warning: " + "; ".join(partial), file=sys.stderr)
         return PARTIAL_EXIT_CODE
