@@ -8,13 +8,15 @@ import sys
 from contextlib import ExitStack
 
 
-def track_rig(args: argparse.Namespace, config) -> int:
-    """Track ``args.source`` (a multi-camera recording) in world mm: CSV rows, ``/tracker/world`` and ``/tf`` in ``-o``."""
+def track_rig(args: argparse.Namespace, config, live_options) -> int:
+    """Track ``args.source`` (a multi-camera recording) in world mm: CSV rows, ``/tracker/world``, ``/tracker/events``
+    and ``/tf`` in ``-o``; with ``live_options`` (``--serve``, ``--rerun``) the live view of every camera."""
     import csv
 
     from tqdm import tqdm
 
     from drivers import mcap_format as fmt
+    from drivers.live import Live, paced
     from drivers.mcap_record import McapRecorder
     from drivers.rig import RigReplay
     from drivers.tracker_topics import source_metadata
@@ -50,10 +52,18 @@ def track_rig(args: argparse.Namespace, config) -> int:
                 writer.writerow(world_csv_columns(cameras))
             recorder = stack.enter_context(McapRecorder(args.output, metadata=metadata))
         bar = stack.enter_context(
-            tqdm(total=len(rig), unit="instant", desc=str(args.source), disable=True if args.no_progress else None)
+            tqdm(
+                total=len(rig),
+                unit="instant",
+                desc=str(args.source),
+                disable=True if args.no_progress or live_options.enabled else None,
+            )
         )
+        live = stack.enter_context(Live(live_options)) if live_options.enabled else None
+        out = recorder if live is None else live.tee(recorder)  # the live view gets the messages written
+        sets = paced(rig) if live_options.realtime else rig
         posed = False
-        for result in with_events(track_world(rig, config), targets_of(config)):
+        for result in with_events(track_world(sets, config), targets_of(config)):
             with sigint_deferred():
                 if not posed:
                     for name, pose in rig.poses.items():
@@ -61,12 +71,14 @@ def track_rig(args: argparse.Namespace, config) -> int:
                         recorder.write_protobuf(fmt.TF_TOPIC, transform, result.timestamp_ns)
                     posed = True
                 if not result.background:
-                    recorder.write_json(
+                    out.write_json(
                         fmt.WORLD_ESTIMATE_TOPIC, fmt.WORLD_ESTIMATE_SCHEMA, world_json(result), result.timestamp_ns
                     )
                     for event in result.events:
-                        recorder.write_json(fmt.EVENTS_TOPIC, fmt.EVENT_SCHEMA, event.as_json(), result.timestamp_ns)
+                        out.write_json(fmt.EVENTS_TOPIC, fmt.EVENT_SCHEMA, event.as_json(), result.timestamp_ns)
                         events[event.event] = events.get(event.event, 0) + 1
+                if live is not None:
+                    live.publish_world(result)
                     if writer is not None:
                         for t in result.targets:
                             writer.writerow(world_csv_row(result, t, cameras))
