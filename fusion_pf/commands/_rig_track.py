@@ -77,14 +77,14 @@ def track_rig(args: argparse.Namespace, config, live_options) -> int:
                     for event in result.events:
                         out.write_json(fmt.EVENTS_TOPIC, fmt.EVENT_SCHEMA, event.as_json(), result.timestamp_ns)
                         events[event.event] = events.get(event.event, 0) + 1
-                if live is not None:
-                    live.publish_world(result)
                     if writer is not None:
                         for t in result.targets:
                             writer.writerow(world_csv_row(result, t, cameras))
                         table.flush()
                     for t, w in result.targets.items():
                         counts.setdefault(t, {})[w.state] = counts.get(t, {}).get(w.state, 0) + 1
+                if live is not None:
+                    live.publish_world(result)
             result.frameset = None
             n_background += result.background
             tracked += not result.background

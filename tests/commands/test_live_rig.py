@@ -37,7 +37,8 @@ def rig(tmp_path_factory):
 def test_a_foxglove_client_receives_every_camera_the_poses_and_the_world_estimates(rig, tmp_path):
     port = live_serve.free_port()
     cmd = [*CLI, "track", rig, "-o", tmp_path / "out.mcap", "--targets", TARGETS, "--serve", f"127.0.0.1:{port}"]
-    proc = subprocess.Popen([str(c) for c in [*cmd, "--realtime"]], stderr=subprocess.PIPE, text=True)
+    cmd += ["--csv", tmp_path / "out.csv", "--realtime"]
+    proc = subprocess.Popen([str(c) for c in cmd], stderr=subprocess.PIPE, text=True)
     topics = ["/cam0/camera/color", "/cam1/camera/color", "/tf", "/tracker/world"]
     client = live_serve.FoxgloveClient(port, topics).start()
     _, err = proc.communicate(timeout=120)
@@ -45,6 +46,9 @@ def test_a_foxglove_client_receives_every_camera_the_poses_and_the_world_estimat
     assert proc.returncode == 0, err
     assert client.error is None, client.error
     assert "live view for Foxglove at ws://127.0.0.1:" in err and "instant " in err
+    # the outputs are those of a run without the live view: a CSV row per tracked instant and target
+    assert "right_hand: 21 tracking" in err
+    assert len((tmp_path / "out.csv").read_text().splitlines()) == 1 + 21 * 3
     assert client.channels["/cam1/camera/color"]["schemaName"] == "foxglove.CompressedImage"
     assert client.channels["/tracker/world"]["schemaName"] == "fusion_pf.WorldEstimate"
     assert len(client.messages["/cam0/camera/color"]) >= 5 and len(client.messages["/cam1/camera/color"]) >= 5
