@@ -51,11 +51,11 @@ def render(out: Path, cameras: int, colour_only: int, seed: int, size: str, fram
     subprocess.run([*cmd, "--no-progress", "--force"], check=True, stdout=subprocess.DEVNULL)
 
 
-def run_scene(path: Path) -> EventScore:
+def run_scene(path: Path, config: TrackConfig | None = None) -> EventScore:
     """Track the recording ``path`` in world coordinates and match its events to its ``/ground_truth/events``."""
     truth = [m for _, m in read_topic(str(path), "true_events")]
     with RigReplay(path) as rig:
-        results = with_events(track_world(rig, TrackConfig(targets=TARGETS)), TARGETS)
+        results = with_events(track_world(rig, config or TrackConfig(targets=TARGETS)), TARGETS)
         reported = [e.as_json() for r in results for e in r.events]
     return match_events(truth, reported, DEFAULT_TOLERANCE)
 
@@ -73,7 +73,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cameras", default="2,3,4")
     ap.add_argument("--colour-only", type=int, default=0, help="the last K cameras without depth")
     ap.add_argument("--frames", type=int, default=FRAMES)
+    ap.add_argument(
+        "--world-process-noise",
+        default=None,
+        metavar="MM,MM",
+        help="the world filter's process noise (default: its own)",
+    )
     args = ap.parse_args(argv)
+    extra = {}
+    if args.world_process_noise is not None:
+        extra["world_process_noise"] = tuple(float(v) for v in args.world_process_noise.split(","))
+    config = TrackConfig(targets=TARGETS, **extra)
     tuned = set(_ints(args.tuned))
     print("| size | cameras | seed | set | matched | missed | false | max abs offset | offsets / missed / false | s |")
     print("|---|---:|---:|---|---:|---:|---:|---:|---|---:|")
@@ -85,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
                     t0 = time.monotonic()
                     path = Path(tmp) / f"events_{size}_{cameras}_{seed}.mcap"
                     render(path, cameras, args.colour_only, seed, size, args.frames)
-                    score = run_scene(path)
+                    score = run_scene(path, config)
                     path.unlink()
                     offsets = [abs(o) for _, _, o in score.matched]
                     detail = ", ".join(f"{t['event']}: {o:+d}" for t, _, o in score.matched)
