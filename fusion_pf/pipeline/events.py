@@ -32,6 +32,12 @@ is reported in the frame that confirms it, its ``detail`` holds the frame
 the condition began (``onset_frame``). Pairs of combined targets are taken
 from the states alone: the combined targets are paired closest first
 (paper 004 assumes at most two targets join at a time).
+
+:meth:`EventDetector.update` takes one camera's pixels and frame;
+:meth:`EventDetector.decide` takes the same decisions in any space (the
+positions and each hand's palm length in one unit, the combined pairs and the
+colour analysis given): :mod:`fusion_pf.pipeline.world_events` feeds it world
+millimetres.
 """
 
 from __future__ import annotations
