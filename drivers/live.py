@@ -11,6 +11,13 @@ writes them into the file and, through :meth:`Live.tee`, hands the very same
 message objects to the live view. ``--rerun [URL]`` logs image, depth, cue
 points, estimate, particles and the 3-D palm to a Rerun viewer.
 
+A multi-camera recording tracked in world coordinates (:meth:`Live.publish_world`)
+streams every camera's frame topics under ``/<camera>``, the camera poses on
+``/tf`` (with every instant: a client may join late), ``/tracker/world`` and
+``/tracker/events`` to Foxglove; Rerun gets the rig in 3-D: under ``world`` (metres)
+each camera's pose and pinhole with its colour and depth images and the targets'
+estimates projected into it, the targets' world positions, and the events as a text log.
+
 Slow clients
     The tracker thread only appends a frame to a bounded queue
     (:attr:`LiveOptions.live_queue` frames); a publisher thread encodes and
@@ -29,9 +36,9 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import IO, Any
+from typing import IO, Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -39,6 +46,8 @@ from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame
 from fusion_pf.options import option, validate
 from fusion_pf.pipeline import TrackResult
+from fusion_pf.pipeline.world import WorldResult
+from fusion_pf.rig import CameraPose, FrameSet
 
 __all__ = ["DEFAULT_RERUN_URL", "Live", "LiveOptions", "LiveStatus", "paced", "parse_address"]
 
@@ -150,8 +159,16 @@ class LiveOptions:
         return self.serve is not None or self.rerun is not None
 
 
-def paced(frames: Iterable[Frame]) -> Iterator[Frame]:
-    """Yield ``frames`` no earlier than their own timestamps say, counted from the first (``--realtime``).
+class _Timed(Protocol):
+    @property
+    def timestamp_ns(self) -> int: ...
+
+
+_T = TypeVar("_T", bound=_Timed)
+
+
+def paced(frames: Iterable[_T]) -> Iterator[_T]:
+    """Yield ``frames`` (or frame sets) no earlier than their own timestamps say, counted from the first (``--realtime``).
 
     A tracker slower than the recording is not waited for: a late frame is yielded at once.
     """
@@ -173,6 +190,11 @@ def _px(result: TrackResult) -> str:
     return "-" if e is None else f"({e.u:.0f}, {e.v:.0f}) px"
 
 
+def _mm(xyz: np.ndarray | None) -> str:
+    """``(x, y, z) mm`` of a world position, ``-`` without one."""
+    return "-" if xyz is None else "({:.0f}, {:.0f}, {:.0f}) mm".format(*xyz)
+
+
 class LiveStatus:
     """One live status line on the terminal: fps, state, palm in pixels and millimetres.
 
@@ -187,17 +209,20 @@ class LiveStatus:
         self._shown = 0.0
         self.extra = ""
 
-    def line(self, result: TrackResult) -> str:
-        """The status text of ``result``; with several targets each target's state and position in px."""
+    def line(self, result: TrackResult | WorldResult) -> str:
+        """The status text of ``result``; with several targets each target's state and position in px (world: mm)."""
         fps = (len(self._times) - 1) / (self._times[-1] - self._times[0]) if len(self._times) > 1 else 0.0
+        if isinstance(result, WorldResult):
+            where = "  ".join(f"{t} {w.state} {_mm(w.position_mm)}" for t, w in result.targets.items())
+            return f"instant {result.index}  {fps:5.1f} fps  {where}{self.extra}"
         if result.targets:
             where = "  ".join(f"{t} {r.state} {_px(r)}" for t, r in result.targets.items())
             return f"frame {result.frame}  {fps:5.1f} fps  {where}{self.extra}"
         mm = "" if result.xyz_mm is None else " ({:.0f}, {:.0f}, {:.0f}) mm".format(*result.xyz_mm)
         return f"frame {result.frame}  {fps:5.1f} fps  {result.state:<13} palm {_px(result)}{mm}{self.extra}"
 
-    def update(self, result: TrackResult) -> None:
-        """Count a frame and show the line when it is time to."""
+    def update(self, result: TrackResult | WorldResult) -> None:
+        """Count a frame (an instant) and show the line when it is time to."""
         now = time.perf_counter()
         self._times.append(now)
         if now - self._shown < (0.1 if self.tty else STATUS_EVERY_S):
@@ -239,6 +264,15 @@ class _Item:
     frame: Frame
     messages: list
     result: TrackResult
+
+
+@dataclass
+class _WorldItem:
+    """One instant of a multi-camera run waiting for the live view."""
+
+    frameset: FrameSet
+    messages: list
+    result: WorldResult
 
 
 class _SdkDrops(logging.Handler):
@@ -353,6 +387,7 @@ class RerunLogger:
         self.url = url
         self.rec: Any = None
         self._intrinsics = None
+        self._cameras: dict[str, tuple[CameraPose, Any]] = {}
 
     def open(self) -> str:
         import socket
@@ -445,6 +480,58 @@ class RerunLogger:
                 ),
             )
 
+    def publish_world(self, item: _WorldItem) -> None:
+        """One instant of a multi-camera run: under ``world`` (metres) every camera's pose, pinhole, images and the
+        targets projected into it; the targets' world positions; the instant's events as a text log."""
+        import rerun as rr
+
+        from . import mcap_format as fmt
+        from .tracker_topics import OVERLAY_COLOURS
+
+        rec, result = self.rec, item.result
+        rec.set_time("capture", timestamp=np.datetime64(item.frameset.timestamp_ns, "ns"))
+        rec.set_time("frame", sequence=result.index)
+        colour = [round(255 * c) for c in OVERLAY_COLOURS["estimate"]]
+        for name, view in item.frameset.views.items():
+            frame, pose, k = view.frame, view.pose, view.frame.intrinsics
+            if self._cameras.get(name) != (pose, k):
+                rec.log(
+                    f"world/{name}",
+                    rr.Transform3D(translation=pose.translation_mm / 1000.0, mat3x3=pose.rotation),
+                    rr.Pinhole(focal_length=[k.fx, k.fy], principal_point=[k.cx, k.cy], resolution=[k.width, k.height]),
+                )
+                self._cameras[name] = (pose, k)
+            jpeg = fmt.encode_color(frame.color, frame.timestamp_ns, "jpeg", JPEG_QUALITY).data
+            rec.log(f"world/{name}/color", rr.EncodedImage(contents=jpeg, media_type="image/jpeg", draw_order=-10.0))
+            if frame.depth is not None:
+                rec.log(f"world/{name}/depth", rr.DepthImage(frame.depth, meter=1000.0, draw_order=-20.0))
+            seen = [(t, w.pixels.get(name)) for t, w in result.targets.items()]
+            seen = [(t, uv) for t, uv in seen if uv is not None]
+            if seen:
+                rec.log(
+                    f"world/{name}/estimate",
+                    rr.Points2D([uv for _, uv in seen], radii=6.0, colors=colour, labels=[t for t, _ in seen]),
+                )
+            else:
+                rec.log(f"world/{name}/estimate", rr.Clear(recursive=False))
+        if result.background:
+            return
+        found = [(t, w) for t, w in result.targets.items() if w.position_mm is not None]
+        if found:
+            rec.log(
+                "world/targets",
+                rr.Points3D(
+                    [w.position_mm / 1000.0 for _, w in found],
+                    radii=0.03,
+                    colors=colour,
+                    labels=[f"{t} {w.state}" for t, w in found],
+                ),
+            )
+        else:
+            rec.log("world/targets", rr.Clear(recursive=False))
+        for event in result.events:
+            rec.log("events", rr.TextLog(f"{event.event}: {'+'.join(event.targets)}", level="INFO"))
+
     def close(self) -> None:
         rec, self.rec = self.rec, None
         if rec is not None:
@@ -474,7 +561,7 @@ class Live:
         self.foxglove = None if options.serve is None else FoxgloveServer(*parse_address(options.serve))
         self.rerun = None if options.rerun is None else RerunLogger(options.rerun)
         self.status = LiveStatus(self.stream)
-        self._queue: collections.deque[_Item] = collections.deque()
+        self._queue: collections.deque[_Item | _WorldItem] = collections.deque()
         self._cv = threading.Condition()
         self._stop = False
         self._thread: threading.Thread | None = None
@@ -505,7 +592,19 @@ class Live:
 
     def publish(self, result: TrackResult, frame: Frame) -> None:
         """Queue ``frame`` and the tracker messages written since the last call; drop the oldest when full."""
-        item = _Item(frame, list(self._pending), result)
+        self._enqueue(_Item(frame, list(self._pending), result))
+        if not result.background:
+            self.status.update(result)
+
+    def publish_world(self, result: WorldResult) -> None:
+        """Queue one instant of a multi-camera run (``result.frameset``) and the tracker messages written since."""
+        if result.frameset is None:
+            raise InputError(f"the live view of instant {result.index} needs its frame set")
+        self._enqueue(_WorldItem(result.frameset, list(self._pending), result))
+        if not result.background:
+            self.status.update(result)
+
+    def _enqueue(self, item: _Item | _WorldItem) -> None:
         self._pending.clear()
         with self._cv:
             if len(self._queue) >= self.options.live_queue:
@@ -513,8 +612,6 @@ class Live:
                 self.dropped += 1
             self._queue.append(item)
             self._cv.notify()
-        if not result.background:
-            self.status.update(result)
 
     def _run(self) -> None:
         while True:
@@ -530,15 +627,36 @@ class Live:
                 self.error = self.error or exc
             self.published += 1
 
-    def _send(self, item: _Item) -> None:
+    def _send(self, item: _Item | _WorldItem) -> None:
         from .mcap_record import frame_messages
 
+        if isinstance(item, _WorldItem):
+            self._send_world(item)
+            return
         t = item.frame.timestamp_ns
         if self.foxglove is not None:
             frame = frame_messages(item.frame, "jpeg", JPEG_QUALITY, "raw") if self.foxglove.wants_frames() else []
             self.foxglove.publish(frame + item.messages, t)
         if self.rerun is not None:
             self.rerun.publish(item)
+
+    def _send_world(self, item: _WorldItem) -> None:
+        from . import mcap_format as fmt
+        from .mcap_record import camera_messages, frame_messages
+
+        t = item.frameset.timestamp_ns
+        if self.foxglove is not None:
+            views = item.frameset.views
+            poses: Mapping[str, CameraPose] = {name: view.pose for name, view in views.items()}
+            tf = [(fmt.TF_TOPIC, fmt.encode_transform(name, pose, t), None, None) for name, pose in poses.items()]
+            frames = [
+                m
+                for name, view in views.items()
+                for m in camera_messages(frame_messages(view.frame, "jpeg", JPEG_QUALITY, "raw"), name)
+            ]
+            self.foxglove.publish(tf + frames + item.messages, t)
+        if self.rerun is not None:
+            self.rerun.publish_world(item)
 
     def summary(self) -> str:
         """One line: frames published and dropped, and the clients whose outbox overflowed."""

@@ -49,6 +49,16 @@ _NEVER = 1 << 62
 FrameMessage = tuple[str, Message | None, str | None, Any]
 
 
+def camera_messages(messages: list[FrameMessage], camera: str) -> list[FrameMessage]:
+    """One camera's frame messages in a multi-camera recording: topics under ``/<camera>``, Foxglove messages in the
+    frame ``<camera>`` (the child frame of its pose on ``/tf``)."""
+    out = [(fmt.camera_topic(camera, topic), proto, name, obj) for topic, proto, name, obj in messages]
+    for _topic, proto, _name, _obj in out:
+        if proto is not None:
+            proto.frame_id = camera  # type: ignore[attr-defined]
+    return out
+
+
 def frame_messages(frame: Frame, color_format: str, jpeg_quality: int, depth_format: str) -> list[FrameMessage]:
     """The messages of one frame, calibration first: what :meth:`McapRecorder.write` writes (and the live view streams).
 
@@ -381,10 +391,7 @@ class McapRecorder(Sink):
             self._foreground = True
             self._announce_background(writer)
         if camera is not None:
-            messages = [(fmt.camera_topic(camera, topic), proto, name, obj) for topic, proto, name, obj in messages]
-            for _topic, proto, _name, _obj in messages:
-                if proto is not None:
-                    proto.frame_id = camera  # type: ignore[attr-defined]
+            messages = camera_messages(messages, camera)
         payloads = [
             (self._proto_channel(topic, proto), proto.SerializeToString())
             if proto is not None

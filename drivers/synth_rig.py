@@ -31,6 +31,11 @@ Every camera renders the same 3-D scene with :mod:`drivers.synth`'s renderer
 * **Ground truth**: per camera the pixel truth of the single-camera scene (its
   ``/ground_truth/palm``), and per target the world position in mm (right hand; with
   ``hands=2`` also left hand and head), the palm's centre in the person model.
+* **Scripted events** (``hands=2, script="events"``): the single-camera scene's
+  script (the ball picked up and passed between the hands, the hand at the head,
+  two joins) in the world, the ball drawn by every camera; its true events
+  (:meth:`SynthRig.true_events`) are decided on 3-D distances, so they are the
+  rig's.
 
 The noise of each camera (colour, depth, skeleton) is its own (seeded by the
 camera's number); motion and appearance are shared.
@@ -342,10 +347,16 @@ class _CameraView(SynthSource):
         world = self.world_pose(index)
         if world is None:
             return None
-        to_camera = self._camera_pose.to_camera
-        return sc.Pose(
-            *(to_camera(np.asarray(getattr(world, f)) * 1000.0) / 1000.0 for f in sc.Pose.__dataclass_fields__)
-        )
+        return sc.Pose(*(self._to_camera(np.asarray(getattr(world, f))) for f in sc.Pose.__dataclass_fields__))
+
+    def object_centre(self, index: int) -> np.ndarray | None:
+        """Scripted scene: the ball's centre in this camera's frame (metres), what the renderer draws."""
+        nominal = super().object_centre(index)
+        return None if nominal is None else self._to_camera(np.asarray(nominal) + NOMINAL_CENTRE_M)
+
+    def _to_camera(self, world_m: np.ndarray) -> np.ndarray:
+        """World metres to this camera's frame (metres)."""
+        return self._camera_pose.to_camera(world_m * 1000.0) / 1000.0
 
 
 class SynthRig:
@@ -458,6 +469,11 @@ class SynthRig:
 
     def timestamp_ns(self, index: int) -> int:
         return self.source.timestamp_ns(index)
+
+    def true_events(self) -> list[dict]:
+        """Scripted scene: its true events (:meth:`drivers.synth.SynthSource.true_events`: 3-D distances, the same
+        for every camera); [] otherwise."""
+        return self.source.true_events()
 
     def truth_mm(self, index: int) -> dict[str, np.ndarray]:
         """World ground truth (mm) per target at ``index`` (empty for a background frame)."""

@@ -153,10 +153,29 @@ def sweep_recording(recording: str, reference, config, counts, args, opts: Score
     )
 
 
+def _score_events(args: argparse.Namespace, result: dict, read_topic):
+    """The tracked events against the recording's ``/ground_truth/events`` (None without them), added to ``result``."""
+    from fusion_pf.score.events import DEFAULT_TOLERANCE, events_json, match_events, read_events
+
+    truth = read_events(args.ground_truth, "true_events", read_topic)
+    if truth is None:
+        return None
+    events = match_events(truth, read_events(args.tracked, "events", read_topic) or [])
+    result["events"] = events_json(events, DEFAULT_TOLERANCE)
+    return events
+
+
+def _print_events(events) -> None:
+    """The events line of the Markdown report."""
+    from fusion_pf.score.events import DEFAULT_TOLERANCE
+
+    if events is not None:
+        print(f"\nEvents (within {DEFAULT_TOLERANCE} frames of /ground_truth/events): {events.summary()}")
+
+
 def _score_targets(table, args: argparse.Namespace, target: str | None, read_topic) -> int:
     """A multi-target CSV (``track --targets``): per-target accuracy, states and identity swaps."""
     from drivers.tracker_topics import frame_size
-    from fusion_pf.score.events import DEFAULT_TOLERANCE, events_json, match_events, read_events
     from fusion_pf.score.targets import score_targets_recording, targets_markdown
 
     result = score_targets_recording(table, args.ground_truth, read_topic, frame_size, target)
@@ -167,11 +186,7 @@ def _score_targets(table, args: argparse.Namespace, target: str | None, read_top
             file=sys.stderr,
         )
     errors = result.pop("errors")
-    truth = read_events(args.ground_truth, "true_events", read_topic)
-    events = None
-    if truth is not None:
-        events = match_events(truth, read_events(args.tracked, "events", read_topic) or [])
-        result["events"] = events_json(events, DEFAULT_TOLERANCE)
+    events = _score_events(args, result, read_topic)
     if args.plots is not None:
         from fusion_pf.score.plots import plot_targets
 
@@ -181,23 +196,24 @@ def _score_targets(table, args: argparse.Namespace, target: str | None, read_top
         print(json.dumps(result, indent=1, default=lambda x: None))
     else:
         print(targets_markdown(result, args.tracked, args.ground_truth), end="")
-        if events is not None:
-            print(f"\nEvents (within {DEFAULT_TOLERANCE} frames of /ground_truth/events): {events.summary()}")
+        _print_events(events)
     return 0
 
 
 def _score_world(table, args: argparse.Namespace, read_topic) -> int:
-    """A multi-camera run (``track MULTI.mcap``): 3-D RMSE per target against ``/ground_truth/world``."""
+    """A multi-camera run (``track MULTI.mcap``): 3-D RMSE per target against ``/ground_truth/world``, and its events."""
     from fusion_pf.score.targets import score_world_recording, world_markdown
 
     if args.plots is not None or args.reference is not None or from_args(ScoreOptions, args).sweep is not None:
         raise InputError(f"{args.tracked} is a multi-camera run: score it with --ground-truth MULTI.mcap only")
     result = score_world_recording(table, args.ground_truth, read_topic)
     result.pop("errors")
+    events = _score_events(args, result, read_topic)
     if args.json:
         print(json.dumps(result, indent=1, default=lambda x: None))
     else:
         print(world_markdown(result, args.tracked, args.ground_truth), end="")
+        _print_events(events)
     return 0
 
 

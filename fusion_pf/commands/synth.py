@@ -98,9 +98,9 @@ class SynthOptions:
     script: str = option(
         _SCENE["script"],
         choices=SCRIPTS,
-        help="events: the scripted two-hand scene (needs --hands 2; seeded timing and places): a ball "
-        "picked up by the right hand and passed to the left while the hands join, the right hand at the "
-        "head, a second join; its true events on /ground_truth/events",
+        help="events: the scripted two-hand scene (needs --hands 2; seeded timing and places; with --cameras seen by "
+        "every camera): a ball picked up by the right hand and passed to the left while the hands join, the right "
+        "hand at the head, a second join; its true events on /ground_truth/events",
     )
 
     depth_noise: float = option(
@@ -239,11 +239,12 @@ class SynthOptions:
             )
         if self.occlude != "none" and self.cameras < 2:
             raise InputError("--occlude hides targets from cameras of a rig; it needs --cameras 2 or more")
-        if self.script != "none" and (self.hands != 2 or self.cameras > 1):
+        if self.script != "none" and self.hands != 2:
             raise InputError(
-                f"--script {self.script} is a single-camera two-hand scene; it needs --hands 2 and no --cameras, "
-                f"got --hands {self.hands} --cameras {self.cameras}"
+                f"--script {self.script} is a two-hand scene; it needs --hands 2, got --hands {self.hands}"
             )
+        if self.script != "none" and self.board:
+            raise InputError(f"--script {self.script} acts the person's script; --board renders no person")
         if self.board and self.cameras < 2:
             raise InputError("--board renders a rig's calibration sequence; it needs --cameras 2 or more")
         if self.background_frames > self.frames:
@@ -333,10 +334,13 @@ def _run_rig(rig: SynthRig, encoding: EncodingOptions, out: Path, no_progress: b
             file=sys.stderr,
         ) as bar,
     ):
+        events = rig.true_events()
         for index in range(len(rig)):
             frames, visible = rig.render(index)
             truth = rig.truth_mm(index)
             recorder.write(rig.timestamp_ns(index), frames, truth, visible if truth else None)
+            for event in (e for e in events if e["frame"] == index):
+                recorder.recorder.write_json(GROUND_TRUTH_EVENTS_TOPIC, EVENT_SCHEMA, event, event["timestamp_ns"])
             bar.update()
     print(
         f"wrote {recorder.sets_written} instants of {cameras} cameras ({rig.source.background_frames} background) "

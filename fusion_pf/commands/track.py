@@ -31,7 +31,8 @@ DESCRIPTION = (
     "exit status is 3 (partial). A multi-camera recording (fusion-pf synth --cameras, merge) is tracked in world "
     "millimetres (one 3-D particle filter per target fed by every camera's cues): the CSV has one row per instant "
     "and target (x_mm, y_mm, z_mm, sigma_mm, the cameras that measured it, u, v per camera) and OUT.mcap gets "
-    "/tracker/world and the camera poses on /tf."
+    "/tracker/world, /tracker/events (joins, contacts, losses, carried objects decided in world mm) and the camera "
+    "poses on /tf; --serve and --rerun show every camera, the poses and the targets live."
 )
 
 
@@ -268,11 +269,9 @@ def run(args: argparse.Namespace) -> int:
         from drivers.rig import is_rig
 
         if is_rig(args.source):  # several cameras: tracked in world coordinates
-            if live_options.enabled:
-                raise InputError(f"the live view is for one camera; {args.source} is a multi-camera recording")
             from ._rig_track import track_rig
 
-            return track_rig(args, config)
+            return track_rig(args, config, live_options)
     background = None if config.background is None else load_background(config.background)
     if args.export_ply is not None:
         args.export_ply.mkdir(exist_ok=True)

@@ -32,12 +32,18 @@ is reported in the frame that confirms it, its ``detail`` holds the frame
 the condition began (``onset_frame``). Pairs of combined targets are taken
 from the states alone: the combined targets are paired closest first
 (paper 004 assumes at most two targets join at a time).
+
+:meth:`EventDetector.update` takes one camera's pixels and frame;
+:meth:`EventDetector.decide` takes the same decisions in any space (the
+positions and each hand's palm length in one unit, the combined pairs and the
+colour analysis given): :mod:`fusion_pf.pipeline.world_events` feeds it world
+millimetres.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -58,9 +64,11 @@ __all__ = [
     "Event",
     "EventConfig",
     "EventDetector",
+    "Look",
     "Persist",
     "events_cell",
     "object_modes",
+    "pair_within",
 ]
 
 #: Every event name, in the order of the module docstring.
@@ -69,6 +77,8 @@ EVENTS = ("join", "separate", "contact", "disappear", "reappear", "pick_up", "pu
 _HOLDING = (TrackState.TRACKING.value, TrackState.COMBINED.value, TrackState.UNLABELLED.value)
 #: The head target's name.
 HEAD = "head"
+#: The colour analysis of a hand: ``look(hand, position, palm)`` -> the held object's hue (degrees) or None.
+Look = Callable[[str, Sequence[float], float], float | None]
 
 
 @dataclass(frozen=True)
@@ -126,6 +136,11 @@ class EventConfig:
     contact_on, contact_off : float
         A hand closer to the head than ``contact_on`` palm lengths touches it;
         the contact ends beyond ``contact_off``.
+    join_on, join_off : float
+        Where joins are decided on distances (tracking in world coordinates,
+        :func:`pair_within`; one camera takes them from the tracker's
+        ``combined`` state): two targets closer than ``join_on`` palm lengths
+        are combined, and apart again beyond ``join_off``.
     region : float
         Radius of the colour-analysis circle around a hand (palm lengths).
     apart : float
@@ -156,6 +171,8 @@ class EventConfig:
     carry_persist: int = 4
     contact_on: float = 1.3
     contact_off: float = 1.8
+    join_on: float = 1.25
+    join_off: float = 1.5
     region: float = 1.1
     apart: float = 2.2
     depth_tolerance_mm: float = 80.0
@@ -171,10 +188,9 @@ class EventConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise InputError(f"event {name} must be an int >= 1 frame, got {value!r}")
-        if not 0.0 < self.contact_on <= self.contact_off:
-            raise InputError(
-                f"event contact_on must be > 0 and <= contact_off ({self.contact_off}), got {self.contact_on}"
-            )
+        for on, off in (("contact_on", "contact_off"), ("join_on", "join_off")):
+            if not 0.0 < getattr(self, on) <= getattr(self, off):
+                raise InputError(f"event {on} must be > 0 and <= {off} ({getattr(self, off)}), got {getattr(self, on)}")
 
 
 class Persist:
@@ -323,7 +339,7 @@ class EventDetector:
         self._hue: dict[str, float | None] = {h: None for h in self.hands}
         self._candidate_hue: dict[str, float | None] = {h: None for h in self.hands}
         self._palm_px: dict[str, float] = {}
-        self._last: dict[str, tuple[float, float]] = {}
+        self._last: dict[str, Sequence[float]] = {}
         self._pending: dict[tuple[str, str], _Pending] = {}
         self.counts = {e: 0 for e in EVENTS}
 
@@ -369,6 +385,40 @@ class EventDetector:
         depths_mm : mapping of str to float or None, optional
             Each target's depth (its 3-D ``z``), for the apparent palm size.
         """
+        self._update_palms(image, depths_mm or {})
+        look = None if image is None else _looker(image, depths_mm or {}, self.config)
+        return self.decide(states, positions, frame, timestamp_ns, palms=self._palm_px, look=look)
+
+    def decide(
+        self,
+        states: Mapping[str, str],
+        positions: Mapping[str, Sequence[float] | None],
+        frame: int,
+        timestamp_ns: int,
+        *,
+        palms: Mapping[str, float] | None = None,
+        look: Look | None = None,
+        partners: Mapping[str, str] | None = None,
+    ) -> list[Event]:
+        """The events of one frame in any space: image pixels (:meth:`update`) or world millimetres.
+
+        Parameters
+        ----------
+        states : mapping of str to str
+            Each target's track state.
+        positions : mapping of str to a point or None
+            Each target's estimate, in the units of ``palms`` (``(u, v)`` px, ``(x, y, z)`` mm).
+        frame, timestamp_ns : int
+        palms : mapping of str to float, optional
+            Each hand's palm length in those units (the unit of the thresholds of :class:`EventConfig`);
+            a hand without one has no contact by distance and no object analysis.
+        look : callable, optional
+            ``look(hand, position, palm)``: the hue of the object the hand holds (the largest colour mode that
+            is not skin, :func:`object_modes`) or None; without it there are no object events.
+        partners : mapping of str to str, optional
+            The combined targets, each to its partner (paper 004's ``combined`` state); None: taken from
+            ``states`` (the combined targets, closest first).
+        """
         unknown = sorted(set(states) - set(self.targets))
         if unknown:
             raise InputError(f"events for unknown target {unknown[0]!r}; targets: {', '.join(self.targets)}")
@@ -389,8 +439,8 @@ class EventDetector:
                 self._seen[t] = self._seen[t] or held
         if not self.hands:
             return out
-        partners = _pair_combined(states, positions)
-        self._update_palms(image, depths_mm or {})
+        partners = _pair_combined(states, positions) if partners is None else partners
+        palms = palms or {}
         for pair, p in self._joined.items():
             a, b = pair
             if p.update(partners.get(a) == b, frame):
@@ -405,15 +455,15 @@ class EventDetector:
         head = positions.get(HEAD) if states.get(HEAD) in _HOLDING else None
         for h, p in self._contact.items():
             pos = positions.get(h) if states.get(h) in _HOLDING else None
-            palm = self._palm_px.get(h)
+            palm = palms.get(h)
             near = partners.get(h) == HEAD
             if pos is not None and head is not None and palm is not None:
                 limit = (self.config.contact_off if p.value else self.config.contact_on) * palm
-                near = near or math.hypot(pos[0] - head[0], pos[1] - head[1]) < limit
+                near = near or math.dist(pos, head) < limit
             if p.update(near, frame) and p.value:
                 emit("contact", (h, HEAD), p.onset)
-        if image is not None:
-            self._objects(states, positions, partners, image, depths_mm or {}, frame, emit)
+        if look is not None:
+            self._objects(states, positions, partners, palms, look, frame, emit)
         return out
 
     def _update_palms(self, image: Frame | None, depths_mm: Mapping[str, float | None]) -> None:
@@ -424,20 +474,18 @@ class EventDetector:
             if z is not None and z > 0:
                 self._palm_px[h] = image.intrinsics.fx * PALM_LENGTH_MM / z
 
-    def _objects(self, states, positions, partners, image: Frame, depths_mm, frame: int, emit) -> None:
+    def _objects(self, states, positions, partners, palms, look: Look, frame: int, emit) -> None:
         """Carried objects (§7.2) and the decisions of separated pairs (§7.3.1)."""
         cfg = self.config
-        clothing = _clothing_hue(image)
         changed: dict[str, int] = {}
         for h in self.hands:
-            pos, palm = positions.get(h), self._palm_px.get(h)
+            pos, palm = positions.get(h), palms.get(h)
             if states.get(h) != TrackState.TRACKING.value or h in partners or pos is None or palm is None:
                 continue
             others = [positions.get(o) for o in self.hands if o != h]
-            if any(o is not None and math.hypot(o[0] - pos[0], o[1] - pos[1]) < cfg.apart * palm for o in others):
+            if any(o is not None and math.dist(o, pos) < cfg.apart * palm for o in others):
                 continue
-            modes = object_modes(image.color, image.depth, pos, palm, depths_mm.get(h), cfg, clothing)
-            hue = modes[0][0] if modes else None
+            hue = look(h, pos, palm)
             last, self._last[h] = self._last.get(h), pos
             waiting = [q.samples for pair, q in self._pending.items() if h in pair and q.samples is not None]
             if waiting:
@@ -448,7 +496,7 @@ class EventDetector:
             p = self._carry[h]
             if hue is not None:
                 self._candidate_hue[h] = hue
-            still = last is not None and math.hypot(pos[0] - last[0], pos[1] - last[1]) < cfg.still * palm
+            still = last is not None and math.dist(pos, last) < cfg.still * palm
             # a hand takes or leaves an object only while still (the climax point of a pick-up or put-down)
             if still and p.update(hue is not None, frame):
                 self._hue[h] = self._candidate_hue[h] if p.value else None
@@ -484,6 +532,18 @@ class EventDetector:
                 emit("put_down", (h,), onset)
 
 
+def _looker(image: Frame, depths_mm: Mapping[str, float | None], config: EventConfig) -> Look:
+    """The colour analysis of one camera's frame: a hand's largest :func:`object_modes` mode (its hue), or None."""
+    clothing = _clothing_hue(image)
+
+    def look(hand: str, position: Sequence[float], palm: float) -> float | None:
+        u, v = position
+        modes = object_modes(image.color, image.depth, (u, v), palm, depths_mm.get(hand), config, clothing)
+        return modes[0][0] if modes else None
+
+    return look
+
+
 def _majority(samples: Sequence[float | None]) -> float | None:
     """A hand's carrier state from its samples after a separation: the object's hue when at least half saw one."""
     hues = [x for x in samples if x is not None]
@@ -507,11 +567,29 @@ def _clothing_hue(image: Frame) -> float | None:
     return float(np.median(hsv[..., 0])) * 360.0 / 256.0
 
 
-def _pair_combined(states: Mapping[str, str], positions: Mapping[str, tuple[float, float] | None]) -> dict[str, str]:
+def pair_within(
+    positions: Mapping[str, Sequence[float] | np.ndarray | None], before: Mapping[str, str], on: float, off: float
+) -> dict[str, str]:
+    """Targets combined by distance, each to its partner: closer than ``on``, or combined ``before`` and closer than
+    ``off`` (hysteresis); pairs taken in target order, each target in at most one (paper 004: two at a time)."""
+    out: dict[str, str] = {}
+    names = [t for t, p in positions.items() if p is not None]
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            pa, pb = positions[a], positions[b]
+            if a in out or b in out or pa is None or pb is None:
+                continue
+            gap = math.dist(pa, pb)
+            if gap < on or (before.get(a) == b and gap < off):
+                out[a], out[b] = b, a
+    return out
+
+
+def _pair_combined(states: Mapping[str, str], positions: Mapping[str, Sequence[float] | None]) -> dict[str, str]:
     """The combined targets, each to its partner: closest pairs first (paper 004: two at a time)."""
     combined = [t for t, s in states.items() if s == TrackState.COMBINED.value and positions.get(t) is not None]
     pairs = sorted(
-        (math.hypot(pa[0] - pb[0], pa[1] - pb[1]), a, b)
+        (math.dist(pa, pb), a, b)
         for i, a in enumerate(combined)
         for b in combined[i + 1 :]
         if (pa := positions[a]) is not None and (pb := positions[b]) is not None

@@ -260,11 +260,15 @@ def world_csv_columns(cameras: Sequence[str]) -> tuple[str, ...]:
         "sigma_mm",
         "cameras",
         *(f"{c}_{k}" for c in cameras for k in ("u", "v")),
+        "events",
     )
 
 
 def world_csv_row(result: WorldResult, target: str, cameras: Sequence[str]) -> list[str]:
-    """The CSV cells of ``target`` at one instant, in :func:`world_csv_columns` order (empty cells without a value)."""
+    """The CSV cells of ``target`` at one instant, in :func:`world_csv_columns` order (empty cells without a value).
+
+    The ``events`` cell holds the instant's events whose first target is ``target`` (each event in one row).
+    """
     w = result.targets[target]
     xyz = (None, None, None) if w.position_mm is None else tuple(float(v) for v in w.position_mm)
     cells = [str(result.index), str(result.timestamp_ns), target, w.state]
@@ -272,6 +276,7 @@ def world_csv_row(result: WorldResult, target: str, cameras: Sequence[str]) -> l
     for c in cameras:
         uv = w.pixels.get(c)
         cells += ["", ""] if uv is None else [_f(uv[0], 3), _f(uv[1], 3)]
+    cells.append(events_cell([e for e in result.events if e.targets[0] == target]))
     return cells
 
 

@@ -81,6 +81,7 @@ from ..frame import Frame, Intrinsics, Measurement
 from ..geometry import backproject, depth_at
 from ..rig import CameraPose, FrameSet
 from .config import TrackConfig
+from .events import Event, pair_within
 from .run import (
     COMBINE_PALMS,
     DEGRADED_FRAMES,
@@ -148,13 +149,15 @@ class WorldTarget:
 
 @dataclass
 class WorldResult:
-    """The world tracker's output for one instant (a frame set)."""
+    """The world tracker's output for one instant (a frame set); ``events``: its interaction events, set by
+    :mod:`fusion_pf.pipeline.world_events`."""
 
     index: int
     timestamp_ns: int
     background: bool
     targets: dict[str, WorldTarget] = field(default_factory=dict)
     frameset: FrameSet | None = None
+    events: list[Event] = field(default_factory=list)
 
 
 def _with_backgrounds(
@@ -538,15 +541,4 @@ def track_world(
 
 def _partners(predicted: Mapping[str, np.ndarray | None], before: Mapping[str, str]) -> dict[str, str]:
     """Combined targets (each to its partner): predictions closer than :data:`COMBINE_MM`, or combined before and closer than :data:`SEPARATE_MM`."""
-    out: dict[str, str] = {}
-    names = [t for t, p in predicted.items() if p is not None]
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            if a in out or b in out:
-                continue
-            pa, pb = predicted[a], predicted[b]
-            assert pa is not None and pb is not None
-            gap = float(np.linalg.norm(pa - pb))
-            if gap < COMBINE_MM or (before.get(a) == b and gap < SEPARATE_MM):
-                out[a], out[b] = b, a
-    return out
+    return pair_within(predicted, before, COMBINE_MM, SEPARATE_MM)

@@ -96,7 +96,7 @@ def test_true_events_follow_the_seed_and_the_script_needs_two_hands(fusion_pf, t
     with pytest.raises(InputError, match="script must be one of none, events"):
         SynthSource(hands=2, script="dance")
     r = fusion_pf("synth", tmp_path / "x.mcap", "--script", "events")
-    assert r.returncode == 2 and "--script events is a single-camera two-hand scene" in r.stderr
+    assert r.returncode == 2 and "--script events is a two-hand scene; it needs --hands 2" in r.stderr
     assert "Traceback" not in r.stderr
 
 

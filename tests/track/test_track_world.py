@@ -121,7 +121,7 @@ def test_track_writes_one_csv_row_per_instant_and_target(tracked_rig):
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == [
         "frame", "timestamp_ns", "target", "state", "x_mm", "y_mm", "z_mm", "sigma_mm", "cameras",
-        "cam0_u", "cam0_v", "cam1_u", "cam1_v",
+        "cam0_u", "cam0_v", "cam1_u", "cam1_v", "events",
     ]  # fmt: skip
     assert len(rows) == 2 * 20 and [r["target"] for r in rows[:2]] == list(HANDS)
     tracking = [r for r in rows if r["state"] == "tracking"]

@@ -1,0 +1,143 @@
+"""Interaction events of a multi-camera run (fusion_pf.pipeline.world_events): decided in world millimetres.
+
+The stage on hand-made world estimates (joins, separations and contacts in 3-D
+with their hysteresis, losses), the scripted scene on the synthetic rig (the
+ball where it is in every camera, the true events), and end to end: ``synth
+--cameras 2 --script events``, ``track`` (``/tracker/events``, the CSV's
+``events`` column), ``score``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from drivers import synth_scene as sc
+from drivers.synth import SynthSource
+from drivers.synth_rig import NOMINAL_CENTRE_M, SynthRig
+from fusion_pf.filter.world import project
+from fusion_pf.pipeline.events import EventConfig, pair_within
+from fusion_pf.pipeline.world import WorldResult, WorldTarget
+from fusion_pf.pipeline.world_events import WORLD_EVENTS, WorldEvents
+from fusion_pf.score.events import parse_events_cell
+
+TARGETS = ("right_hand", "left_hand", "head")
+HEAD_MM = (0.0, -400.0, 1000.0)
+
+
+def _instant(k: int, right, left, head=HEAD_MM, states=None) -> WorldResult:
+    """One instant of hand-made world estimates (mm; None: no estimate)."""
+    states = states or {}
+    points = {"right_hand": right, "left_hand": left, "head": head}
+    targets = {
+        t: WorldTarget(t, states.get(t, "tracking"), None if p is None else np.array(p, float), 10.0, ("cam0",), {})
+        for t, p in points.items()
+    }
+    return WorldResult(k, 1000 + k, False, targets)
+
+
+def _events(sequence, config=None):
+    stage = WorldEvents(TARGETS, config)
+    return [(e.frame, e.event, e.targets) for r in sequence for e in stage.feed(r)]
+
+
+def test_joins_and_separations_are_decided_on_3d_distances_with_hysteresis():
+    # the hands share x and y and differ in depth: 300 mm apart in 3-D, 0 in any 2-D projection along z
+    gaps = [300.0] * 3 + [100.0] * 4 + [130.0] * 4 + [200.0] * 4 + [130.0] * 4
+    seq = [_instant(k, (0.0, 0.0, 1000.0), (0.0, 0.0, 1000.0 + g)) for k, g in enumerate(gaps)]
+    events = _events(seq)
+    # joined below join_on (1.25 x 95 = 118.75 mm) from frame 3, confirmed at 4; 130 mm stays joined (below
+    # join_off 142.5 mm); apart from 11, confirmed at 12; 130 mm again is no new join (above join_on)
+    assert events == [(4, "join", ("right_hand", "left_hand")), (12, "separate", ("right_hand", "left_hand"))]
+    assert WORLD_EVENTS.join_on * 95.0 < 130.0 < WORLD_EVENTS.join_off * 95.0
+    # the hysteresis is the world tracker's pairing (pair_within): combined pairs keep their partner
+    assert pair_within({"a": (0, 0, 0), "b": (0, 0, 130)}, {"a": "b", "b": "a"}, 119.0, 142.0) == {"a": "b", "b": "a"}
+    assert pair_within({"a": (0, 0, 0), "b": (0, 0, 130)}, {}, 119.0, 142.0) == {}
+
+
+def test_a_hand_at_the_head_is_one_contact_in_mm_and_hovering_at_the_threshold_is_no_second():
+    far, near, hover = 400.0, 100.0, 140.0  # contact_on 1.3 x 95 = 123.5 mm, contact_off 1.8 x 95 = 171 mm
+    head = np.array(HEAD_MM)
+    dists = [far] * 3 + [near] * 3 + [hover, near, hover, near] + [far] * 3
+    seq = [_instant(k, tuple(head + (d, 0.0, 0.0)), (600.0, 0.0, 1000.0)) for k, d in enumerate(dists)]
+    assert _events(seq) == [(4, "contact", ("right_hand", "head"))]
+
+
+def test_a_target_no_camera_sees_disappears_and_reappears():
+    states = ["tracking"] * 3 + ["lost"] * 4 + ["tracking"] * 3
+    seq = [
+        _instant(k, None if s == "lost" else (0.0, 0.0, 1000.0), (600.0, 0.0, 1000.0), states={"right_hand": s})
+        for k, s in enumerate(states)
+    ]
+    assert _events(seq) == [(4, "disappear", ("right_hand",)), (8, "reappear", ("right_hand",))]
+    with pytest.raises(Exception, match="join_on must be > 0 and <= join_off"):
+        EventConfig(join_on=2.0, join_off=1.0)
+
+
+def test_the_scripted_ball_is_drawn_where_it_is_in_every_camera_and_the_truth_is_the_scripts():
+    scene = dict(frames=60, seed=3, size=(320, 200), background_frames=5, hands=2, script="events")
+    rig = SynthRig(3, **scene)
+    assert rig.true_events() == SynthSource(**scene).true_events()
+    index = 15  # the ball rests beside the person
+    ball_m = sc.script_pose_at(rig.source._motion, rig.source._script, float(index - 5))[1] + NOMINAL_CENTRE_M
+    frames = rig.frames(index)
+    for name, frame in frames.items():
+        uv, _ = project(ball_m[None] * 1000.0, rig.poses[name], frame.intrinsics)
+        u, v = (int(round(c)) for c in uv[0])
+        r, g, b = (int(c) for c in frame.color[v, u])
+        assert g > r + 40 and g > b + 40, (name, (u, v), (r, g, b))  # the dark green ball
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory, fusion_pf):
+    d = tmp_path_factory.mktemp("rig_events")
+    rec, out, table = d / "scene.mcap", d / "tracked.mcap", d / "tracked.csv"
+    scene = ("--cameras", "2", "--hands", "2", "--script", "events", "--frames", "330", "--background-frames", "30")
+    scene += ("--color-format", "png", "--depth-format", "png")
+    r = fusion_pf("synth", rec, *scene, "--size", "320x200", "--seed", "1", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    r = fusion_pf("track", rec, "-o", out, "--csv", table, "--targets", ",".join(TARGETS), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    return rec, out, table, r.stderr
+
+
+def _topic(path, topic):
+    with open(path, "rb") as fh:
+        return [json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(topics=[topic])]
+
+
+def test_a_tracked_rig_reports_its_events_on_the_topic_and_in_the_csv(tracked):
+    rec, out, table, stderr = tracked
+    truth = _topic(rec, "/ground_truth/events")
+    assert [m["event"] for m in truth] == ["pick_up", "join", "separate", "exchange", "contact", "join", "separate"]
+    reported = _topic(out, "/tracker/events")
+    names = [m["event"] for m in reported]
+    for event in ("pick_up", "join", "separate", "exchange"):
+        assert event in names, names
+    assert "events: " in stderr and " join" in stderr
+    with open(table, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    from_csv = [e for row in rows for e in parse_events_cell(int(row["frame"]), row["events"])]
+    assert [(e["frame"], e["event"], e["targets"]) for e in from_csv] == [
+        (m["frame"], m["event"], m["targets"]) for m in reported
+    ]
+    # each event in one row: the row of its first target
+    assert all(row["events"].split(":")[1].split("+")[0] == row["target"] for row in rows if row["events"])
+
+
+def test_score_matches_a_rig_runs_events_to_the_truth(tracked, fusion_pf):
+    rec, out, table, _ = tracked
+    for path in (table, out):
+        r = fusion_pf("score", path, "--ground-truth", rec, "--json")
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        matched = {(m["event"], m["frame"]) for m in doc["events"]["matched"]}
+        # the joins, separations, the pick-up and the exchange within 5 frames of the truth
+        assert {e for e, _ in matched} >= {"pick_up", "join", "separate", "exchange"}, doc["events"]
+        assert doc["targets"]["right_hand"]["rmse_mm"] > 0
+    r = fusion_pf("score", table, "--ground-truth", rec)
+    assert "Events (within 5 frames of /ground_truth/events):" in r.stdout
