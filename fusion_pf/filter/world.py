@@ -288,16 +288,16 @@ class WorldParticleFilter:
         self.particles[:, 3:] = 0.0
         self.initialised = True
 
-    def predict(self, timestamp_ns: int) -> None:
-        """Move every particle to ``timestamp_ns`` (constant velocity plus process noise)."""
+    def predict(self, timestamp_ns: int, noise_scale: float = 1.0) -> None:
+        """Move every particle to ``timestamp_ns`` (constant velocity plus the process noise times ``noise_scale``)."""
         dt = self.clock.steps(timestamp_ns, self.last_ns)
         if self.last_ns is not None:
             # x <- x + dt v + q_pos sqrt(dt) n,  v <- rho^dt v + q_vel sqrt(dt) n'
             self.particles[:, :3] += dt * self.particles[:, 3:]
             self.particles[:, 3:] *= self.damping**dt
             noise = self.rng.standard_normal((self.n_particles, 6))
-            noise[:, :3] *= self.process_noise_mm[0] * math.sqrt(dt)
-            noise[:, 3:] *= self.process_noise_mm[1] * math.sqrt(dt)
+            noise[:, :3] *= noise_scale * self.process_noise_mm[0] * math.sqrt(dt)
+            noise[:, 3:] *= noise_scale * self.process_noise_mm[1] * math.sqrt(dt)
             self.particles += noise
         self.last_ns = int(timestamp_ns)
 

@@ -183,3 +183,16 @@ def test_one_colour_only_camera_leaves_the_depth_where_it_was():
     o, d = _line(LEFT, project(POINT[None], LEFT, K)[0][0])
     assert np.linalg.norm(np.cross(est - o, d)) < 15.0
     assert abs(np.dot(est - start, d)) < 100.0  # measured 44 mm
+
+
+def test_predict_scales_the_process_noise():
+    # the same draws: a half noise scale moves every particle half as far (no velocity yet, so the noise only)
+    moved = []
+    for scale in (1.0, 0.5):
+        pf = WorldParticleFilter(50, (10.0, 2.5), 7)
+        pf.reset(POINT, 0.0)
+        pf.predict(0)
+        pf.predict(33_333_333, scale)
+        moved.append(pf.particles - np.concatenate([POINT, np.zeros(3)]))
+    assert np.abs(moved[0]).mean() > 1.0
+    assert moved[1] == pytest.approx(0.5 * moved[0], abs=1e-9)

@@ -223,3 +223,21 @@ def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_h
     assert shared["right_hand"][0] == pytest.approx(left) and shared["left_hand"][0] == pytest.approx(right)
     alone = seen([ur - pad, vr - pad, 2 * pad, 2 * pad])  # the right hand's blob only
     assert alone["right_hand"] == [None] and alone["left_hand"] == []
+
+
+def test_a_joined_pair_moves_with_less_process_noise():
+    # combined and closer than JOINED_MM: both get JOINED_NOISE; combined but farther apart, close but not combined,
+    # or without an estimate: the full noise
+    from fusion_pf.pipeline.world import JOINED_MM, JOINED_NOISE, _noise_scales
+
+    a, near, far = np.zeros(3), np.array([JOINED_MM - 1.0, 0.0, 0.0]), np.array([JOINED_MM + 1.0, 0.0, 0.0])
+    pair = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    assert JOINED_NOISE < 1.0
+    assert _noise_scales({"right_hand": a, "left_hand": near, "head": a}, pair) == {
+        "right_hand": JOINED_NOISE,
+        "left_hand": JOINED_NOISE,
+        "head": 1.0,
+    }
+    assert set(_noise_scales({"right_hand": a, "left_hand": far}, pair).values()) == {1.0}
+    assert set(_noise_scales({"right_hand": a, "left_hand": near}, {}).values()) == {1.0}
+    assert set(_noise_scales({"right_hand": a, "left_hand": None}, pair).values()) == {1.0}
