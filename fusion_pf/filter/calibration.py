@@ -143,14 +143,16 @@ def core_and_outliers(r: np.ndarray, p: np.ndarray, rounds: int = FIT_ROUNDS) ->
     return var, eps
 
 
-def process_scale(corrections: np.ndarray, process_noise_px: float, lo: float = MIN_PROCESS_SCALE) -> float:
-    """Factor in ``[lo, 1]`` for the configured position process noise, from the filter's corrections.
+def process_scale(
+    corrections: np.ndarray, process_noise_px: float, lo: float = MIN_PROCESS_SCALE, hi: float = 1.0
+) -> float:
+    """Factor in ``[lo, hi]`` for the configured position process noise, from the filter's corrections.
 
     Innovation-based adaptive estimation (Mohamed & Schwarz, "Adaptive Kalman filtering for
     INS/GPS", Journal of Geodesy 1999, eq. 33): the process noise is the covariance of the
     state corrections ``K nu``, here the estimate minus the prediction of each frame, so
     ``q_hat^2 = mean(|x_est - x_pred|^2 / 2)`` per axis and the factor is
-    ``q_hat / process_noise_px`` within ``[lo, 1]`` (the configured noise is the most the
+    ``q_hat / process_noise_px`` within ``[lo, hi]`` (one camera: ``hi = 1``, the configured noise is the most the
     hand may move; a smaller one lets the filter average its cues' white noise).
 
     Parameters
@@ -161,9 +163,11 @@ def process_scale(corrections: np.ndarray, process_noise_px: float, lo: float = 
         The configured position process noise per frame step, px (> 0).
     lo : float
         Smallest factor, in (0, 1].
+    hi : float
+        Largest factor, >= ``lo``.
     """
     q_hat = math.sqrt(float(np.mean(corrections)))
-    return min(max(q_hat / process_noise_px, lo), 1.0)
+    return min(max(q_hat / process_noise_px, lo), hi)
 
 
 def quality_bin(quality: float) -> int:

@@ -45,6 +45,7 @@ __all__ = [
     "OUTLIER_VOLUME_MM3",
     "PixelObservation",
     "PointObservation",
+    "RESEED_FRACTION",
     "SURFACE_DEPTH_MM",
     "WorldParticleFilter",
     "beyond",
@@ -77,6 +78,9 @@ DEFAULT_WORLD_PROCESS_NOISE = (10.0, 2.5)
 #: Velocity kept per frame step (``v <- rho v``): a hand seen along one line of sight only (one colour-only camera)
 #: has no depth measurement, and undamped velocity carried it metres along that line on the synthetic rig.
 VELOCITY_DAMPING = 0.5
+#: Share of the particles :meth:`WorldParticleFilter.reseed` re-draws around a point the cameras agree on far outside
+#: the particle cloud (sensor resetting).
+RESEED_FRACTION = 0.25
 #: Prior probability that one observation is an outlier (the robust likelihood's ``eps``).
 OUTLIER_PROB = 0.1
 #: Volume of the uniform outlier density of 3-D points: a 4 m x 3 m x 3 m room, mm^3.
@@ -287,6 +291,36 @@ class WorldParticleFilter:
         self.particles[:, :3] = p + spread_mm * self.rng.standard_normal((self.n_particles, 3))
         self.particles[:, 3:] = 0.0
         self.initialised = True
+
+    def reseed(
+        self,
+        point_mm: np.ndarray,
+        spread_mm: float,
+        velocity_mm: np.ndarray | None = None,
+        fraction: float = RESEED_FRACTION,
+    ) -> None:
+        """Re-draw ``fraction`` of the particles (chosen at random) around ``point_mm`` (``spread_mm`` per axis), their
+        velocities uniform between 0 and ``velocity_mm`` (mm per frame step; None: 0).
+
+        Sensor resetting (Lenser & Veloso, "Sensor resetting localization for poorly modelled mobile robots",
+        ICRA 2000), a mixture proposal: when the measurements sit far outside the cloud (a move faster than the
+        process noise follows) the likelihood then chooses between the old cloud and the new particles. The new
+        particles weigh as the mean particle (``1 / N`` of the normalised weights).
+        """
+        if not 0.0 <= float(fraction) <= 1.0:
+            raise InputError(f"fraction must be in [0, 1], got {fraction!r}")
+        k = int(round(float(fraction) * self.n_particles))
+        if k == 0 or not self.initialised:
+            return
+        chosen = self.rng.choice(self.n_particles, size=k, replace=False)
+        p = np.asarray(point_mm, dtype=np.float64).reshape(3)
+        self.particles[chosen, :3] = p + spread_mm * self.rng.standard_normal((k, 3))
+        v = np.zeros(3) if velocity_mm is None else np.asarray(velocity_mm, dtype=np.float64).reshape(3)
+        self.particles[chosen, 3:] = self.rng.uniform(0.0, 1.0, (k, 1)) * v
+        lw = self.log_weights - self.log_weights.max()
+        lw -= math.log(float(np.exp(lw).sum()))
+        lw[chosen] = -math.log(self.n_particles)
+        self.log_weights = lw
 
     def predict(self, timestamp_ns: int, noise_scale: float = 1.0) -> None:
         """Move every particle to ``timestamp_ns`` (constant velocity plus the process noise times ``noise_scale``)."""

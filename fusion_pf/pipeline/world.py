@@ -63,6 +63,7 @@ from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.registry import CUES
 from ..cues.roi import PALM_LENGTH_MM
 from ..errors import InputError
+from ..filter.calibration import process_scale
 from ..filter.kernel import warm_up
 from ..filter.likelihood import quality_sigma
 from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
@@ -121,6 +122,8 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 JOINED_MM, JOINED_NOISE = 60.0, 0.75
 #: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
 GATE_SIGMAS = 4.0
+#: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`).
+MAX_WORLD_NOISE_SCALE = 3.0
 #: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
 ACQUIRE_GATE_MM = 80.0
 
@@ -325,31 +328,40 @@ def _acquire(
 
     The lines of sight of the most trusted measurement of every camera, triangulated; else the most trusted 3-D point.
     """
+    agreed = _triangulate(seen)
+    if agreed is not None:
+        return agreed
+    points = [ob for *_, ob in seen if isinstance(ob, PointObservation)]
+    if points:
+        first = min(points, key=lambda ob: ob.sigma_mm)
+        return first.xyz_mm, first.sigma_mm
+    return None
+
+
+def _triangulate(
+    seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
+) -> tuple[np.ndarray, float] | None:
+    """The point at least two cameras agree on: the lines of sight of every camera's most trusted measurement
+    triangulated, the farthest dropped while three or more remain, until all are within :data:`ACQUIRE_GATE_MM`;
+    with its spread (the farthest line's distance, at least the best measurement's noise). None without agreement."""
     best: dict[str, tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]] = {}
     for item in seen:
         name = item[0].name
         if name not in best or item[3].sigma_mm < best[name][3].sigma_mm:
             best[name] = item
-    if len(best) >= 2:
-        chosen = list(best.values())
-        lines = [cam.line_of_sight(m, intr) for cam, intr, m, _ in chosen]
-        keep = list(range(len(lines)))
-        while len(keep) >= 2:
-            try:
-                point, dist = closest_point(
-                    np.array([lines[k][0] for k in keep]), np.array([lines[k][1] for k in keep])
-                )
-            except InputError:
-                break
-            if dist.max() <= ACQUIRE_GATE_MM:
-                return point, max(float(dist.max()), min(chosen[k][3].sigma_mm for k in keep))
-            if len(keep) < 3:
-                break
-            keep.pop(int(np.argmax(dist)))
-    points = [ob for *_, ob in seen if isinstance(ob, PointObservation)]
-    if points:
-        first = min(points, key=lambda ob: ob.sigma_mm)
-        return first.xyz_mm, first.sigma_mm
+    chosen = list(best.values())
+    lines = [cam.line_of_sight(m, intr) for cam, intr, m, _ in chosen]
+    keep = list(range(len(lines)))
+    while len(keep) >= 2:
+        try:
+            point, dist = closest_point(np.array([lines[k][0] for k in keep]), np.array([lines[k][1] for k in keep]))
+        except InputError:
+            return None
+        if dist.max() <= ACQUIRE_GATE_MM:
+            return point, max(float(dist.max()), min(chosen[k][3].sigma_mm for k in keep))
+        if len(keep) < 3:
+            return None
+        keep.pop(int(np.argmax(dist)))
     return None
 
 
@@ -361,6 +373,7 @@ class _WorldTarget:
         self.name = name
         self.filter = WorldParticleFilter(config.world_particles, config.world_process_noise, rng)
         self.status = TrackStatus()
+        self.noise_scale = 1.0
         self.states = StateConfig(
             max_spread_px=config.max_spread * math.hypot(*REFERENCE_SIZE) * scale,
             min_likelihood=0.0,
@@ -386,11 +399,13 @@ class _WorldTarget:
     ) -> tuple[np.ndarray | None, float | None]:
         """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread."""
         if self.filter.initialised:
+            self._reseed(seen)
             seen = self._gated(seen)
         observations = [ob for *_, ob in seen]
         if not self.filter.initialised:
             start = _acquire(seen)
             if start is not None:
+                self.noise_scale = 1.0
                 self.filter.reset(start[0], start[1])
                 self.filter.predict(t)
         if self.filter.initialised:
@@ -405,6 +420,24 @@ class _WorldTarget:
             self.filter.reset(None)
             return None, None
         return estimate, spread
+
+    def _reseed(self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]) -> None:
+        """Re-draw :data:`~fusion_pf.filter.world.RESEED_FRACTION` of the particles around the point the cameras agree
+        on (:func:`_triangulate`) when it lies beyond :data:`GATE_SIGMAS` of its spread plus the predicted spread of
+        the prediction: a move faster than the process noise follows (module docstring, 3)."""
+        agreed = _triangulate(seen)
+        if agreed is None:
+            self.noise_scale = 1.0
+            return
+        mean, spread = self.filter.moments()
+        gap2 = float(((agreed[0] - mean) ** 2).sum())
+        # the innovation beyond the agreed point's own noise, per axis: the next step's process noise
+        # (fusion_pf.filter.calibration.process_scale within [1, MAX_WORLD_NOISE_SCALE])
+        excess = np.array([max(gap2 - agreed[1] ** 2, 0.0) / 3.0])
+        self.noise_scale = process_scale(excess, self.filter.process_noise_mm[0], 1.0, MAX_WORLD_NOISE_SCALE)
+        if gap2 > (GATE_SIGMAS * math.hypot(agreed[1], spread)) ** 2:
+            # velocities up to the whole gap in one step: the move may go on (the likelihood picks the next instants)
+            self.filter.reseed(agreed[0], agreed[1], agreed[0] - mean)
 
     def _gated(
         self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
@@ -505,7 +538,7 @@ def track_world(
         scales = _noise_scales({t: target.predicted() for t, target in targets.items()}, partners)
         for t, target in targets.items():
             if target.filter.initialised:
-                target.filter.predict(fs.timestamp_ns, scales[t])
+                target.filter.predict(fs.timestamp_ns, scales[t] * target.noise_scale)
             predicted[t] = target.predicted()
         partners = _partners(predicted, partners)
         seen: dict[str, list] = {t: [] for t in names}

@@ -196,3 +196,34 @@ def test_predict_scales_the_process_noise():
         moved.append(pf.particles - np.concatenate([POINT, np.zeros(3)]))
     assert np.abs(moved[0]).mean() > 1.0
     assert moved[1] == pytest.approx(0.5 * moved[0], abs=1e-9)
+
+
+def test_reseed_redraws_a_share_of_the_particles_around_the_point_and_keeps_the_weights_normalised():
+    pf = WorldParticleFilter(200, (10.0, 2.5), 3)
+    pf.reset(POINT, 5.0)
+    far = POINT + [300.0, 0.0, 0.0]
+    pf.reseed(far, 5.0, np.array([30.0, 0.0, 0.0]), fraction=0.25)
+    moved = np.linalg.norm(pf.particles[:, :3] - far, axis=1) < 30.0
+    assert moved.sum() == 50
+    assert np.all((pf.particles[moved, 3] >= 0.0) & (pf.particles[moved, 3] <= 30.0))
+    assert np.all(pf.particles[~moved, 3:] == 0.0)
+    assert np.exp(pf.log_weights).sum() == pytest.approx(1.0)
+    with pytest.raises(InputError, match="fraction"):
+        pf.reseed(far, 5.0, fraction=1.5)
+
+
+def test_a_reseeded_filter_follows_a_jump_the_process_noise_does_not():
+    # the target jumps 300 mm (several times the process noise): measured by points there, the plain filter's
+    # particles cannot reach it (the outlier term keeps them); re-seeded they follow within a few instants
+    jump = POINT + [300.0, -100.0, 50.0]
+    errors = []
+    for reseed in (False, True):
+        pf = WorldParticleFilter(300, (10.0, 2.5), 4)
+        pf.reset(POINT, 10.0)
+        for k in range(5):
+            pf.predict(k * 33_333_333)
+            if reseed and k == 0:
+                pf.reseed(jump, 20.0)
+            pf.update([PointObservation(jump, 20.0), PointObservation(jump + 5.0, 20.0)])
+        errors.append(float(np.linalg.norm(pf.estimate()[0] - jump)))
+    assert errors[0] > 200.0 and errors[1] < 20.0
