@@ -33,6 +33,15 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
    except its own skeleton joint (a certain label);
+   before the gate, a move faster than the process noise follows: the point the cameras
+   agree on (:func:`_triangulate`, as acquisition's) farther than :data:`GATE_SIGMAS`
+   of its spread plus the predicted spread re-seeds
+   :data:`~fusion_pf.filter.world.RESEED_FRACTION` of the particles there (sensor
+   resetting, :meth:`~fusion_pf.filter.world.WorldParticleFilter.reseed`, velocities
+   up to the gap per step: the likelihood chooses), and the next step's process noise
+   is learned from that innovation beyond the point's spread
+   (:func:`~fusion_pf.filter.calibration.process_scale` within ``[1,``
+   :data:`MAX_WORLD_NOISE_SCALE` ``]``; 1 without two cameras agreeing);
 4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
    triangulation of the most trusted measurement of every camera that saw the
    target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
@@ -124,6 +133,9 @@ JOINED_MM, JOINED_NOISE = 60.0, 0.75
 GATE_SIGMAS = 4.0
 #: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`).
 MAX_WORLD_NOISE_SCALE = 3.0
+#: Re-seeding and the learned process noise need the cameras' lines of sight within this of their point (mm): two
+#: lines (two cameras) always have a nearest point, and during an occlusion one camera's joint is far off.
+RESEED_AGREE_MM = 40.0
 #: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
 ACQUIRE_GATE_MM = 80.0
 
@@ -426,14 +438,14 @@ class _WorldTarget:
         on (:func:`_triangulate`) when it lies beyond :data:`GATE_SIGMAS` of its spread plus the predicted spread of
         the prediction: a move faster than the process noise follows (module docstring, 3)."""
         agreed = _triangulate(seen)
-        if agreed is None:
+        if agreed is None or agreed[1] > RESEED_AGREE_MM:
             self.noise_scale = 1.0
             return
         mean, spread = self.filter.moments()
         gap2 = float(((agreed[0] - mean) ** 2).sum())
         # the innovation beyond the agreed point's own noise, per axis: the next step's process noise
         # (fusion_pf.filter.calibration.process_scale within [1, MAX_WORLD_NOISE_SCALE])
-        excess = np.array([max(gap2 - agreed[1] ** 2, 0.0) / 3.0])
+        excess = np.array([max(gap2 / 3.0 - agreed[1] ** 2, 0.0)])
         self.noise_scale = process_scale(excess, self.filter.process_noise_mm[0], 1.0, MAX_WORLD_NOISE_SCALE)
         if gap2 > (GATE_SIGMAS * math.hypot(agreed[1], spread)) ** 2:
             # velocities up to the whole gap in one step: the move may go on (the likelihood picks the next instants)

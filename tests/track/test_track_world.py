@@ -245,7 +245,8 @@ def test_a_joined_pair_moves_with_less_process_noise():
 
 def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_noise(rig2):
     # both cameras' skeleton joints at a point 250 mm from the target's cloud (a fast move): a share of the particles
-    # goes there and the next step's process noise grows; agreeing with the cloud, nothing changes
+    # goes there and the next step's process noise grows; agreeing with the cloud, or far off but not agreeing with
+    # each other (cam1's joint 150 mm aside: an occluded joint), nothing changes
     from fusion_pf.filter.world import RESEED_FRACTION
     from fusion_pf.pipeline.world import MAX_WORLD_NOISE_SCALE, _WorldTarget
 
@@ -253,18 +254,20 @@ def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_nois
     here = rig2.truth_mm(BACKGROUND)["right_hand"]
     there = here + np.array([250.0, 0.0, 0.0])
 
-    def seen_at(point):
+    def seen_at(point, aside=(0.0, 0.0, 0.0)):
         out = []
-        for name, frame in rig2.frames(BACKGROUND).items():
+        for k, (name, frame) in enumerate(rig2.frames(BACKGROUND).items()):
             cam = _Camera(name, config, frame, rig2.poses[name])
-            (u, v) = project(point[None], cam.pose, frame.intrinsics)[0][0]
-            out.append((cam, frame.intrinsics, Measurement("skeleton", u, v, 1.0), None))
-        return [(c, k, m, PointObservation(point, 30.0)) for c, k, m, _ in out]
+            at = point + k * np.asarray(aside)
+            (u, v) = project(at[None], cam.pose, frame.intrinsics)[0][0]
+            out.append((cam, frame.intrinsics, Measurement("skeleton", u, v, 1.0), PointObservation(at, 30.0)))
+        return out
 
-    for point, moved in ((here, 0), (there, round(RESEED_FRACTION * 300))):
+    cases = ((seen_at(here), 0), (seen_at(there), round(RESEED_FRACTION * 300)), (seen_at(there, [0, 150.0, 0]), 0))
+    for seen, moved in cases:
         target = _WorldTarget("right_hand", config, np.random.default_rng(0))
         target.filter.reset(here, 10.0)
-        target._reseed(seen_at(point))
+        target._reseed(seen)
         near = np.linalg.norm(target.filter.particles[:, :3] - there, axis=1) < 150.0
         assert near.sum() == moved
         assert target.noise_scale == (MAX_WORLD_NOISE_SCALE if moved else 1.0)
