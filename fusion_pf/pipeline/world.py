@@ -108,7 +108,9 @@ from .run import (
 
 __all__ = [
     "ACQUIRE_GATE_MM",
+    "MAX_WORLD_NOISE_SCALE",
     "MM_PER_REFERENCE_PX",
+    "RESEED_AGREE_MM",
     "WorldResult",
     "WorldTarget",
     "track_world",
