@@ -79,7 +79,7 @@ DEFAULT_WORLD_PROCESS_NOISE = (10.0, 2.5)
 #: has no depth measurement, and undamped velocity carried it metres along that line on the synthetic rig.
 VELOCITY_DAMPING = 0.5
 #: Share of the particles :meth:`WorldParticleFilter.reseed` re-draws around a point the cameras agree on far outside
-#: the particle cloud (sensor resetting).
+#: the particle cloud (sensor resetting): most particles stay should the likelihood not confirm the point; not tuned.
 RESEED_FRACTION = 0.25
 #: Prior probability that one observation is an outlier (the robust likelihood's ``eps``).
 OUTLIER_PROB = 0.1

@@ -133,10 +133,12 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 JOINED_MM, JOINED_NOISE = 60.0, 0.75
 #: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
 GATE_SIGMAS = 4.0
-#: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`).
+#: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`): 30 mm and
+#: 7.5 mm/frame at the default, about ``--world-process-noise 25,10``, which followed the scripted hand-to-head move.
 MAX_WORLD_NOISE_SCALE = 3.0
 #: Re-seeding and the learned process noise need the cameras' lines of sight within this of their point (mm): two
-#: lines (two cameras) always have a nearest point, and during an occlusion one camera's joint is far off.
+#: lines (two cameras) always have a nearest point, and during an occlusion one camera's joint is far off. The skeleton
+#: joint's world noise (30 mm) and a margin; not tuned.
 RESEED_AGREE_MM = 40.0
 #: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
 ACQUIRE_GATE_MM = 80.0
