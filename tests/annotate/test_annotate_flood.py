@@ -94,7 +94,10 @@ def test_2000_idle_and_5000_attempts_leave_the_operator_served(
                 failed += 1
             if len(idle) % 250 == 0:
                 peak = max(peak, _fds(srv.proc.pid))
-        peak = max(peak, _fds(srv.proc.pid))
+        settle = time.monotonic() + 10  # a loaded machine's server accepts the backlog later: wait for it, bounded
+        while peak <= 1024 and time.monotonic() < settle:
+            peak = max(peak, _fds(srv.proc.pid))
+            time.sleep(0.05)
         assert len(idle) + failed == IDLE, "the idle flood exceeded its time bound"
 
         churned = [0]
