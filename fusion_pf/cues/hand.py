@@ -55,7 +55,7 @@ import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -79,6 +79,11 @@ LANDMARK_INPUT = 224  # landmark model input side, px
 PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
 MODES = ("detect", "track", "hint", "flow")
+#: Shipped hand-landmark models (``fusion_pf/data/hand/hand_landmark_<name>.tflite``): MediaPipe's
+#: ``model_complexity`` 1 and 0, and the full one quantised to int8 (``tools/quantise_hand_model.py``).
+LANDMARK_MODELS = ("full", "full_int8", "lite")
+#: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0.
+PALM_MODELS = ("full", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
@@ -119,17 +124,15 @@ class HandRoi:
         return self.to_image(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
 
     def matrix(self, side: int) -> np.ndarray:
-        """The ``(2, 3)`` affine map from a ``side`` x ``side`` crop's pixels to frame pixels (:meth:`warp`'s sampling)."""
+        """The ``(2, 3)`` affine map from a ``side`` x ``side`` crop's pixels to frame pixels (:meth:`sample`'s sampling)."""
         k = self.size / side
         c, s = math.cos(self.rotation) * k, math.sin(self.rotation) * k
         h = side / 2
         u, v = self.u + 0.5, self.v + 0.5  # the centre in pixel-edge coordinates (MediaPipe's x * width)
         return np.array([[c, -s, u - c * h + s * h], [s, c, v - s * h - c * h]])
 
-    def warp(
-        self, rgb: np.ndarray, side: int, *, zero_border: bool, out: tuple[np.ndarray, np.ndarray] | None = None
-    ) -> np.ndarray:
-        """The ROI resampled to a ``(1, side, side, 3)`` float32 tensor in [0, 1] (bilinear).
+    def sample(self, rgb: np.ndarray, side: int, *, zero_border: bool, out: np.ndarray | None = None) -> np.ndarray:
+        """The ROI resampled to a ``(side, side, 3)`` uint8 crop (bilinear).
 
         Sampled as MediaPipe's ``ImageToTensorCalculator`` does on the CPU (the
         models were trained so): the ROI's corners, in pixel-edge coordinates,
@@ -138,18 +141,13 @@ class HandRoi:
         On MediaPipe's own test video this reproduces its landmarks to 0.16 px
         on average (0.64 px with a pixel-centre-exact sampling).
 
-        ``out``: a ``(side, side, 3)`` uint8 and a ``(1, side, side, 3)`` float32
-        buffer to reuse (the float one is returned); new arrays when None.
+        ``out``: a ``(side, side, 3)`` uint8 buffer to reuse (returned); a new array when None.
         """
-        m = self.matrix(side)
         border = cv2.BORDER_CONSTANT if zero_border else cv2.BORDER_REPLICATE
-        u8, f32 = (
-            out if out is not None else (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
-        )
+        u8 = out if out is not None else np.empty((side, side, 3), np.uint8)
         flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-        cv2.warpAffine(rgb, m, (side, side), dst=u8, flags=flags, borderMode=border)
-        np.multiply(u8, np.float32(1 / 255), out=f32[0], dtype=np.float32)
-        return f32
+        cv2.warpAffine(rgb, self.matrix(side), (side, side), dst=u8, flags=flags, borderMode=border)
+        return u8
 
 
 @dataclass(frozen=True, slots=True)
@@ -430,12 +428,18 @@ def others_running(loadavg: str = "/proc/loadavg") -> bool | None:
 def _pack(interpreter, details: dict) -> None:
     """One call on zeros: an interpreter's first call packs the weights for XNNPACK (several times a
     call's cost, 14 ms more for the two hand models at 1280 x 720), paid here, at construction, and not by a frame."""
-    interpreter.set_tensor(details["index"], np.zeros(details["shape"], np.float32))
+    interpreter.set_tensor(details["index"], np.zeros(details["shape"], details["dtype"]))
     interpreter.invoke()
 
 
 class _Model:
-    """A LiteRT model with one input and named outputs, run on whichever thread count is faster now.
+    """A LiteRT model with one image input and named outputs, run on whichever thread count is faster now.
+
+    The input is a uint8 RGB crop (:meth:`HandRoi.sample`), converted into the
+    model's input tensor (kept between calls): float32 in [0, 1], or for a model
+    quantised to int8 with MediaPipe's normalisation (scale 1/255, zero point
+    -128) the same values exactly as int8 (``u8 - 128``). Quantised outputs are
+    returned dequantised, as float32.
 
     With ``num_threads`` > 1 a second interpreter of the same model on one
     thread is built (and its weights packed by one call) in a background thread.
@@ -457,9 +461,20 @@ class _Model:
         self.interpreters = [self.interpreter]
         details = self.interpreter.get_input_details()[0]
         self.input = details["index"]
+        self.tensor = np.zeros(details["shape"], details["dtype"])
+        if self.tensor.dtype == np.int8:
+            scale, zero = details["quantization"]
+            if not (math.isclose(scale, 1 / 255, rel_tol=1e-4) and zero == -128):
+                raise InputError(
+                    f"hand model {path}: int8 input must have scale 1/255 and zero point -128, got {scale}, {zero}"
+                )
+        elif self.tensor.dtype != np.float32:
+            raise InputError(f"hand model {path}: input must be float32 or int8, got {self.tensor.dtype}")
         _pack(self.interpreter, details)
-        by_name = {d["name"]: d["index"] for d in self.interpreter.get_output_details()}
-        self.outputs = [by_name[n] for n in outputs]
+        by_name = {d["name"]: d for d in self.interpreter.get_output_details()}
+        self.outputs = [by_name[n]["index"] for n in outputs]
+        #: Per output: (scale, zero point) of a quantised one, None for float.
+        self.dequantise = [by_name[n]["quantization"] if by_name[n]["quantization"][0] else None for n in outputs]
         self.mean_ns = [0.0, 0.0]
         self.calls = [0, 0]
         self.twin: threading.Thread | None = None
@@ -484,17 +499,26 @@ class _Model:
         best = 0 if self.mean_ns[0] < _MULTI_GAIN * self.mean_ns[1] else 1
         return 1 - best if sum(self.calls) % _EXPLORE == 0 else best
 
-    def __call__(self, x: np.ndarray) -> list[np.ndarray]:
+    def __call__(self, crop: np.ndarray) -> list[np.ndarray]:
+        """The outputs (batch dimension dropped, float32) on a uint8 crop ``(side, side, 3)``."""
+        if self.tensor.dtype == np.int8:
+            np.bitwise_xor(crop, np.uint8(128), out=self.tensor[0].view(np.uint8))  # u8 - 128, exactly
+        else:
+            np.multiply(crop, np.float32(1 / 255), out=self.tensor[0], dtype=np.float32)
         i = self._pick()
         interpreter = self.interpreters[i]
         t0 = time.perf_counter_ns()
-        interpreter.set_tensor(self.input, x)
+        interpreter.set_tensor(self.input, self.tensor)
         interpreter.invoke()
         dt = time.perf_counter_ns() - t0
         # moving average of the call time
         self.mean_ns[i] = dt if self.calls[i] == 0 else 0.8 * self.mean_ns[i] + 0.2 * dt
         self.calls[i] += 1
-        return [interpreter.get_tensor(j)[0] for j in self.outputs]
+        out = [interpreter.get_tensor(j)[0] for j in self.outputs]
+        return [
+            y if q is None else (y.astype(np.float32) - np.float32(q[1])) * np.float32(q[0])
+            for y, q in zip(out, self.dequantise, strict=True)
+        ]
 
 
 class HandLandmarker:
@@ -521,9 +545,15 @@ class HandLandmarker:
         Re-run the landmark model on the ROI of its own landmarks when that ROI's
         centre is more than ``recentre`` x the ROI side from the ROI it was given
         (> 0); None = never (MediaPipe).
+    landmark_model : str
+        Hand-landmark model, one of :data:`LANDMARK_MODELS`: ``"full"``
+        (MediaPipe Hands' default, ``model_complexity=1``), ``"full_int8"``
+        (the full model quantised to int8) or ``"lite"`` (``model_complexity=0``).
+    palm_model : str
+        Palm detector, one of :data:`PALM_MODELS` (``"full"`` or ``"lite"``).
     model_dir : path or None
-        Folder holding ``palm_detection_full.tflite`` and
-        ``hand_landmark_full.tflite``; None = the shipped models.
+        Folder holding ``palm_detection_<palm_model>.tflite`` and
+        ``hand_landmark_<landmark_model>.tflite``; None = the shipped models.
 
     Notes
     -----
@@ -540,6 +570,8 @@ class HandLandmarker:
         nms_iou: float = 0.3,
         max_hands: int = 2,
         recentre: float | None = RECENTRE,
+        landmark_model: str = "full",
+        palm_model: str = "full",
         model_dir: str | Path | None = None,
     ) -> None:
         if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) or num_threads < 1:
@@ -557,17 +589,25 @@ class HandLandmarker:
         ):
             raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
         self.recentre = None if recentre is None else float(recentre)
+        for name, variant, known in (
+            ("landmark_model", landmark_model, LANDMARK_MODELS),
+            ("palm_model", palm_model, PALM_MODELS),
+        ):
+            if variant not in known:
+                raise InputError(f"{name} must be one of {', '.join(known)}, got {variant!r}")
+        self.landmark_model, self.palm_model = landmark_model, palm_model
         self.num_threads = int(num_threads)
         folder = Path(model_dir) if model_dir is not None else Path(str(resources.files("fusion_pf") / "data" / "hand"))
-        self._palm = _Model(folder / "palm_detection_full.tflite", self.num_threads, ("Identity", "Identity_1"))
+        self._palm = _Model(
+            folder / f"palm_detection_{palm_model}.tflite", self.num_threads, ("Identity", "Identity_1")
+        )
         self._landmark = _Model(
-            folder / "hand_landmark_full.tflite", self.num_threads, ("Identity", "Identity_1", "Identity_2")
+            folder / f"hand_landmark_{landmark_model}.tflite",
+            self.num_threads,
+            ("Identity", "Identity_1", "Identity_2"),
         )
         self._anchors = ssd_anchors()
-        self._buffers = {
-            side: (np.empty((side, side, 3), np.uint8), np.empty((1, side, side, 3), np.float32))
-            for side in (PALM_INPUT, LANDMARK_INPUT)
-        }
+        self._crops = {side: np.empty((side, side, 3), np.uint8) for side in (PALM_INPUT, LANDMARK_INPUT)}
         #: Model calls so far: ``"palm"`` (whole-frame detections) and ``"landmark"``.
         self.calls = {"palm": 0, "landmark": 0}
 
@@ -577,7 +617,7 @@ class HandLandmarker:
         h, w = rgb.shape[:2]
         frame = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))  # letterbox: the frame centred in a square
         self.calls["palm"] += 1
-        raw_boxes, raw_scores = self._palm(frame.warp(rgb, PALM_INPUT, zero_border=True, out=self._buffers[PALM_INPUT]))
+        raw_boxes, raw_scores = self._palm(frame.sample(rgb, PALM_INPUT, zero_border=True, out=self._crops[PALM_INPUT]))
         det = weighted_nms(
             decode_palms(raw_boxes, raw_scores, self._anchors, min_score=self.min_detection),
             self.nms_iou,
@@ -602,8 +642,8 @@ class HandLandmarker:
         """One landmark model call in ``roi``."""
         _check_rgb(rgb)
         self.calls["landmark"] += 1
-        tensor = roi.warp(rgb, LANDMARK_INPUT, zero_border=False, out=self._buffers[LANDMARK_INPUT])
-        raw, presence, handed = self._landmark(tensor)
+        crop = roi.sample(rgb, LANDMARK_INPUT, zero_border=False, out=self._crops[LANDMARK_INPUT])
+        raw, presence, handed = self._landmark(crop)
         score = float(presence.reshape(-1)[0])
         if not score >= self.min_presence:
             return None
@@ -766,6 +806,8 @@ class HandCue:
         Default: a new one with its defaults and ``num_threads``.
     num_threads : int, optional
         LiteRT threads of the default landmarker (its default when None).
+    landmark_model, palm_model : str, optional
+        Model variants of the default landmarker (:class:`HandLandmarker`; its defaults when None).
     flow : LandmarkFlow, optional
         Carries the tracked hand's landmarks by optical flow on frames where
         the landmark model is not needed (one hand, host models; measurement
@@ -781,10 +823,13 @@ class HandCue:
         landmarker: HandLandmarker | None = None,
         *,
         num_threads: int | None = None,
+        landmark_model: str | None = None,
+        palm_model: str | None = None,
         flow: LandmarkFlow | None = None,
     ) -> None:
         self._landmarker = landmarker
-        self._num_threads = num_threads
+        given = {"num_threads": num_threads, "landmark_model": landmark_model, "palm_model": palm_model}
+        self._landmarker_options: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         self.flow = flow
         self.hint = Backoff()
         self.previous: HandObservation | None = None
@@ -794,8 +839,7 @@ class HandCue:
     def landmarker(self) -> HandLandmarker:
         """The host landmarker (built on first use: camera-recorded hands need none)."""
         if self._landmarker is None:
-            n = self._num_threads
-            self._landmarker = HandLandmarker() if n is None else HandLandmarker(num_threads=n)
+            self._landmarker = HandLandmarker(**self._landmarker_options)
         return self._landmarker
 
     def reset(self) -> None:

@@ -23,7 +23,7 @@ from ..options import option, parse_tuple, validate
 from .base import Cue
 from .colour import ColourCue
 from .depth import DepthCue
-from .hand import HandCue, HandLandmarker
+from .hand import LANDMARK_MODELS, PALM_MODELS, HandCue, HandLandmarker
 from .handflow import LandmarkFlow
 from .skeleton import SkeletonCue
 from .skin import LabGmmSkin, RgbRuleSkin, RgChromaSkin, SkinCue
@@ -130,6 +130,17 @@ class CueOptions:
         "more adds a single-threaded twin that runs every call while another task is runnable "
         "(otherwise the faster of the two runs)",
     )
+    hand_landmark_model: str = option(
+        _default(HandLandmarker, "landmark_model"),
+        choices=LANDMARK_MODELS,
+        help="hand cue: MediaPipe hand-landmark model variant (full: model_complexity=1, MediaPipe Hands' default; "
+        "lite: model_complexity=0, about half the CPU time per call)",
+    )
+    hand_palm_model: str = option(
+        _default(HandLandmarker, "palm_model"),
+        choices=PALM_MODELS,
+        help="hand cue: MediaPipe palm-detection model variant (full or lite, as --hand-landmark-model)",
+    )
     hand_flow_frames: int = option(
         _default(LandmarkFlow, "max_frames"),
         kind="int",
@@ -220,7 +231,12 @@ def _skeleton(o: CueOptions) -> Cue:
 
 @register("hand", HandCue.needs, "learned palm detector + hand landmarks (MediaPipe models on LiteRT), or the camera's")
 def _hand(o: CueOptions) -> Cue:
-    return HandCue(num_threads=o.hand_threads, flow=LandmarkFlow(o.hand_flow_frames) if o.hand_flow_frames else None)
+    return HandCue(
+        num_threads=o.hand_threads,
+        landmark_model=o.hand_landmark_model,
+        palm_model=o.hand_palm_model,
+        flow=LandmarkFlow(o.hand_flow_frames) if o.hand_flow_frames else None,
+    )
 
 
 @register("skin_rgb", SkinCue.needs, "paper 002 eq. 4: explicit RGB skin rule")

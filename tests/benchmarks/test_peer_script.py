@@ -67,3 +67,21 @@ def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
     assert ctx.search and ctx.prior is None and (ctx.roi.x0, ctx.roi.y0, ctx.roi.x1, ctx.roi.y1) == (0, 0, 160, 100)
     found = [cue.measure(frame, ctx).measurement for cue in cues.values()]
     assert any(m is not None for m in found)
+
+
+def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys):
+    assert peer.parse_setups("full:1,full_int8:1, lite:0") == [("full", 1), ("full_int8", 1), ("lite", 0)]
+    for bad in ("full", "full:2", "tiny:1", "full:1,"):
+        assert peer.parse_setups(bad) is None, bad
+    with pytest.raises(SystemExit):
+        peer.main(["x.mcap", "--setups", "full:2"])
+    assert "--setups must be LANDMARK:COMPLEXITY pairs" in capsys.readouterr().err
+    stats = {k: 1.0 for k in ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")}
+    stats |= {k: 1.0 for k in ("acq_median_ms", "acq_p95_ms", "acq_p99_ms")}
+    stats |= {k: 1.0 for k in ("acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")}
+    side = {**stats, "own_acquisition_frames": 0, "tracking_frames": 3}
+    s = {"size": (64, 48), "frames": 3, "tracking_frames": 3, "fp": side, "mp": side}
+    s |= {f"ratio_{k}": 1.0 for k in stats}
+    peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0), (1.0, 1.0), s)
+    out = capsys.readouterr().out
+    assert "fusion-pf hand landmarks full_int8" in out and "MediaPipe model_complexity 0 (lite" in out

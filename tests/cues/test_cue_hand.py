@@ -153,17 +153,17 @@ def test_landmarks_roi_is_rotation_equivariant(hl):
         np.testing.assert_allclose([roi.u, roi.v], expect, atol=1e-9)
 
 
-def test_hand_roi_warp_samples_the_rotated_square():
+def test_hand_roi_sample_is_the_rotated_square():
     img = np.zeros((100, 120, 3), np.uint8)
     img[20:40, 60:70] = 255  # a bright bar right of centre
     roi = HandRoi(64.5, 29.5, 40.0, math.pi / 2)  # turned so that image "right" is the crop's "up"
-    crop = roi.warp(img, 40, zero_border=True)[0]
-    assert crop.shape == (40, 40, 3) and crop.dtype == np.float32
+    crop = roi.sample(img, 40, zero_border=True)
+    assert crop.shape == (40, 40, 3) and crop.dtype == np.uint8
     # MediaPipe's sampling: crop pixel (row i, column j) samples the frame at pixel-edge coordinates
     # (65, 30) + (20 - i, j - 20), i.e. pixel u = 85 - i, v = 10 + j: the bar's 10 columns
     # u = 60..69 become rows 25..16, its 20 rows v = 20..39 become columns 10..29
-    expect = np.zeros((40, 40), np.float32)
-    expect[16:26, 10:30] = 1.0
+    expect = np.zeros((40, 40), np.uint8)
+    expect[16:26, 10:30] = 255
     np.testing.assert_array_equal(crop[..., 0], expect)
     np.testing.assert_allclose(roi.corners()[0], roi.to_image(np.array([[0.0, 0.0]]))[0])
 
@@ -206,6 +206,56 @@ def test_track_follows_video_like_mediapipe(hl):
         assert np.hypot(*(obs.palm - ref_palm)) < 3.0  # palm centres agree to a few px
         prev = obs
     assert modes == ["detect", "track", "track"]
+
+
+@pytest.mark.parametrize(("model", "most_mean_px"), [("lite", 6.0), ("full_int8", 2.5)])
+def test_cheaper_landmark_models_agree_with_mediapipe_and_the_full_model(hl, model, most_mean_px):
+    other = HandLandmarker(landmark_model=model)
+    assert other._landmark.tensor.dtype == (np.int8 if model == "full_int8" else np.float32)
+    for name in ("hands.jpg", "asl_hand_000.jpg", "asl_hand_002.jpg"):
+        rgb = load(name)
+        refs, tol = expected(name)
+        obs = other.detect(rgb)
+        # MediaPipe's own test applies its full-model threshold (20 px; 18 px for the ASL frames) here too
+        assert len(obs) == len(refs) and max(match(obs, refs)) < tol
+        for full in hl.detect(rgb):
+            roi = landmarks_roi(full.landmarks)  # the same ROI for both models
+            a, b = hl.landmarks(rgb, roi), other.landmarks(rgb, roi)
+            assert a is not None and b is not None
+            mean = float(np.hypot(*(a.landmarks[:, :2] - b.landmarks[:, :2]).T).mean())
+            # another model (not the full one under another name), within a few px of it
+            assert 0.3 < mean < most_mean_px, (name, mean)
+    # no hand: the presence head says so, as the full model's does (an int8 model calibrated on
+    # hands alone read every crop of this photo as a hand)
+    dino = load("dino_720.jpg")
+    h, w = dino.shape[:2]
+    for u in np.linspace(0.2, 0.8, 4) * w:
+        for v in np.linspace(0.25, 0.75, 3) * h:
+            roi = HandRoi(u, v, h / 2)
+            assert hl.landmarks(dino, roi) is None and other.landmarks(dino, roi) is None, (u, v)
+
+
+def test_lite_palm_detector_finds_the_hands_mediapipe_finds():
+    lite = HandLandmarker(palm_model="lite")
+    for name in ("hands.jpg", "asl_hand_001.jpg"):
+        refs, tol = expected(name)
+        obs = lite.detect(load(name))
+        assert len(obs) == len(refs) and max(match(obs, refs)) < tol
+
+
+def test_model_variants_are_checked_and_reach_the_landmarker():
+    from fusion_pf.cues.registry import CueOptions, build_cues
+
+    with pytest.raises(InputError, match="landmark_model must be one of full, full_int8, lite, got 'tiny'"):
+        HandLandmarker(landmark_model="tiny")
+    with pytest.raises(InputError, match="palm_model must be one of full, lite"):
+        HandLandmarker(palm_model="full_int8")
+    with pytest.raises(InputError, match="hand_landmark_model"):
+        CueOptions(hand_landmark_model="tiny")
+    lm = build_cues(["hand"], CueOptions(hand_landmark_model="lite", hand_palm_model="lite"))["hand"].landmarker
+    assert (lm.landmark_model, lm.palm_model) == ("lite", "lite")
+    default = build_cues(["hand"])["hand"].landmarker
+    assert (default.landmark_model, default.palm_model) == ("full", "full")  # MediaPipe Hands' default
 
 
 def test_roi_hint_replaces_missing_track(hl):
