@@ -42,6 +42,13 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    is learned from that innovation beyond the point's spread
    (:func:`~fusion_pf.filter.calibration.process_scale` within ``[1,``
    :data:`MAX_WORLD_NOISE_SCALE` ``]``; 1 without two cameras agreeing);
+   a target measured along one camera's lines of sight only (no 3-D point: its depth
+   cameras cannot see it, one colour-only camera can) is also held at its learned distance
+   from its skeleton joint (:data:`REACH_JOINTS`: a hand from its elbow, the joint in the world
+   from the depth cameras' joint depths or two cameras' lines of sight, :func:`_joint_world`; the
+   distance's mean and spread learned online at the instants the target was measured in 3-D,
+   :class:`_Reach`), a :class:`~fusion_pf.filter.world.RangeObservation`: the line of sight
+   leaves the depth along it unobserved, the range fixes it where the line crosses the shell;
 4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
    triangulation of the most trusted measurement of every camera that saw the
    target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
