@@ -7,7 +7,9 @@ last K cameras without depth) is rendered and tracked by
 left_hand)`` and default options; printed per scene, seed and hand: the 3-D
 RMSE (mm) against ``/ground_truth/world``, its median, the RMSE over the
 instants at which one camera cannot see the hand (``--occlude auto``: a card
-in front of one camera hides each hand once; ``/ground_truth/visibility``), coverage and identity
+in front of one camera hides each hand once; ``/ground_truth/visibility``), at the instants one
+camera alone sees the hand the error along and across that camera's line of sight (RMS; the depth
+along a single line of sight is what one camera leaves unobserved), coverage and identity
 swaps (:func:`fusion_pf.score.targets.score_world`). Beside it, the
 single-camera depth back-projection on the same scene: cam0's view alone
 (``McapReplay(camera="cam0")``) tracked by the 2-D pipeline
