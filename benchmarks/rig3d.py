@@ -7,7 +7,9 @@ last K cameras without depth) is rendered and tracked by
 left_hand)`` and default options; printed per scene, seed and hand: the 3-D
 RMSE (mm) against ``/ground_truth/world``, its median, the RMSE over the
 instants at which one camera cannot see the hand (``--occlude auto``: a card
-in front of one camera hides each hand once; ``/ground_truth/visibility``), coverage and identity
+in front of one camera hides each hand once; ``/ground_truth/visibility``), at the instants one
+camera alone sees the hand the error along and across that camera's line of sight (RMS; the depth
+along a single line of sight is what one camera leaves unobserved), coverage and identity
 swaps (:func:`fusion_pf.score.targets.score_world`). Beside it, the
 single-camera depth back-projection on the same scene: cam0's view alone
 (``McapReplay(camera="cam0")``) tracked by the 2-D pipeline
@@ -60,6 +62,7 @@ def world(path: Path, config: TrackConfig) -> tuple[dict, np.ndarray, float]:
     ref = {t: [] for t in HANDS}
     states = {t: [] for t in HANDS}
     silent = {t: [] for t in HANDS}
+    alone = {t: [] for t in HANDS}
     t0 = time.process_time()
     with RigReplay(path) as rig:
         for r in track_world(rig, config):
@@ -72,13 +75,28 @@ def world(path: Path, config: TrackConfig) -> tuple[dict, np.ndarray, float]:
                 states[t].append(w.state)
                 seen = (rig.visibility or {}).get(r.timestamp_ns, {})
                 silent[t].append(any(t not in seen.get(c, ()) for c in rig.cameras))
+                sees = [c for c in rig.cameras if t in seen.get(c, ())]
+                alone[t].append(rig.poses[sees[0]].translation_mm if len(sees) == 1 else np.full(3, math.nan))
     ms = 1e3 * (time.process_time() - t0) / max(len(states[HANDS[0]]), 1)
     data = {
         "positions": {t: np.array(v) for t, v in pos.items()},
         "truths": {t: np.array(v) for t, v in ref.items()},
         "states": states,
+        "alone": {t: np.array(v) for t, v in alone.items()},
     }
     return data, {t: np.array(v) for t, v in silent.items()}, ms
+
+
+def along_across(data: dict, t: str) -> tuple[np.ndarray, np.ndarray]:
+    """The errors of hand ``t`` along and across the line of sight of the one camera that sees it (instants one
+    camera alone sees it; mm): ``|e . d|`` and ``|e - (e . d) d|``, ``d`` the unit direction from that camera to the truth."""
+    est, truth, centre = data["positions"][t], data["truths"][t], data["alone"][t]
+    ok = np.isfinite(est).all(axis=1) & np.isfinite(truth).all(axis=1) & np.isfinite(centre).all(axis=1)
+    d = truth[ok] - centre[ok]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    e = est[ok] - truth[ok]
+    along = (e * d).sum(axis=1)
+    return np.abs(along), np.linalg.norm(e - along[:, None] * d, axis=1)
 
 
 def single_camera(path: Path, config: TrackConfig, truths: dict[str, np.ndarray]) -> dict:
@@ -112,10 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     config = TrackConfig(targets=HANDS)
     print(
         "| seeds | cameras | colour-only | seed | hand | 3-D RMSE (mm) | median (mm) | RMSE while a camera cannot see it (mm, instants) "
+        "| along / across the one seeing camera's line of sight (RMS mm, instants) "
         "| coverage | swaps | ms/instant | cam0 back-projection RMSE (mm) | its median (mm) | its coverage | its swaps |"
     )
-    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     pooled: dict[tuple[str, int, int], list[float]] = {}
+    ray_errors: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for group, seeds in groups:
             for seed in (int(s) for s in seeds.split(",") if s):
@@ -123,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
                     path = Path(tmp) / f"rig_{cameras}_{colour_only}_{seed}.mcap"
                     render(path, cameras, colour_only, seed, args.frames, args.size)
                     data, silent, ms = world(path, config)
-                    res = score_world(**data)
+                    res = score_world(**{k: v for k, v in data.items() if k != "alone"})
                     base = score_world(**single_camera(path, config, data["truths"]))
                     for t in HANDS:
                         r, b = res["targets"][t], base["targets"][t]
@@ -131,9 +151,14 @@ def main(argv: list[str] | None = None) -> int:
                         hidden = err[silent[t] & np.isfinite(err)]
                         hidden_rmse = float(np.sqrt(np.mean(hidden**2))) if hidden.size else math.nan
                         pooled.setdefault((group, cameras, colour_only), []).extend(err[np.isfinite(err)].tolist())
+                        along, across = along_across(data, t)
+                        ray_errors.setdefault((group, cameras, colour_only), ([], []))[0].extend(along.tolist())
+                        ray_errors[(group, cameras, colour_only)][1].extend(across.tolist())
+                        rms_along = float(np.sqrt(np.mean(along**2))) if along.size else math.nan
+                        rms_across = float(np.sqrt(np.mean(across**2))) if across.size else math.nan
                         print(
                             f"| {group} | {cameras} | {colour_only} | {seed} | {t} | {r['rmse_mm']:.1f} | "
-                            f"{r['median_mm']:.1f} | {hidden_rmse:.1f} ({hidden.size}) | {100 * r['coverage']:.1f} % | "
+                            f"{r['median_mm']:.1f} | {hidden_rmse:.1f} ({hidden.size}) | {rms_along:.1f} / {rms_across:.1f} ({along.size}) | {100 * r['coverage']:.1f} % | "
                             f"{res['swaps']} | {ms:.0f} | {b['rmse_mm']:.1f} | {b['median_mm']:.1f} | "
                             f"{100 * b['coverage']:.1f} % | {base['swaps']} |",
                             flush=True,
@@ -142,7 +167,12 @@ def main(argv: list[str] | None = None) -> int:
     print("\nPooled 3-D RMSE per seed group and scene (both hands):")
     for (group, cameras, colour_only), errs in pooled.items():
         e = np.array(errs)
-        print(f"  {group:8s} {cameras} cameras, {colour_only} colour-only: {np.sqrt(np.mean(e**2)):.1f} mm")
+        a, c = (np.array(v) for v in ray_errors[(group, cameras, colour_only)])
+        ratio = f"{np.sqrt(np.mean(a**2)):.1f} / {np.sqrt(np.mean(c**2)):.1f} mm" if a.size else "-"
+        print(
+            f"  {group:8s} {cameras} cameras, {colour_only} colour-only: {np.sqrt(np.mean(e**2)):.1f} mm; "
+            f"one camera seeing it ({a.size} instants), along / across its line of sight: {ratio}"
+        )
     return 0
 
 

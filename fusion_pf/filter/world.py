@@ -16,7 +16,9 @@ OpenCV). Units: world millimetres, pixels of the camera's colour image.
   back-projected detections, Gaussian in mm plus a uniform outlier volume) and
   of pixels (colour-only cameras' detections: the particle's distance from the
   pixel's line of sight, Gaussian in mm at the particle, plus a uniform outlier
-  density over the image seen at the particles' median depth), residual resampling and the weighted mean
+  density over the image seen at the particles' median depth) and of ranges (:class:`RangeObservation`: the
+  particle's distance from a point, e.g. a hand's from its elbow; Gaussian in mm plus a uniform outlier
+  density over :data:`OUTLIER_RANGE_MM`), residual resampling and the weighted mean
   (:mod:`fusion_pf.filter.resample`,
   :func:`fusion_pf.filter.likelihood.robust_loglik`).
 """
@@ -42,10 +44,13 @@ __all__ = [
     "DEFAULT_WORLD_NOISE_MM",
     "DEFAULT_WORLD_PROCESS_NOISE",
     "OUTLIER_PROB",
+    "OUTLIER_RANGE_MM",
     "OUTLIER_VOLUME_MM3",
     "PixelObservation",
     "PointObservation",
     "RESEED_FRACTION",
+    "RangeObservation",
+    "WorldObservation",
     "SURFACE_DEPTH_MM",
     "WorldParticleFilter",
     "beyond",
@@ -55,6 +60,7 @@ __all__ = [
     "normalised",
     "off_line_mm",
     "project",
+    "range_loglik",
     "ray",
 ]
 
@@ -85,6 +91,8 @@ RESEED_FRACTION = 0.25
 OUTLIER_PROB = 0.1
 #: Volume of the uniform outlier density of 3-D points: a 4 m x 3 m x 3 m room, mm^3.
 OUTLIER_VOLUME_MM3 = 4000.0 * 3000.0 * 3000.0
+#: Length of the uniform outlier density of a range (:class:`RangeObservation`), mm: a person's reach.
+OUTLIER_RANGE_MM = 1000.0
 #: How far the palm's centre lies behind the surface a depth camera sees (mm): a region cue's back-projected point is
 #: on the hand's near surface; on the synthetic two-hand rig (seeds 1 and 2, 640 x 400) the colour and depth regions'
 #: points lay a median 22 mm (hands apart) to 32 mm (joined) in front of the palm's centre along the line of sight.
@@ -228,11 +236,42 @@ class PixelObservation:
     partner_mm: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class RangeObservation:
+    """The target's distance from a point: ``|x - centre| = range_mm`` (a sphere's shell), robust Gaussian in mm.
+
+    A kinematic measurement: a hand lies a forearm's length from its elbow. It fixes the depth along a single line of
+    sight where the line crosses the shell at an angle (the line and the shell meet twice; the prediction picks one).
+
+    Attributes
+    ----------
+    centre_mm : ndarray (3,)
+    range_mm : float
+    sigma_mm : float
+        Noise of the distance, mm.
+    """
+
+    centre_mm: np.ndarray
+    range_mm: float
+    sigma_mm: float
+
+
+#: Any observation of :class:`WorldParticleFilter`.
+WorldObservation = PointObservation | PixelObservation | RangeObservation
+
+
 def measured_point(points_mm: np.ndarray, partner_mm: np.ndarray | None) -> np.ndarray:
     """The point ``(N, 3)`` an observation measures at target positions ``points_mm``: the positions themselves, or
     with a partner (a detection two joined targets share) the midpoint ``(x + partner) / 2`` of the pair."""
     x = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
     return x if partner_mm is None else 0.5 * (x + np.asarray(partner_mm, dtype=np.float64).reshape(1, 3))
+
+
+def range_loglik(points_mm: np.ndarray, ob: RangeObservation, outlier_prob: float = OUTLIER_PROB) -> np.ndarray:
+    """The log-likelihood ``(N,)`` of a range at points ``(N, 3)``: ``d = |x - centre| - range``, Gaussian in mm
+    plus the uniform outlier density over :data:`OUTLIER_RANGE_MM`."""
+    d = np.linalg.norm(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3) - ob.centre_mm, axis=1) - ob.range_mm
+    return robust_loglik(d * d, ob.sigma_mm, outlier_prob, OUTLIER_RANGE_MM, dims=1)
 
 
 class WorldParticleFilter:
@@ -335,10 +374,13 @@ class WorldParticleFilter:
             self.particles += noise
         self.last_ns = int(timestamp_ns)
 
-    def log_likelihood(self, observations: Sequence[PointObservation | PixelObservation]) -> np.ndarray:
+    def log_likelihood(self, observations: Sequence[WorldObservation]) -> np.ndarray:
         """The joint log-likelihood ``(N,)`` of ``observations`` at every particle (independent terms summed)."""
         total = np.zeros(self.n_particles)
         for ob in observations:
+            if isinstance(ob, RangeObservation):
+                total += range_loglik(self.particles[:, :3], ob, self.outlier_prob)
+                continue
             x = measured_point(self.particles[:, :3], ob.partner_mm)
             if isinstance(ob, PointObservation):
                 d2 = ((x - ob.xyz_mm) ** 2).sum(axis=1)
@@ -358,7 +400,7 @@ class WorldParticleFilter:
             total += robust_loglik(d2, ob.sigma_mm, self.outlier_prob, area)
         return total
 
-    def update(self, observations: Sequence[PointObservation | PixelObservation]) -> None:
+    def update(self, observations: Sequence[WorldObservation]) -> None:
         """Weight the particles by ``observations`` and resample (residual) when the effective sample size falls below N/2."""
         if not observations:
             return

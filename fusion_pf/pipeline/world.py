@@ -42,6 +42,13 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    is learned from that innovation beyond the point's spread
    (:func:`~fusion_pf.filter.calibration.process_scale` within ``[1,``
    :data:`MAX_WORLD_NOISE_SCALE` ``]``; 1 without two cameras agreeing);
+   a target measured along one camera's lines of sight only (no 3-D point: its depth
+   cameras cannot see it, one colour-only camera can) is also held at its learned distance
+   from its skeleton joint (:data:`REACH_JOINTS`: a hand from its elbow, the joint in the world
+   from the depth cameras' joint depths or two cameras' lines of sight, :func:`_joint_world`; the
+   distance's mean and spread learned online at the instants the target was measured in 3-D,
+   :class:`_Reach`), a :class:`~fusion_pf.filter.world.RangeObservation`: the line of sight
+   leaves the depth along it unobserved, the range fixes it where the line crosses the shell;
 4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
    triangulation of the most trusted measurement of every camera that saw the
    target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
@@ -80,6 +87,7 @@ from ..filter.world import (
     SURFACE_DEPTH_MM,
     PixelObservation,
     PointObservation,
+    RangeObservation,
     WorldParticleFilter,
     beyond,
     closest_point,
@@ -110,6 +118,9 @@ __all__ = [
     "ACQUIRE_GATE_MM",
     "MAX_WORLD_NOISE_SCALE",
     "MM_PER_REFERENCE_PX",
+    "REACH_JOINTS",
+    "REACH_MIN_SAMPLES",
+    "REACH_MIN_SIGMA_MM",
     "RESEED_AGREE_MM",
     "WorldResult",
     "WorldTarget",
@@ -142,6 +153,12 @@ MAX_WORLD_NOISE_SCALE = 3.0
 RESEED_AGREE_MM = 40.0
 #: Acquisition: a line of sight farther than this from the triangulated point is not the same target (mm).
 ACQUIRE_GATE_MM = 80.0
+#: The skeleton joint a target's distance is learned from and held to while one camera alone measures it (the
+#: kinematic range, :class:`_Reach`): a hand's elbow.
+REACH_JOINTS = {"right_hand": "right_elbow", "left_hand": "left_elbow"}
+#: The kinematic range is used once learned from this many instants with the target measured in 3-D; its noise is the
+#: learned spread, at least :data:`REACH_MIN_SIGMA_MM` (mm). Not tuned.
+REACH_MIN_SAMPLES, REACH_MIN_SIGMA_MM = 10, 10.0
 
 
 @dataclass
@@ -381,6 +398,63 @@ def _triangulate(
     return None
 
 
+def _joint_world(fs: FrameSet, name: str) -> np.ndarray | None:
+    """Skeleton joint ``name`` in the world: the mean of the depth cameras' joints with their own depth, back-projected;
+    else the lines of sight of two or more cameras' joints triangulated (within :data:`ACQUIRE_GATE_MM`); else None."""
+    points, lines = [], []
+    for view in fs.views.values():
+        joint = view.frame.joint(name)
+        if joint is None:
+            continue
+        uv = np.array([[joint.u, joint.v]])
+        if view.frame.depth is not None and joint.depth_mm:
+            points.append(view.pose.to_world(backproject(uv, np.array([joint.depth_mm]), view.frame.intrinsics))[0])
+        lines.append(ray(backproject(uv, np.ones(1), view.frame.intrinsics)[0, :2], view.pose))
+    if points:
+        return np.mean(points, axis=0)
+    if len(lines) < 2:
+        return None
+    try:
+        point, dist = closest_point(np.array([o for o, _ in lines]), np.array([d for _, d in lines]))
+    except InputError:
+        return None
+    return point if float(dist.max()) <= ACQUIRE_GATE_MM else None
+
+
+def _one_line(seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]) -> bool:
+    """Whether ``seen`` measures the target along lines of sight of one camera only: no 3-D point, one camera."""
+    return not any(isinstance(ob, PointObservation) for *_, ob in seen) and len({cam.name for cam, *_ in seen}) == 1
+
+
+class _Reach:
+    """A target's distance from a skeleton joint (:data:`REACH_JOINTS`; a hand from its elbow), learned online.
+
+    Learned (running mean and variance, Welford) at the instants the target was measured in 3-D (a depth camera's
+    point, or two cameras' lines of sight); used as a :class:`~fusion_pf.filter.world.RangeObservation` while one
+    camera alone measures it: a single line of sight leaves the depth along it unobserved, and the filter drifted
+    along it.
+    """
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.mean = 0.0
+        self.m2 = 0.0
+
+    def learn(self, distance_mm: float) -> None:
+        """Add one distance (mm)."""
+        self.count += 1
+        delta = distance_mm - self.mean
+        self.mean += delta / self.count
+        self.m2 += delta * (distance_mm - self.mean)
+
+    def observation(self, joint_mm: np.ndarray) -> RangeObservation | None:
+        """The range from ``joint_mm``, None before :data:`REACH_MIN_SAMPLES` distances were learned."""
+        if self.count < REACH_MIN_SAMPLES:
+            return None
+        sigma = max(math.sqrt(self.m2 / (self.count - 1)), REACH_MIN_SIGMA_MM)
+        return RangeObservation(np.asarray(joint_mm, dtype=np.float64), self.mean, sigma)
+
+
 class _WorldTarget:
     """One target's filter, track state and supervision (module docstring, 5)."""
 
@@ -390,6 +464,7 @@ class _WorldTarget:
         self.filter = WorldParticleFilter(config.world_particles, config.world_process_noise, rng)
         self.status = TrackStatus()
         self.noise_scale = 1.0
+        self.reach = _Reach()
         self.states = StateConfig(
             max_spread_px=config.max_spread * math.hypot(*REFERENCE_SIZE) * scale,
             min_likelihood=0.0,
@@ -411,9 +486,16 @@ class _WorldTarget:
         return self.filter.moments()[0]
 
     def step(
-        self, t: int, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
+        self,
+        t: int,
+        seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
+        joint_mm: np.ndarray | None = None,
     ) -> tuple[np.ndarray | None, float | None]:
-        """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread."""
+        """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread.
+
+        ``joint_mm``: the target's :data:`REACH_JOINTS` joint in the world (:func:`_joint_world`), for its kinematic
+        range (:class:`_Reach`), learned while the target is measured in 3-D and used while one camera alone sees it.
+        """
         if self.filter.initialised:
             self._reseed(seen)
             seen = self._gated(seen)
@@ -424,9 +506,12 @@ class _WorldTarget:
                 self.noise_scale = 1.0
                 self.filter.reset(start[0], start[1])
                 self.filter.predict(t)
+        reach = None if joint_mm is None or not _one_line(seen) else self.reach.observation(joint_mm)
         if self.filter.initialised:
-            self.filter.update(observations)
+            self.filter.update([*observations, reach] if reach is not None else observations)
         estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
+        if estimate is not None and joint_mm is not None and seen and not _one_line(seen):
+            self.reach.learn(float(np.linalg.norm(estimate - joint_mm)))
         support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
         position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
         self.status = step_state(
@@ -584,7 +669,8 @@ def track_world(
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
-            estimate, spread = target.step(fs.timestamp_ns, seen[t])
+            joint = REACH_JOINTS.get(t)
+            estimate, spread = target.step(fs.timestamp_ns, seen[t], None if joint is None else _joint_world(fs, joint))
             pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
             if estimate is not None:
                 for name, intr in intrinsics.items():

@@ -11,9 +11,11 @@ import pytest
 from fusion_pf.errors import InputError
 from fusion_pf.filter.likelihood import robust_loglik
 from fusion_pf.filter.world import (
+    OUTLIER_RANGE_MM,
     OUTLIER_VOLUME_MM3,
     PixelObservation,
     PointObservation,
+    RangeObservation,
     WorldParticleFilter,
     beyond,
     closest_point,
@@ -22,6 +24,7 @@ from fusion_pf.filter.world import (
     normalised,
     off_line_mm,
     project,
+    range_loglik,
     ray,
 )
 from fusion_pf.frame import Intrinsics
@@ -183,6 +186,32 @@ def test_one_colour_only_camera_leaves_the_depth_where_it_was():
     o, d = _line(LEFT, project(POINT[None], LEFT, K)[0][0])
     assert np.linalg.norm(np.cross(est - o, d)) < 15.0
     assert abs(np.dot(est - start, d)) < 100.0  # measured 44 mm
+
+
+def test_range_loglik_is_the_one_dimensional_mixture_of_the_distance_from_the_shell():
+    centre, radius, sigma, eps = np.array([10.0, -20.0, 300.0]), 250.0, 15.0, 0.1
+    points = centre + np.array([[250.0, 0, 0], [0, 270.0, 0], [0, 0, -100.0], [0, 0, 1250.0]])
+    d = np.array([0.0, 20.0, -150.0, 1000.0])
+    ref = np.log(
+        (1 - eps) * np.exp(-(d**2) / (2 * sigma**2)) / math.sqrt(2 * math.pi * sigma**2) + eps / OUTLIER_RANGE_MM
+    )
+    assert range_loglik(points, RangeObservation(centre, radius, sigma), eps) == pytest.approx(ref, rel=1e-12)
+
+
+def test_a_range_from_a_joint_fixes_the_depth_along_one_line_of_sight():
+    # one colour-only camera's pixel and the target's distance (300 mm) from a point 45 degrees off the line of sight
+    # (an elbow): the estimate goes to where the line crosses that shell, the pixel alone leaves it where it started
+    uv = project(POINT[None], LEFT, K)[0][0]
+    o, d = _line(LEFT, uv)
+    side = np.cross(d, [0.0, 1.0, 0.0])
+    elbow = POINT + 300.0 * (d + side / np.linalg.norm(side)) / math.sqrt(2.0)
+    along = {}
+    for name, extra in (("pixel", []), ("pixel and range", [RangeObservation(elbow, 300.0, 15.0)])):
+        est, _ = _run(lambda extra=extra: [PixelObservation(uv, 20.0, LEFT, K), *extra])
+        along[name] = abs(float(np.dot(est - POINT, d)))
+        assert np.linalg.norm(np.cross(est - o, d)) < 15.0
+    assert along["pixel"] > 80.0  # measured 137 mm
+    assert along["pixel and range"] < 15.0
 
 
 def test_predict_scales_the_process_noise():

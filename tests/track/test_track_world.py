@@ -271,3 +271,54 @@ def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_nois
         near = np.linalg.norm(target.filter.particles[:, :3] - there, axis=1) < 150.0
         assert near.sum() == moved
         assert target.noise_scale == (MAX_WORLD_NOISE_SCALE if moved else 1.0)
+
+
+def test_a_hand_one_camera_sees_is_held_at_its_learned_distance_from_its_elbow(rig2):
+    # measured in 3-D (cam0's point, cam1's pixel) 300 mm from its elbow for 15 instants, the hand then moves 120 mm
+    # along cam1's line of sight with its elbow in 30 instants, seen by cam1 alone (the same pixel): held at the
+    # learned distance, the estimate follows it; without the elbow it stays about where cam0 last saw it
+    from fusion_pf.filter.world import PixelObservation
+    from fusion_pf.pipeline.world import _WorldTarget
+
+    config = TrackConfig(targets=HANDS, cues=("colour",))
+    frames = rig2.frames(BACKGROUND)
+    cams = {name: _Camera(name, config, frame, rig2.poses[name]) for name, frame in frames.items()}
+    cam0, cam1 = cams["cam0"], cams["cam1"]
+    intr = frames["cam1"].intrinsics
+    here = rig2.truth_mm(BACKGROUND)["right_hand"]
+    d = here - cam1.pose.translation_mm
+    d /= np.linalg.norm(d)
+    there = here + 120.0 * d
+    elbow = here + 300.0 * np.array([0.6, 0.0, 0.8])
+    (u, v) = project(here[None], cam1.pose, intr)[0][0]
+    pixel = (cam1, intr, Measurement("colour", u, v, 1.0), PixelObservation(np.array([u, v]), 20.0, cam1.pose, intr))
+    point = (cam0, intr, Measurement("colour", 0.0, 0.0, 1.0), PointObservation(here, 20.0))
+    errors = {}
+    for joint in (True, False):
+        target = _WorldTarget("right_hand", config, np.random.default_rng(0))
+        for k in range(45):
+            moved = min(max(k - 14, 0) / 30, 1.0) * (there - here)
+            if target.filter.initialised:
+                target.filter.predict(k * 33_333_333)  # track_world's step 1
+            seen = [point, pixel] if k < 15 else [pixel]
+            est, _ = target.step(k * 33_333_333, seen, elbow + moved if joint else None)
+        errors[joint] = float(np.linalg.norm(est - there))
+    assert errors[False] > 90.0  # measured 124 mm
+    assert errors[True] < 40.0  # measured 25 mm: it lags the move
+
+
+def test_a_joint_in_the_world_from_depth_or_from_two_lines_of_sight(rig2):
+    # the right elbow back-projected with its depth in both cameras, and triangulated from its pixels alone (no depth
+    # image: colour-only cameras), agree within the joints' noise (2 px, 15 mm); one camera without depth: no point
+    import dataclasses
+
+    from fusion_pf.pipeline.world import _joint_world
+
+    fs = framesets(rig2)[BACKGROUND]
+    colour = {n: dataclasses.replace(v, frame=dataclasses.replace(v.frame, depth=None)) for n, v in fs.views.items()}
+    by_depth = _joint_world(fs, "right_elbow")
+    by_lines = _joint_world(dataclasses.replace(fs, views=colour), "right_elbow")
+    assert by_depth is not None and by_lines is not None
+    assert np.linalg.norm(by_depth - by_lines) < 40.0
+    assert _joint_world(dataclasses.replace(fs, views={"cam1": colour["cam1"]}), "right_elbow") is None
+    assert _joint_world(fs, "no_such_joint") is None
