@@ -59,10 +59,11 @@ class FoxgloveClient:
     appears), subscribes to each of ``topics`` as soon as it is advertised (again when it is advertised anew, as
     the Foxglove app does) and, unless ``stall``, keeps every message: ``messages[topic]`` is a
     list of ``(log_time, payload)``. With ``stall`` it stops reading once
-    subscribed to every topic (and reads at most one message into the library's queue).
+    subscribed to every topic (and reads at most one message into the library's queue). ``timeout`` bounds the
+    wait for the server and its advertisements: a loaded machine takes tens of seconds to start a run.
     """
 
-    def __init__(self, port: int, topics=TOPICS, *, stall: bool = False, timeout: float = 30.0):
+    def __init__(self, port: int, topics=TOPICS, *, stall: bool = False, timeout: float = 120.0):
         self.url = f"ws://127.0.0.1:{port}"
         self.topics, self.stall, self.timeout = topics, stall, timeout
         self.channels: dict[str, dict] = {}

@@ -41,7 +41,7 @@ def test_a_foxglove_client_receives_every_camera_the_poses_and_the_world_estimat
     proc = subprocess.Popen([str(c) for c in cmd], stderr=subprocess.PIPE, text=True)
     topics = ["/cam0/camera/color", "/cam1/camera/color", "/tf", "/tracker/world"]
     client = live_serve.FoxgloveClient(port, topics).start()
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     client.stop()
     assert proc.returncode == 0, err
     assert client.error is None, client.error
