@@ -75,7 +75,8 @@ def test_rerun_receives_every_camera_in_3d_and_the_targets(rig, tmp_path):
         for _ in range(100):  # the server starts listening
             r = subprocess.run(
                 [str(c) for c in [*CLI, "track", rig, "-o", tmp_path / "o.mcap", "--targets", TARGETS, "--force"]]
-                + ["--rerun", url, "--no-progress"],
+                # a queue for every instant: the tracker outruns a loaded machine's publisher, which then drops
+                + ["--rerun", url, "--no-progress", "--live-queue", "100"],
                 capture_output=True,
                 text=True,
             )
