@@ -56,18 +56,24 @@ class FoxgloveClient:
 
     Connects (retrying while the server starts), reads ``serverInfo`` and the
     ``advertise`` messages (the SDK advertises one channel a message, as it
-    appears), subscribes to ``topics`` once all are advertised and, unless ``stall``, keeps every message: ``messages[topic]`` is a
+    appears), subscribes to each of ``topics`` as soon as it is advertised (again when it is advertised anew, as
+    the Foxglove app does) and, unless ``stall``, keeps every message: ``messages[topic]`` is a
     list of ``(log_time, payload)``. With ``stall`` it stops reading once
-    subscribed (and reads at most one message into the library's queue).
+    subscribed to every topic (and reads at most one message into the library's queue). ``timeout`` bounds the
+    wait for the server and its advertisements: a loaded machine takes tens of seconds to start a run.
     """
 
-    def __init__(self, port: int, topics=TOPICS, *, stall: bool = False, timeout: float = 30.0):
+    def __init__(self, port: int, topics=TOPICS, *, stall: bool = False, timeout: float = 120.0):
         self.url = f"ws://127.0.0.1:{port}"
         self.topics, self.stall, self.timeout = topics, stall, timeout
         self.channels: dict[str, dict] = {}
         self.messages: dict[str, list[tuple[int, bytes]]] = {}
         self.subprotocol: str | None = None
+        #: The server's status messages (e.g. a refused subscription).
+        self.status: list[str] = []
         self.closed = False
+        self._next_id = 0
+        self._by_subscription: dict[int, str] = {}
         self.subscribed = threading.Event()
         self.error: BaseException | None = None
         self._done = threading.Event()
@@ -105,46 +111,50 @@ class FoxgloveClient:
                     raise
                 await asyncio.sleep(0.05)
 
+    async def _subscribe(self, ws, channels: list[dict]) -> None:
+        """Subscribe to the wanted topics among the advertised ``channels`` (a topic advertised anew: its new channel)."""
+        subs = []
+        for ch in channels:
+            self.channels[ch["topic"]] = ch
+            if ch["topic"] in self.topics:
+                self._next_id += 1
+                subs.append({"id": self._next_id, "channelId": ch["id"]})
+                self._by_subscription[self._next_id] = ch["topic"]
+                self.messages.setdefault(ch["topic"], [])
+        if subs:
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
     async def _session(self) -> None:
         import websockets
 
         ws = await self._connect()
         self.subprotocol = ws.subprotocol
-        by_subscription: dict[int, str] = {}
-        wanted = set(self.topics)
         try:
-            while not self.subscribed.is_set():
-                text = await asyncio.wait_for(ws.recv(), self.timeout)
-                if isinstance(text, bytes):
-                    continue
-                msg = json.loads(text)
-                if msg.get("op") == "advertise":
-                    for ch in msg["channels"]:
-                        self.channels[ch["topic"]] = ch
-                if wanted <= set(self.channels):
-                    subs = []
-                    for i, topic in enumerate(sorted(wanted), start=1):
-                        subs.append({"id": i, "channelId": self.channels[topic]["id"]})
-                        by_subscription[i] = topic
-                        self.messages[topic] = []
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                    self.subscribed.set()
             while not self._done.is_set():
-                if self.stall:
+                if self.stall and self.subscribed.is_set():
                     await asyncio.sleep(0.05)
                     continue
                 try:
-                    data = await asyncio.wait_for(ws.recv(), 0.1)
+                    data = await asyncio.wait_for(ws.recv(), 0.1 if self.subscribed.is_set() else self.timeout)
                 except asyncio.TimeoutError:
+                    if not self.subscribed.is_set():
+                        raise
                     continue
                 except websockets.ConnectionClosed:  # the run ended and its server with it
                     self.closed = True
                     return
-                if isinstance(data, str) and json.loads(data).get("op") == "advertise":
-                    self.channels.update((ch["topic"], ch) for ch in json.loads(data)["channels"])
-                elif isinstance(data, bytes) and data[0] == MESSAGE_DATA:
-                    sub, log_time = struct.unpack_from("<IQ", data, 1)
-                    self.messages[by_subscription[sub]].append((log_time, data[13:]))
+                if isinstance(data, bytes):
+                    if data[0] == MESSAGE_DATA:
+                        sub, log_time = struct.unpack_from("<IQ", data, 1)
+                        self.messages[self._by_subscription[sub]].append((log_time, data[13:]))
+                    continue
+                msg = json.loads(data)
+                if msg.get("op") == "advertise":
+                    await self._subscribe(ws, msg["channels"])
+                    if set(self.topics) <= set(self.messages):
+                        self.subscribed.set()
+                elif msg.get("op") == "status":
+                    self.status.append(msg["message"])
         finally:
             await ws.close()
 

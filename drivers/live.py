@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import ipaddress
 import logging
+import re
 import sys
 import threading
 import time
@@ -275,17 +276,34 @@ class _WorldItem:
     result: WorldResult
 
 
+#: foxglove-sdk's report of a subscription it refused: the client named a channel id it does not know (yet).
+_REFUSED = re.compile(r"attempted to subscribe to unknown channel: (\d+)$")
+
+
 class _SdkDrops(logging.Handler):
-    """Counts foxglove-sdk's "outbox for client ADDR full" reports (oldest messages dropped) per client."""
+    """Counts foxglove-sdk's "outbox for client ADDR full" reports (oldest messages dropped) per client, and
+    collects the channel ids of the subscriptions it refused (see :meth:`FoxgloveServer.publish`)."""
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)
         self.full: collections.Counter[str] = collections.Counter()
         self.clients = 0
+        self.refused: set[int] = set()
+        self._lock = threading.Lock()
+
+    def take_refused(self) -> set[int]:
+        """The channel ids of the subscriptions refused since the last call."""
+        with self._lock:
+            ids, self.refused = self.refused, set()
+        return ids
 
     def emit(self, record: logging.LogRecord) -> None:
         text = record.getMessage()
-        if text.startswith("outbox for client ") and text.endswith(" full"):
+        refused = _REFUSED.search(text)
+        if refused is not None:
+            with self._lock:
+                self.refused.add(int(refused.group(1)))
+        elif text.startswith("outbox for client ") and text.endswith(" full"):
             self.full[text[len("outbox for client ") : -len(" full")]] += 1
         elif text.startswith("Registered client"):
             self.clients += 1
@@ -294,13 +312,25 @@ class _SdkDrops(logging.Handler):
 
 
 class FoxgloveServer:
-    """foxglove-sdk's WebSocket server with one channel per topic (created when first published)."""
+    """foxglove-sdk's WebSocket server with one channel per topic (created when first published).
+
+    A channel created while a client is connected is advertised to it at once, and foxglove-sdk (0.30) only
+    records the channel as advertised to that client after sending the advertisement: a client that answers
+    with a subscription quicker than that (a loaded machine, one message in ten even unloaded) is refused
+    ("Unknown channel ID") and would never get the topic. The SDK logs the refusal; :meth:`publish` then
+    re-advertises that channel (closed, created anew under a new id), and the client subscribes again, as
+    the Foxglove app and any client of the protocol do for a new channel of a topic they show. Channels that
+    exist when a client connects are recorded before its subscriptions are read, so are never refused.
+    """
 
     def __init__(self, host: str, port: int) -> None:
         self.host, self.port = host, port
         self.server: Any = None
         self._channels: dict[str, Any] = {}
+        self._schemas: dict[str, tuple[Any, str]] = {}
         self.drops = _SdkDrops()
+        #: Channels created anew because a client's subscription to them was refused.
+        self.readvertised = 0
 
     def open(self) -> str:
         import foxglove
@@ -340,7 +370,7 @@ class FoxgloveServer:
     def _channel(self, topic: str, message: Any, schema_name: str | None) -> Any:
         channel = self._channels.get(topic)
         if channel is None:
-            from foxglove import Channel, Schema
+            from foxglove import Schema
 
             from . import mcap_format as fmt
 
@@ -350,18 +380,36 @@ class FoxgloveServer:
                     encoding="protobuf",
                     data=fmt.protobuf_schema_data(type(message)),
                 )
-                encoding = "protobuf"
+                self._schemas[topic] = (schema, "protobuf")
             else:
                 assert schema_name is not None
                 schema = Schema(name=schema_name, encoding="jsonschema", data=fmt.json_schema_data(schema_name))
-                encoding = "json"
-            channel = Channel(topic, schema=schema, message_encoding=encoding, context=self._context)
-            self._channels[topic] = channel
+                self._schemas[topic] = (schema, "json")
+            channel = self._advertise(topic)
         return channel
+
+    def _advertise(self, topic: str) -> Any:
+        """A new channel of ``topic`` (its schema known), advertised to every client."""
+        from foxglove import Channel
+
+        schema, encoding = self._schemas[topic]
+        channel = Channel(topic, schema=schema, message_encoding=encoding, context=self._context)
+        self._channels[topic] = channel
+        return channel
+
+    def _readvertise_refused(self) -> None:
+        """Advertise anew every channel a client's subscription to which the SDK refused (see the class doc)."""
+        refused = self.drops.take_refused()
+        for topic, channel in list(self._channels.items()):
+            if channel.id() in refused:
+                channel.close()
+                self._advertise(topic)
+                self.readvertised += 1
 
     def publish(self, messages: list, timestamp_ns: int) -> None:
         from . import mcap_format as fmt
 
+        self._readvertise_refused()
         for topic, message, schema_name, obj in messages:
             channel = self._channel(topic, message, schema_name)
             data = message.SerializeToString() if message is not None else fmt.encode_json(obj, f"{topic} message")

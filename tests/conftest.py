@@ -7,10 +7,23 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
 import pytest
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as in a terminal, wherever the tests run.
+
+    A background job of a non-interactive shell (``cmd &`` in a script, nohup) starts with SIGINT ignored, and
+    so would every command a test starts: the tests of Ctrl-C would then see it lost (a recording sent SIGINT
+    kept recording). Python's own handler here makes the children start with the default action too.
+    """
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 #: Flags of the headless Debian Chromium the browser tests drive with playwright.
 CHROMIUM_ARGS = [

@@ -36,7 +36,7 @@ def test_a_foxglove_client_receives_the_image_and_the_estimates_of_the_csv(tmp_p
     port = live_serve.free_port()
     proc = _serve(tmp_path, port)
     client = live_serve.FoxgloveClient(port, ["/camera/color", "/tracker/estimate"]).start()
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     client.stop()
     assert proc.returncode == 0, err
     assert client.error is None, client.error
@@ -77,16 +77,16 @@ def test_a_foxglove_client_receives_the_image_and_the_estimates_of_the_csv(tmp_p
 
 def test_a_client_that_stops_reading_neither_stops_nor_slows_the_tracker(tmp_path):
     source = "synth:seed=2,frames=150,size=320x200"
-    times, walls = {}, {}
+    times, tails = {}, {}
     for case in ("none", "stalled"):
         port = live_serve.free_port()
         out = tmp_path / case
         out.mkdir()
-        t0 = time.perf_counter()
         proc = _serve(out, port, "--csv-latency", source=source)
         client = None if case == "none" else live_serve.FoxgloveClient(port, stall=True).start()
-        _, err = proc.communicate(timeout=120)
-        walls[case] = time.perf_counter() - t0
+        _, err = proc.communicate(timeout=300)
+        # from the last frame's CSV row (written and flushed as it is tracked) to the end of the run
+        tails[case] = time.time() - (out / "out.csv").stat().st_mtime
         if client is not None:
             client.stop()
             assert client.subscribed.is_set()
@@ -98,8 +98,9 @@ def test_a_client_that_stops_reading_neither_stops_nor_slows_the_tracker(tmp_pat
         times[case] = statistics.median(live_serve.frame_ms(out / "out.csv"))
     # generous: the 10 % figure is measured by benchmarks/live_serve.py
     assert times["stalled"] < 2.0 * times["none"] + 2.0, times
-    # nor holds the end of the run (the SDK's stop() waits ~50 s for a client that does not read)
-    assert walls["stalled"] < walls["none"] + 10.0, walls
+    # nor holds the end of the run (the SDK's stop() waits ~50 s for a client that does not read); measured from
+    # the last frame, not the start: a loaded machine starts a run seconds slower or faster from one run to the next
+    assert tails["stalled"] < tails["none"] + 10.0, tails
 
 
 @pytest.mark.parametrize("where", ["0.0.0.0:8765", "192.168.1.7:8765"])
@@ -127,7 +128,7 @@ def test_several_targets_stream_every_target_estimate_of_the_output(tmp_path):
     targets = "right_hand,left_hand"
     proc = _serve(tmp_path, port, "--targets", targets, source="synth:seed=1,frames=60,size=320x200,hands=2")
     client = live_serve.FoxgloveClient(port, ["/camera/color", "/tracker/estimate"]).start()
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     client.stop()
     assert proc.returncode == 0, err
     assert client.error is None, client.error
@@ -159,7 +160,7 @@ def test_the_interaction_events_of_the_output_are_streamed(tmp_path):
         tmp_path, port, "--targets", "right_hand,left_hand", source="synth:seed=1,frames=150,size=320x200,hands=2"
     )
     client = live_serve.FoxgloveClient(port, ["/tracker/events"]).start()
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     client.stop()
     assert proc.returncode == 0, err
     assert client.error is None, client.error
