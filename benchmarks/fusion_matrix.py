@@ -2,7 +2,8 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...] [-- TRACK OPTIONS]
+    python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...]
+        [--recordings DIR] [--save FILE.json] [--compare FILE.json] [-- TRACK OPTIONS]
 
 Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
 variations: depth noise, the palm's distance in front of the body, lighting, skin tone, skeleton
@@ -19,6 +20,12 @@ tuning: other seeds and other combinations; seen once by the first round of issu
 ``new`` ones (held out from the second round on) and the ``fresh`` ones (held out from the
 third round on): the mean and worst ratio, the scenes where
 fused is not above the best cue, and the mean BestMax share.
+
+The ratio alone can flatter a worse track: each cue is measured in the tracker's window, so a worse
+track can make the best cue worse too. ``--save`` keeps a run's table as JSON and ``--compare``
+prints every scene's fused RMSE against such an earlier run, and per split the geometric mean of
+new / old. ``--recordings`` takes the rendered scenes from an earlier run's ``--out`` (same
+``--frames``) instead of rendering them again.
 """
 
 from __future__ import annotations
@@ -177,12 +184,16 @@ def coverage_2sd(table: Path, scene: Scene, frames: int) -> float:
     return float(np.mean(hits)) if hits else float("nan")
 
 
-def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str]) -> dict:
-    """Render, track and score ``scene``; its row of the table."""
-    rec, tracked, table = out / f"{scene.name}.mcap", out / f"{scene.name}.tracked.mcap", out / f"{scene.name}.csv"
-    variations = [a for k, v in scene.options.items() for a in (f"--{k.replace('_', '-')}", repr(v))]
-    synth = ["synth", str(rec), "--frames", str(frames), "--seed", str(scene.seed), "--size", scene.size]
-    _run(_cli(*synth, "--background-frames", "10", "--force", "--no-progress", *variations))
+def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str], recordings: Path | None = None) -> dict:
+    """Render (or take from ``recordings``), track and score ``scene``; its row of the table."""
+    tracked, table = out / f"{scene.name}.tracked.mcap", out / f"{scene.name}.csv"
+    rec = (recordings or out) / f"{scene.name}.mcap"
+    if recordings is None:
+        variations = [a for k, v in scene.options.items() for a in (f"--{k.replace('_', '-')}", repr(v))]
+        synth = ["synth", str(rec), "--frames", str(frames), "--seed", str(scene.seed), "--size", scene.size]
+        _run(_cli(*synth, "--background-frames", "10", "--force", "--no-progress", *variations))
+    elif not rec.is_file():
+        raise RuntimeError(f"--recordings {recordings} has no {rec.name}: render it first (a run without --recordings)")
     track = ["track", str(rec), "-o", str(tracked), "--csv", str(table), "--force", "--no-progress", *track_args]
     _run(_cli(*track))
     score = json.loads(_run(_cli("score", str(table), "--ground-truth", str(rec), "--json", "--no-progress")))
@@ -235,6 +246,43 @@ def print_table(rows: list[dict]) -> None:
         )
 
 
+def save(rows: list[dict], path: Path) -> None:
+    """Write the rows as JSON (per scene: split, each cue's RMSE and coverage, fused RMSE, ratio, BestMax, 2sd)."""
+    out = {
+        r["scene"].name: {
+            "split": r["scene"].split,
+            "cues": {c: list(v) for c, v in r["cues"].items()},
+            **{k: r[k] for k in ("best", "fused", "ratio", "bestmax", "coverage", "cover2sd")},
+        }
+        for r in rows
+    }
+    path.write_text(json.dumps(out, indent=1) + "\n")
+
+
+def compare(rows: list[dict], path: Path) -> None:
+    """Print each scene's fused RMSE against an earlier run's (:func:`save`), and per split the geometric
+    mean of new / old fused RMSE and the ratio means of both (scenes in both runs only)."""
+    old = json.loads(path.read_text())
+    both = [r for r in rows if r["scene"].name in old]
+    print(f"fused RMSE against {path}: new / old per scene")
+    for r in both:
+        o = old[r["scene"].name]
+        print(
+            f"{r['scene'].name:<20} {r['scene'].split:<5} fused {o['fused']:7.2f} -> {r['fused']:7.2f} "
+            f"({r['fused'] / o['fused']:5.2f}x); ratio {o['ratio']:5.2f} -> {r['ratio']:5.2f}"
+        )
+    for split in SPLITS:
+        part = [r for r in both if r["scene"].split == split]
+        if not part:
+            continue
+        gm = float(np.exp(np.mean([np.log(r["fused"] / old[r["scene"].name]["fused"]) for r in part])))
+        worse = sum(r["fused"] > old[r["scene"].name]["fused"] for r in part)
+        print(
+            f"{split}: fused new / old geometric mean {gm:.3f} ({worse} of {len(part)} worse); ratio mean "
+            f"{np.mean([old[r['scene'].name]['ratio'] for r in part]):.2f} -> {np.mean([r['ratio'] for r in part]):.2f}"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     track_args: list[str] = []
@@ -246,6 +294,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", type=int, default=2, help="scenes run at the same time")
     p.add_argument("--frames", type=int, default=160, help="frames per scene (10 of them empty-scene)")
     p.add_argument("--only", default=None, help="comma-separated scene names or splits (tune, held, new, fresh)")
+    p.add_argument(
+        "--recordings", type=Path, default=None, help="take the rendered scenes from this earlier --out instead"
+    )
+    p.add_argument("--save", type=Path, default=None, help="write the table as JSON (for a later --compare)")
+    p.add_argument("--compare", type=Path, default=None, help="an earlier --save: print fused RMSE new / old")
     args = p.parse_args(argv)
     scenes = SCENES
     if args.only:
@@ -255,11 +308,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; track options: {track_args or 'defaults'}")
     try:
         with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-            rows = list(pool.map(lambda s: run_scene(s, args.out, args.frames, track_args), scenes))
+            rows = list(pool.map(lambda s: run_scene(s, args.out, args.frames, track_args, args.recordings), scenes))
     except RuntimeError as exc:
         print(f"fusion_matrix: error: {exc}", file=sys.stderr)
         return 2
     print_table(rows)
+    if args.save is not None:
+        save(rows, args.save)
+    if args.compare is not None:
+        compare(rows, args.compare)
     return 0
 
 
