@@ -26,3 +26,20 @@ def test_scene_names_are_unique_and_splits_known():
     names = [s.name for s in fusion_matrix.SCENES]
     assert len(names) == len(set(names))
     assert {s.split for s in fusion_matrix.SCENES} == set(fusion_matrix.SPLITS)
+
+
+def test_save_then_compare_prints_fused_new_over_old_and_the_geometric_mean(tmp_path, capsys):
+    scenes = {s.name: s for s in fusion_matrix.SCENES}
+
+    def row(name, fused, ratio):
+        cues = {"colour": (fused / ratio, 1.0)}
+        return {"scene": scenes[name], "cues": cues, "best": "colour", "fused": fused, "ratio": ratio,
+                "bestmax": 0.5, "coverage": 1.0, "cover2sd": 0.95}  # fmt: skip
+
+    old = tmp_path / "old.json"
+    fusion_matrix.save([row("default-320", 2.0, 1.0), row("near-body-640", 4.0, 0.5)], old)
+    fusion_matrix.compare([row("default-320", 1.0, 0.5), row("near-body-640", 8.0, 1.0)], old)
+    out = capsys.readouterr().out
+    assert "default-320" in out and "2.00 ->    1.00 ( 0.50x)" in out and "8.00 ( 2.00x)" in out
+    # geometric mean of 0.5 and 2: 1; the held split's ratio means 0.75 -> 0.75
+    assert "held: fused new / old geometric mean 1.000 (1 of 2 worse); ratio mean 0.75 -> 0.75" in out
