@@ -78,6 +78,7 @@ from ..filter.likelihood import quality_sigma
 from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
 from ..filter.world import (
     SURFACE_DEPTH_MM,
+    Exclusion,
     PixelObservation,
     PointObservation,
     WorldParticleFilter,
@@ -131,6 +132,14 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 #: RMSE of 2 cameras fell 16.8 -> 16.6 mm, 2 with one colour-only 28.6 -> 26.8, 3 (1) 15.4 -> 15.1, 4 (2) 14.4 -> 14.0;
 #: lower noise, or up to the combined gap, lagged separating hands.
 JOINED_MM, JOINED_NOISE = 60.0, 0.75
+#: Two hands are solid: a combined target's centre stays at least a palm's thickness from its partner's prediction
+#: (:class:`~fusion_pf.filter.world.Exclusion`; two palms pressed together have their centres half a thickness behind
+#: each surface). Adult hand thickness at the metacarpals is about 30 mm (anthropometric surveys: 27-33 mm); the
+#: boundary's softness in mm.
+HAND_THICKNESS_MM, EXCLUSION_SOFTNESS_MM = 30.0, 5.0
+#: A joined pair (estimates closer than :data:`JOINED_MM`) keeps the direction of its offset from the instant it
+#: combined (paper 004's combined state): the offset's part across that direction has this std (mm).
+JOINED_AXIS_MM = 40.0
 #: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
 GATE_SIGMAS = 4.0
 #: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`): 30 mm and
@@ -411,9 +420,14 @@ class _WorldTarget:
         return self.filter.moments()[0]
 
     def step(
-        self, t: int, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]
+        self,
+        t: int,
+        seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
+        apart: Exclusion | None = None,
     ) -> tuple[np.ndarray | None, float | None]:
-        """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread."""
+        """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread.
+
+        ``apart``: a combined partner's exclusion (:func:`_exclusion`), applied to a tracked target."""
         if self.filter.initialised:
             self._reseed(seen)
             seen = self._gated(seen)
@@ -425,7 +439,7 @@ class _WorldTarget:
                 self.filter.reset(start[0], start[1])
                 self.filter.predict(t)
         if self.filter.initialised:
-            self.filter.update(observations)
+            self.filter.update(observations, () if apart is None or not self.tracking else (apart,))
         estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
         support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
         position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
@@ -542,6 +556,7 @@ def track_world(
     }
     cameras: dict[str, _Camera] = {}
     partners: dict[str, str] = {}
+    axes: dict[str, np.ndarray] = {}
     intrinsics: dict[str, Intrinsics] = {}
     poses: dict[str, CameraPose] = {}
     for fs, models in _with_backgrounds(sets, config):
@@ -557,6 +572,7 @@ def track_world(
                 target.filter.predict(fs.timestamp_ns, scales[t] * target.noise_scale)
             predicted[t] = target.predicted()
         partners = _partners(predicted, partners)
+        axes = _entry_axes(axes, predicted, partners)
         seen: dict[str, list] = {t: [] for t in names}
         for name, view in fs.views.items():
             frame = view.frame
@@ -584,7 +600,7 @@ def track_world(
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
-            estimate, spread = target.step(fs.timestamp_ns, seen[t])
+            estimate, spread = target.step(fs.timestamp_ns, seen[t], _exclusion(t, predicted, partners, axes, scales))
             pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
             if estimate is not None:
                 for name, intr in intrinsics.items():
@@ -595,6 +611,44 @@ def track_world(
             truth = None if fs.truth_mm is None else fs.truth_mm.get(t)
             out[t] = WorldTarget(t, target.status.state.value, estimate, spread, measured, pixels, truth)
         yield WorldResult(fs.index, fs.timestamp_ns, False, out, fs)
+
+
+def _exclusion(
+    t: str,
+    predicted: Mapping[str, np.ndarray | None],
+    partners: Mapping[str, str],
+    axes: Mapping[str, np.ndarray],
+    scales: Mapping[str, float],
+) -> Exclusion | None:
+    """Target ``t``'s exclusion from its combined partner's prediction (:data:`HAND_THICKNESS_MM`); a joined pair's
+    (:func:`_noise_scales` below 1) also keeps its offset along the direction it combined with (``axes``,
+    :data:`JOINED_AXIS_MM`). None without a partner or predictions."""
+    mate = partners.get(t)
+    own, at = predicted.get(t), None if mate is None else predicted.get(mate)
+    if own is None or at is None:
+        return None
+    axis = axes.get(t) if scales.get(t, 1.0) < 1.0 else None
+    return Exclusion(np.asarray(at, dtype=np.float64), HAND_THICKNESS_MM, EXCLUSION_SOFTNESS_MM, axis, JOINED_AXIS_MM)
+
+
+def _entry_axes(
+    axes: Mapping[str, np.ndarray], predicted: Mapping[str, np.ndarray | None], partners: Mapping[str, str]
+) -> dict[str, np.ndarray]:
+    """Per combined target the unit direction from its partner to it when the pair combined: kept while combined,
+    taken from the predictions for a pair combining now."""
+    out: dict[str, np.ndarray] = {}
+    for a, b in partners.items():
+        if a in axes:
+            out[a] = axes[a]
+            continue
+        pa, pb = predicted.get(a), predicted.get(b)
+        if pa is None or pb is None:
+            continue
+        r = np.asarray(pa, dtype=np.float64) - np.asarray(pb, dtype=np.float64)
+        n = float(np.linalg.norm(r))
+        if n > 0.0:
+            out[a] = r / n
+    return out
 
 
 def _partners(predicted: Mapping[str, np.ndarray | None], before: Mapping[str, str]) -> dict[str, str]:
