@@ -564,7 +564,7 @@ def track_world(
     }
     cameras: dict[str, _Camera] = {}
     partners: dict[str, str] = {}
-    axes: dict[str, np.ndarray] = {}
+    axes: dict[tuple[str, str], np.ndarray] = {}
     intrinsics: dict[str, Intrinsics] = {}
     poses: dict[str, CameraPose] = {}
     for fs, models in _with_backgrounds(sets, config):
@@ -625,7 +625,7 @@ def _exclusion(
     t: str,
     predicted: Mapping[str, np.ndarray | None],
     partners: Mapping[str, str],
-    axes: Mapping[str, np.ndarray],
+    axes: Mapping[tuple[str, str], np.ndarray],
     scales: Mapping[str, float],
 ) -> Exclusion | None:
     """Target ``t``'s exclusion from its combined partner's prediction (:data:`HAND_THICKNESS_MM`); a joined pair's
@@ -635,19 +635,21 @@ def _exclusion(
     own, at = predicted.get(t), None if mate is None else predicted.get(mate)
     if own is None or at is None:
         return None
-    axis = axes.get(t) if scales.get(t, 1.0) < 1.0 else None
+    axis = axes.get((t, mate)) if mate is not None and scales.get(t, 1.0) < 1.0 else None
     return Exclusion(np.asarray(at, dtype=np.float64), HAND_THICKNESS_MM, EXCLUSION_SOFTNESS_MM, axis, JOINED_AXIS_MM)
 
 
 def _entry_axes(
-    axes: Mapping[str, np.ndarray], predicted: Mapping[str, np.ndarray | None], partners: Mapping[str, str]
-) -> dict[str, np.ndarray]:
-    """Per combined target the unit direction from its partner to it when the pair combined: kept while combined,
-    taken from the predictions for a pair combining now."""
-    out: dict[str, np.ndarray] = {}
+    axes: Mapping[tuple[str, str], np.ndarray],
+    predicted: Mapping[str, np.ndarray | None],
+    partners: Mapping[str, str],
+) -> dict[tuple[str, str], np.ndarray]:
+    """Per combined (target, partner) the unit direction from the partner to the target when the two combined: kept
+    while they stay combined, taken from the predictions for a pair combining now (a target's new partner too)."""
+    out: dict[tuple[str, str], np.ndarray] = {}
     for a, b in partners.items():
-        if a in axes:
-            out[a] = axes[a]
+        if (a, b) in axes:
+            out[a, b] = axes[a, b]
             continue
         pa, pb = predicted.get(a), predicted.get(b)
         if pa is None or pb is None:
@@ -655,7 +657,7 @@ def _entry_axes(
         r = np.asarray(pa, dtype=np.float64) - np.asarray(pb, dtype=np.float64)
         n = float(np.linalg.norm(r))
         if n > 0.0:
-            out[a] = r / n
+            out[a, b] = r / n
     return out
 
 

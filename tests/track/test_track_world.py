@@ -257,12 +257,18 @@ def test_a_combined_pair_keeps_the_direction_it_combined_along_and_excludes_each
 
     pair = {"right_hand": "left_hand", "left_hand": "right_hand"}
     first = {"right_hand": np.array([50.0, 0.0, 1000.0]), "left_hand": np.array([-50.0, 0.0, 1000.0])}
+    right, left = ("right_hand", "left_hand"), ("left_hand", "right_hand")
     axes = _entry_axes({}, first, pair)
-    assert axes["right_hand"] == pytest.approx([1.0, 0.0, 0.0]) and axes["left_hand"] == pytest.approx([-1.0, 0, 0])
+    assert axes[right] == pytest.approx([1.0, 0.0, 0.0]) and axes[left] == pytest.approx([-1.0, 0.0, 0.0])
     turned = {"right_hand": np.array([0.0, 20.0, 1000.0]), "left_hand": np.array([0.0, -20.0, 1000.0])}
-    assert _entry_axes(axes, turned, pair)["right_hand"] == pytest.approx([1.0, 0.0, 0.0])
+    assert _entry_axes(axes, turned, pair)[right] == pytest.approx([1.0, 0.0, 0.0])
     assert _entry_axes(axes, turned, {}) == {}
-    assert _entry_axes({}, turned, pair)["right_hand"] == pytest.approx([0.0, 1.0, 0.0])
+    assert _entry_axes({}, turned, pair)[right] == pytest.approx([0.0, 1.0, 0.0])
+    # a new partner without parting first: the direction to the new one
+    head = {**turned, "head": np.array([0.0, 100.0, 1000.0])}
+    assert _entry_axes(axes, head, {"right_hand": "head", "head": "right_hand"})["right_hand", "head"] == pytest.approx(
+        [0.0, -1.0, 0.0]
+    )
 
     joined = {"right_hand": JOINED_NOISE, "left_hand": JOINED_NOISE}
     ex = _exclusion("right_hand", turned, pair, axes, joined)
