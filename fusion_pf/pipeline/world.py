@@ -30,6 +30,10 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    holding one of them is that target's alone (the nearer projected prediction keeps it:
    separating hands' two blobs, the partner took the other's). A combined pair closer than
    :data:`JOINED_MM` moves with :data:`JOINED_NOISE` of the process noise (step 1).
+   Each combined target is kept :data:`HAND_THICKNESS_MM` from its partner's prediction
+   (:class:`~fusion_pf.filter.world.Exclusion`, two hands are solid), and a joined pair's offset
+   keeps the direction it had when the pair combined (:data:`JOINED_AXIS_MM`; paper 004's combined
+   state: the shared blob measures the centre, the offset persists from the join);
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
    except its own skeleton joint (a certain label);
@@ -85,6 +89,7 @@ from ..filter.likelihood import quality_sigma
 from ..filter.states import Evidence, StateConfig, TrackStatus, step_state
 from ..filter.world import (
     SURFACE_DEPTH_MM,
+    Exclusion,
     PixelObservation,
     PointObservation,
     RangeObservation,
@@ -142,6 +147,18 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 #: RMSE of 2 cameras fell 16.8 -> 16.6 mm, 2 with one colour-only 28.6 -> 26.8, 3 (1) 15.4 -> 15.1, 4 (2) 14.4 -> 14.0;
 #: lower noise, or up to the combined gap, lagged separating hands.
 JOINED_MM, JOINED_NOISE = 60.0, 0.75
+#: Two hands are solid: a combined target's centre stays at least a palm's thickness from its partner's prediction
+#: (:class:`~fusion_pf.filter.world.Exclusion`; two palms pressed together have their centres half a thickness behind
+#: each surface). Adult hand thickness at the metacarpals is about 30 mm (anthropometric surveys: 27-33 mm); the
+#: boundary's softness in mm.
+HAND_THICKNESS_MM, EXCLUSION_SOFTNESS_MM = 30.0, 5.0
+#: A joined pair (estimates closer than :data:`JOINED_MM`) keeps the direction of its offset from the instant it
+#: combined (paper 004's combined state): the offset's part across that direction has this std (mm). Without it (and
+#: the exclusion) the offset, measured only by the skeleton joints, drifted toward zero and into depth: on the
+#: synthetic two-hand rig (tuned seeds 1 and 2, 640 x 400, 2 cameras, 3 with one colour-only, 4 with two) the half
+#: offset's RMSE while the hands were within 100 mm was 15-18 mm, 11-14 mm with 30-60 mm here (10-20 also moved the
+#: pair's midpoint, 12 -> 14-19 mm).
+JOINED_AXIS_MM = 40.0
 #: Validation gate of a tracked target's observations, in sigmas of their noise plus the predicted spread.
 GATE_SIGMAS = 4.0
 #: Largest factor of the process noise learned from a target's innovation (:meth:`_WorldTarget._reseed`): 30 mm and
@@ -490,11 +507,13 @@ class _WorldTarget:
         t: int,
         seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
         joint_mm: np.ndarray | None = None,
+        apart: Exclusion | None = None,
     ) -> tuple[np.ndarray | None, float | None]:
         """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread.
 
         ``joint_mm``: the target's :data:`REACH_JOINTS` joint in the world (:func:`_joint_world`), for its kinematic
         range (:class:`_Reach`), learned while the target is measured in 3-D and used while one camera alone sees it.
+        ``apart``: a combined partner's exclusion (:func:`_exclusion`), applied to a tracked target.
         """
         if self.filter.initialised:
             self._reseed(seen)
@@ -508,7 +527,10 @@ class _WorldTarget:
                 self.filter.predict(t)
         reach = None if joint_mm is None or not _one_line(seen) else self.reach.observation(joint_mm)
         if self.filter.initialised:
-            self.filter.update([*observations, reach] if reach is not None else observations)
+            self.filter.update(
+                [*observations, reach] if reach is not None else observations,
+                () if apart is None or not self.tracking else (apart,),
+            )
         estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
         if estimate is not None and joint_mm is not None and seen and not _one_line(seen):
             self.reach.learn(float(np.linalg.norm(estimate - joint_mm)))
@@ -627,6 +649,7 @@ def track_world(
     }
     cameras: dict[str, _Camera] = {}
     partners: dict[str, str] = {}
+    axes: dict[tuple[str, str], np.ndarray] = {}
     intrinsics: dict[str, Intrinsics] = {}
     poses: dict[str, CameraPose] = {}
     for fs, models in _with_backgrounds(sets, config):
@@ -642,6 +665,7 @@ def track_world(
                 target.filter.predict(fs.timestamp_ns, scales[t] * target.noise_scale)
             predicted[t] = target.predicted()
         partners = _partners(predicted, partners)
+        axes = _entry_axes(axes, predicted, partners)
         seen: dict[str, list] = {t: [] for t in names}
         for name, view in fs.views.items():
             frame = view.frame
@@ -670,7 +694,12 @@ def track_world(
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
             joint = REACH_JOINTS.get(t)
-            estimate, spread = target.step(fs.timestamp_ns, seen[t], None if joint is None else _joint_world(fs, joint))
+            estimate, spread = target.step(
+                fs.timestamp_ns,
+                seen[t],
+                None if joint is None else _joint_world(fs, joint),
+                _exclusion(t, predicted, partners, axes, scales),
+            )
             pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
             if estimate is not None:
                 for name, intr in intrinsics.items():
@@ -681,6 +710,46 @@ def track_world(
             truth = None if fs.truth_mm is None else fs.truth_mm.get(t)
             out[t] = WorldTarget(t, target.status.state.value, estimate, spread, measured, pixels, truth)
         yield WorldResult(fs.index, fs.timestamp_ns, False, out, fs)
+
+
+def _exclusion(
+    t: str,
+    predicted: Mapping[str, np.ndarray | None],
+    partners: Mapping[str, str],
+    axes: Mapping[tuple[str, str], np.ndarray],
+    scales: Mapping[str, float],
+) -> Exclusion | None:
+    """Target ``t``'s exclusion from its combined partner's prediction (:data:`HAND_THICKNESS_MM`); a joined pair's
+    (:func:`_noise_scales` below 1) also keeps its offset along the direction it combined with (``axes``,
+    :data:`JOINED_AXIS_MM`). None without a partner or predictions."""
+    mate = partners.get(t)
+    own, at = predicted.get(t), None if mate is None else predicted.get(mate)
+    if own is None or at is None:
+        return None
+    axis = axes.get((t, mate)) if mate is not None and scales.get(t, 1.0) < 1.0 else None
+    return Exclusion(np.asarray(at, dtype=np.float64), HAND_THICKNESS_MM, EXCLUSION_SOFTNESS_MM, axis, JOINED_AXIS_MM)
+
+
+def _entry_axes(
+    axes: Mapping[tuple[str, str], np.ndarray],
+    predicted: Mapping[str, np.ndarray | None],
+    partners: Mapping[str, str],
+) -> dict[tuple[str, str], np.ndarray]:
+    """Per combined (target, partner) the unit direction from the partner to the target when the two combined: kept
+    while they stay combined, taken from the predictions for a pair combining now (a target's new partner too)."""
+    out: dict[tuple[str, str], np.ndarray] = {}
+    for a, b in partners.items():
+        if (a, b) in axes:
+            out[a, b] = axes[a, b]
+            continue
+        pa, pb = predicted.get(a), predicted.get(b)
+        if pa is None or pb is None:
+            continue
+        r = np.asarray(pa, dtype=np.float64) - np.asarray(pb, dtype=np.float64)
+        n = float(np.linalg.norm(r))
+        if n > 0.0:
+            out[a, b] = r / n
+    return out
 
 
 def _partners(predicted: Mapping[str, np.ndarray | None], before: Mapping[str, str]) -> dict[str, str]:

@@ -13,6 +13,7 @@ from fusion_pf.filter.likelihood import robust_loglik
 from fusion_pf.filter.world import (
     OUTLIER_RANGE_MM,
     OUTLIER_VOLUME_MM3,
+    Exclusion,
     PixelObservation,
     PointObservation,
     RangeObservation,
@@ -256,3 +257,34 @@ def test_a_reseeded_filter_follows_a_jump_the_process_noise_does_not():
             pf.update([PointObservation(jump, 20.0), PointObservation(jump + 5.0, 20.0)])
         errors.append(float(np.linalg.norm(pf.estimate()[0] - jump)))
     assert errors[0] > 200.0 and errors[1] < 20.0
+
+
+def test_exclusion_potential_is_zero_beyond_the_distance_and_penalises_the_offset_across_the_axis():
+    # hand-computed: -((min - d)^+)^2 / (2 s^2) - |r_perp|^2 / (2 s_axis^2)
+    partner = np.array([100.0, 0.0, 1000.0])
+    ex = Exclusion(partner, 30.0, 5.0)
+    points = partner + np.array([[40.0, 0.0, 0.0], [20.0, 0.0, 0.0], [0.0, 0.0, 10.0]])
+    assert ex.log_potential(points) == pytest.approx([0.0, -0.5 * (10.0 / 5.0) ** 2, -0.5 * (20.0 / 5.0) ** 2])
+    along = Exclusion(partner, 30.0, 5.0, np.array([1.0, 0.0, 0.0]), 40.0)
+    points = partner + np.array([[60.0, 0.0, 0.0], [40.0, 30.0, 0.0], [40.0, 0.0, -20.0]])
+    assert along.log_potential(points) == pytest.approx([0.0, -0.5 * (30.0 / 40.0) ** 2, -0.5 * (20.0 / 40.0) ** 2])
+
+
+def test_an_excluded_target_keeps_its_side_of_a_partner_its_evidence_pulls_it_onto():
+    # a joined hand whose only evidence is pulled next to its partner (a skeleton joint dragged toward the pair's
+    # middle, 10 mm off it): alone the filter sits there; excluded from the partner with the axis the pair combined
+    # along, it stays a hand's thickness away along that axis
+    partner = POINT + np.array([-45.0, 0.0, 0.0])
+    axis = np.array([1.0, 0.0, 0.0])
+    pulled = partner + [10.0, 0.0, 0.0]
+    ends = []
+    for exclusions in ((), (Exclusion(partner, 30.0, 5.0, axis, 40.0),)):
+        pf = WorldParticleFilter(300, (10.0, 2.5), 5)
+        pf.reset(POINT, 5.0)
+        for k in range(30):
+            pf.predict(k * 33_333_333)
+            pf.update([PointObservation(pulled, 30.0)], exclusions)
+        ends.append(pf.estimate()[0] - partner)
+    assert np.linalg.norm(ends[0] - (pulled - partner)) < 8.0
+    r = ends[1]
+    assert r @ axis > 25.0 and np.linalg.norm(r - (r @ axis) * axis) < 10.0

@@ -243,6 +243,44 @@ def test_a_joined_pair_moves_with_less_process_noise():
     assert set(_noise_scales({"right_hand": a, "left_hand": None}, pair).values()) == {1.0}
 
 
+def test_a_combined_pair_keeps_the_direction_it_combined_along_and_excludes_each_other():
+    # the axis comes from the predictions when the pair combines and stays while it is combined (the predictions
+    # turning does not turn it); apart, it goes; each target's exclusion is from its partner's prediction, with the
+    # axis only while joined (its noise scale below 1)
+    from fusion_pf.pipeline.world import (
+        HAND_THICKNESS_MM,
+        JOINED_AXIS_MM,
+        JOINED_NOISE,
+        _entry_axes,
+        _exclusion,
+    )
+
+    pair = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    first = {"right_hand": np.array([50.0, 0.0, 1000.0]), "left_hand": np.array([-50.0, 0.0, 1000.0])}
+    right, left = ("right_hand", "left_hand"), ("left_hand", "right_hand")
+    axes = _entry_axes({}, first, pair)
+    assert axes[right] == pytest.approx([1.0, 0.0, 0.0]) and axes[left] == pytest.approx([-1.0, 0.0, 0.0])
+    turned = {"right_hand": np.array([0.0, 20.0, 1000.0]), "left_hand": np.array([0.0, -20.0, 1000.0])}
+    assert _entry_axes(axes, turned, pair)[right] == pytest.approx([1.0, 0.0, 0.0])
+    assert _entry_axes(axes, turned, {}) == {}
+    assert _entry_axes({}, turned, pair)[right] == pytest.approx([0.0, 1.0, 0.0])
+    # a new partner without parting first: the direction to the new one
+    head = {**turned, "head": np.array([0.0, 100.0, 1000.0])}
+    assert _entry_axes(axes, head, {"right_hand": "head", "head": "right_hand"})["right_hand", "head"] == pytest.approx(
+        [0.0, -1.0, 0.0]
+    )
+
+    joined = {"right_hand": JOINED_NOISE, "left_hand": JOINED_NOISE}
+    ex = _exclusion("right_hand", turned, pair, axes, joined)
+    assert ex is not None and ex.partner_mm == pytest.approx(turned["left_hand"])
+    assert (ex.min_mm, ex.axis_sigma_mm) == (HAND_THICKNESS_MM, JOINED_AXIS_MM)
+    assert ex.axis == pytest.approx([1.0, 0.0, 0.0])
+    apart = _exclusion("right_hand", turned, pair, axes, {"right_hand": 1.0, "left_hand": 1.0})
+    assert apart is not None and apart.axis is None
+    assert _exclusion("right_hand", turned, {}, axes, joined) is None
+    assert _exclusion("right_hand", {**turned, "left_hand": None}, pair, axes, joined) is None
+
+
 def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_noise(rig2):
     # both cameras' skeleton joints at a point 250 mm from the target's cloud (a fast move): a share of the particles
     # goes there and the next step's process noise grows; agreeing with the cloud, or far off but not agreeing with
