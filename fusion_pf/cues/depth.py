@@ -60,7 +60,13 @@ We implement it as follows:
   With 50 mm the depth cue sat 7-9 px above the palm at 1280 x 720 (two-hand
   seed 3004, palms 15 cm in front of the body: 13.7 px RMSE while the hands
   were apart, 5.8 px with 30 mm) and 1.75 px RMSE on ``recordings/sample.mcap``
-  (1.05 px with 30 mm; fused 1.02 -> 0.80 px).
+  (1.05 px with 30 mm; fused 1.02 -> 0.80 px). The slab does not follow the
+  sensor's noise: where it is several times the model's (``synth
+  --depth-noise`` 3-6), 30 mm cuts noisy palm pixels off and the depth cue gets
+  worse (``benchmarks/fusion_matrix.py`` far-hand-noisy-640b depth 0.83 -> 1.42
+  px, fused 0.90 -> 1.18; skeleton-best-960 depth 11.8 -> 17.6, fused 3.38 ->
+  4.27), while the scenes with the model's noise gain (default-640 fused
+  2.04 -> 1.16, big-1280 4.33 -> 2.40).
 
 Invalid depth (0, in the frame or in the background) gives 0 in I_d2, which
 is never above ``lower >= 0``, so it never counts as foreground.
