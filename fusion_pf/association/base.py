@@ -28,7 +28,9 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    of them and is given to none, and the targets it holds take no other
    detection of that source (the cue saw them only merged into it; another of
    its regions is something else, e.g. clutter); a combined pair shares it
-   (rule 4);
+   (rule 4); the pipeline has the region cues split a region holding two
+   hands' predictions into a part per hand first (extras ``part``), so this
+   rule is left for what is not split (a hand and the head, hands too close);
 4. sharing: a target in the ``combined`` state (paper 004: two joined hands
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the

@@ -53,7 +53,33 @@ We implement it as follows:
   ranges overlap once the background behind the palm varies), so I_d5 keeps
   only the pixels within ``nearest_mm`` of the nearest surface in the window
   (the 2nd percentile of the band's depths). ``nearest_mm=None`` restores the
-  paper's band.
+  paper's band. The slab is 30 mm deep: a palm facing the camera spans about
+  20 mm of depth with the sensor noise at 1.3 m (realistic stereo model), while
+  the forearm recedes from the wrist by about 1 mm per mm of its length, so a
+  deeper slab keeps that much wrist above the palm and the centroid follows it.
+  With 50 mm the depth cue sat 7-9 px above the palm at 1280 x 720 (two-hand
+  seed 3004, palms 15 cm in front of the body: 13.7 px RMSE while the hands
+  were apart, 5.8 px with 30 mm) and 1.75 px RMSE on ``recordings/sample.mcap``
+  (1.05 px with 30 mm; fused 1.02 -> 0.80 px).
+* *the slab follows the depth noise*: 30 mm is the noise-free width. Where the
+  noise is several times the sensor model's (``synth --depth-noise`` 3-6, a far
+  hand) a fixed 30 mm cuts noisy palm pixels off: the 2nd percentile sits about
+  2 sigma in front of the palm, so about half of its pixels stay and the
+  opening breaks them up. The cue measures the noise sigma of the coarse region
+  itself (:func:`depth_noise_mm`: MAD of second differences 5 px apart, past
+  the matcher's spatial correlation; a planar slope cancels) and the slab is
+  ``hypot(nearest_mm, 2 sigma)`` (the two widths add in variance; 2 sigma is
+  z0's bias). Measured sigma: 1.8 mm (big-1280), 6.4 (default-640), 13.9
+  (far-hand-noisy-640b), 23.6 (skeleton-best-960), i.e. slabs of 30, 33, 40 and
+  56 mm. ``benchmarks/fusion_matrix.py``, fixed 30 mm -> adaptive: far-hand-
+  noisy-640b depth 1.42 -> 0.63 px, fused 1.18 -> 0.95; skeleton-best-960
+  depth 17.6 -> 11.0, fused 4.27 -> 3.52; default-640 and big-1280 unchanged
+  (fused 1.16 -> 1.14, 2.40); ``recordings/sample.mcap`` depth 1.04, fused
+  0.79; seed 3004 1280 x 720 per hand 7.2/7.2 px. Not better: adding 4 sigma
+  (z0's bias and the pixels' own spread) or adding sigmas linearly widens the
+  slab into the wrist and, 6 cm behind the palm on skeleton-best-960, the torso
+  (30 + 4 sigma: far-hand-noisy-640b depth 4.5, skeleton-best-960 49.5 px;
+  30 + 1 sigma: default-640 fused 1.39, big-1280 2.88). These are tuning scenes.
 
 Invalid depth (0, in the frame or in the background) gives 0 in I_d2, which
 is never above ``lower >= 0``, so it never counts as foreground.
@@ -82,6 +108,37 @@ from .regions import (
 )
 from .roi import Roi, full_roi, search_step
 
+#: Lag (full-resolution px) of the second differences that measure the depth noise: beyond the
+#: stereo matcher's spatial correlation (its 5-7 px block; ``drivers.synth`` blurs the disparity
+#: noise by a Gaussian of sigma 2 px, correlation exp(-1.6) = 0.21 at 5 px).
+NOISE_LAG_PX = 5
+#: Width of the noise part of the slab in noise sigmas: the 2nd percentile ``z0`` sits 2.05 sigma
+#: in front of the nearest surface. It adds to ``nearest_mm`` (the noise-free width) in variance.
+NOISE_SLAB_SIGMAS = 2.0
+#: Second differences needed to measure the noise; fewer give sigma 0 (the fixed slab).
+MIN_NOISE_SAMPLES = 50
+
+
+def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int) -> float:
+    """Robust depth noise sigma (mm) of the pixels in ``mask``: MAD of the second differences
+    ``z[i - lag] - 2 z[i] + z[i + lag]`` along rows and columns, all three pixels in ``mask``.
+
+    The second difference cancels a planar slope (the forearm receding from the wrist), the MAD
+    ignores the depth steps at the region's edges; for independent noise its sigma is
+    ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist.
+    """
+    z = depth.astype(np.float32)
+    diffs = []
+    for a, m in ((z, mask), (z.T, mask.T)):
+        if a.shape[1] <= 2 * lag:
+            continue
+        both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
+        diffs.append((a[:, : -2 * lag] - 2.0 * a[:, lag:-lag] + a[:, 2 * lag :])[both])
+    dd = np.concatenate(diffs) if diffs else np.empty(0, np.float32)
+    if dd.size < MIN_NOISE_SAMPLES:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(dd)) / np.sqrt(6.0))
+
 
 class DepthCue:
     """The depth-based observation model of paper 003 (Fig. 4); keeps the previous I_d5.
@@ -101,7 +158,9 @@ class DepthCue:
         Dilation disc radius in px (I_d8), 0-50.
     nearest_mm : int or None
         Keep in I_d5 only the pixels within this many mm behind the nearest
-        surface of the coarse region (its 2nd depth percentile), 1-65535;
+        surface of the coarse region (its 2nd depth percentile) where the depth
+        is noise-free, 1-65535; the slab widens with the region's measured
+        depth noise (module docstring: why 30, how it widens);
         None = the paper's band only. Our addition: the depth difference of the
         palm overlaps that of the torso and of furniture (the palm is ~0.25 m
         in front of the torso but the background behind it varies), while the
@@ -130,7 +189,7 @@ class DepthCue:
         upper: int = 255,
         min_area: int = MIN_AREA_PX,
         dilate: int = 4,
-        nearest_mm: int | None = 50,
+        nearest_mm: int | None = 30,
         open_radius: int = 2,
         temporal: bool = True,
         clear_border: bool = True,
@@ -273,7 +332,9 @@ class DepthCue:
         if self.nearest_mm is not None and d5.any():
             near = d1[d5 > 0]  # valid depths of the coarse region
             z0 = float(np.partition(near, near.size // 50)[near.size // 50])  # nearest surface: 2nd percentile
-            d5[d1 > z0 + self.nearest_mm] = 0  # keep the slab of the nearest surface
+            sigma = depth_noise_mm(d1, d5 > 0, max(1, round(NOISE_LAG_PX / step)))
+            slab = float(np.hypot(self.nearest_mm, NOISE_SLAB_SIGMAS * sigma))  # widths add in variance
+            d5[d1 > z0 + slab] = 0  # the nearest surface's slab
             d5 = open_thin(d5, self.open_radius)  # the slab's ragged noisy edge removed
         prev = self._previous(roi, (h, w), step) if self.temporal else None
         self._prev = (d5, roi, (h, w), step)  # at this search's resolution: expanded only if the next frame needs it

@@ -299,14 +299,20 @@ def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> 
     """
     ys, xs = np.nonzero(mask)
     pts = np.stack([xs, ys], axis=1).astype(np.float64)
+    total = pts.sum(axis=0)
     means = np.asarray(seeds, dtype=np.float64).copy()
     near = np.zeros(len(pts), dtype=bool)
-    for _ in range(SPLIT_ITERATIONS):
-        d = ((pts[:, None, :] - means[None, :, :]) ** 2).sum(axis=2)
-        near = d[:, 0] <= d[:, 1]
-        if near.all() or not near.any():
+    for k in range(SPLIT_ITERATIONS):
+        # nearer the first mean: |p - m0|^2 <= |p - m1|^2, i.e. p . (m1 - m0) <= (|m1|^2 - |m0|^2) / 2
+        new = pts @ (means[1] - means[0]) <= (means[1] @ means[1] - means[0] @ means[0]) / 2.0
+        if new.all() or not new.any():
             return None
-        means = np.array([pts[near].mean(axis=0), pts[~near].mean(axis=0)])
+        if k and np.array_equal(new, near):
+            break  # converged: the means would not move again
+        near = new
+        count = int(near.sum())
+        first = near.astype(np.float64) @ pts
+        means = np.array([first / count, (total - first) / (len(pts) - count)])
     out = []
     for part in (near, ~near):
         p = pts[part]

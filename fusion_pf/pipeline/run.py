@@ -719,12 +719,15 @@ def _joined_priors(
     roi: Roi | None,
     palms: Mapping[str, float | None],
 ) -> tuple[tuple[float, float], ...]:
-    """The priors of the first combined pair whose priors both lie in ``roi`` at least :data:`SPLIT_PALMS` apparent palm lengths apart (the region cues split a region holding both).
+    """The priors of the first pair of hands (a combined pair first) whose priors both lie in ``roi`` at least :data:`SPLIT_PALMS` apparent palm lengths apart (the region cues split a region holding both).
 
     Closer (one hand over the other) the 2-means split cuts the front palm in
     two and the hidden hand's part is off its centre: the pair shares the region.
+    Two hands apart whose one region holds both (crossed forearms) get a part each.
     """
-    for a, b in partners.items():
+    hands = [t for t in priors if t in HANDS]
+    pairs = [*partners.items(), *((a, b) for n, a in enumerate(hands) for b in hands[n + 1 :])]
+    for a, b in pairs:
         pa, pb, palm = priors.get(a), priors.get(b), palms.get(a)
         if pa is None or pb is None or palm is None:
             continue

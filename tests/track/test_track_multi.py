@@ -162,7 +162,9 @@ def test_a_combined_pair_side_by_side_has_its_region_split():
     assert _joined_priors(apart, partners, None, palms) == (apart["right_hand"], apart["left_hand"])
     over = {"right_hand": (100.0, 100.0), "left_hand": (100.0 + SPLIT_PALMS * 40.0 - 1.0, 100.0)}
     assert _joined_priors(over, partners, None, palms) == ()  # one over the other: they share the region
-    assert _joined_priors(apart, {}, None, palms) == ()  # not combined: nothing to split
+    assert _joined_priors(apart, {}, None, palms) == (apart["right_hand"], apart["left_hand"])  # two hands apart
+    head = {"right_hand": apart["right_hand"], "head": apart["left_hand"]}
+    assert _joined_priors(head, {}, None, palms | {"head": 40.0}) == ()  # a hand and the head: never split
     assert _joined_priors(apart, partners, Roi(0, 0, 120, 200, 100.0), palms) == ()  # one outside the window
     assert _joined_priors(apart, partners, None, {}) == ()  # no palm size yet
 
@@ -234,3 +236,33 @@ def test_a_pair_rejoining_at_once_keeps_the_sides_it_first_entered_from():
     frame(120.0, 40.0)
     frame(81.0, 79.0)
     assert targets.offsets()["right_hand"][0] > 0
+
+
+def test_crossed_forearms_give_each_hand_its_colour_part():
+    """After the crossing the forearms stay crossed: one skin region runs from palm to palm (320 x 200, red
+    shirt, palms 15 cm in front of the body). Each hand takes its part of it (split between the two
+    hands, each part's core on its palm): colour measures both hands while they are apart. Without the
+    split the region spans both hands, measures neither, and colour is missing from every frame after
+    the crossing (52 % coverage while apart)."""
+    with SynthSource(
+        seed=3004, frames=280, size=(320, 200), hands=2, background_frames=30, joins=1, hand_front=0.15, clothing=3
+    ) as src:
+        frames = list(src)
+    colour = {t: [] for t in HANDS}
+    truth = {t: [] for t in HANDS}
+    for r in track(frames, TrackConfig(targets=HANDS)):
+        if r.background:
+            continue
+        for t in HANDS:
+            m = r.targets[t].cues["colour"]
+            colour[t].append((math.nan, math.nan) if m is None else (m.u, m.v))
+            g = (r.source_frame.ground_truths or {})[t]
+            truth[t].append((g.u, g.v))
+    tr = {t: np.array(v) for t, v in truth.items()}
+    apart = np.hypot(*(tr["right_hand"] - tr["left_hand"]).T) > 40.0
+    crossed = apart & (np.arange(len(apart)) >= 215)  # the hands apart after the crossing
+    assert crossed.sum() > 30
+    for t in HANDS:
+        err = np.hypot(*(np.array(colour[t]) - tr[t]).T)
+        assert np.isfinite(err[apart]).mean() > 0.95, (t, float(np.isfinite(err[apart]).mean()))
+        assert np.isfinite(err[crossed]).all() and np.percentile(err[crossed], 95) < 6.0, t
