@@ -80,6 +80,12 @@ We implement it as follows:
   slab into the wrist and, 6 cm behind the palm on skeleton-best-960, the torso
   (30 + 4 sigma: far-hand-noisy-640b depth 4.5, skeleton-best-960 49.5 px;
   30 + 1 sigma: default-640 fused 1.39, big-1280 2.88). These are tuning scenes.
+  Where it loses (held-out scenes, measured once): a palm 4 cm in front of the
+  body with depth noise 9-10x the model's, where no slab separates palm from
+  torso; the 50 mm slab's front cut happened to suit them (fused 16.9 -> 34.5
+  and 8.1 -> 18.9 px, the fixed 30 mm 19.7 and 19.0), and the fusion trusts the
+  worse depth (issue 23). On the whole matrix fused RMSE new / old (geometric
+  mean per split): tune 0.93, held 0.96, new 0.96, fresh 1.09.
 
 Invalid depth (0, in the frame or in the background) gives 0 in I_d2, which
 is never above ``lower >= 0``, so it never counts as foreground.
