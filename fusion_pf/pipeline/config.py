@@ -357,7 +357,8 @@ class TrackConfig:
         kind="bool",
         help="learn each cue's noise and outlier probability per quality band (quarters of [0, 1]) in "
         "this recording, from its distance to the filter's prediction while tracking, else to the other "
-        "cues of the same frame (fusion_pf/filter/calibration.py), starting from --noise widened by "
+        "cues of the same frame, never below a floor its own frame-to-frame white noise may lower "
+        "(fusion_pf/filter/calibration.py), starting from --noise widened by "
         "1/sqrt(quality); off: --noise widened by 1/sqrt(quality)",
     )
     adapt_motion: bool = option(

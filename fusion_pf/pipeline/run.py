@@ -905,7 +905,11 @@ class _FilterStage:
         return starting_sigma(self.config.noise_px[m.source], m)
 
     def _calibrate(
-        self, ms: Sequence[Measurement], trust: Mapping[str, float], predicted: tuple[float, float, float] | None
+        self,
+        ms: Sequence[Measurement],
+        trust: Mapping[str, float],
+        predicted: tuple[float, float, float] | None,
+        timestamp_ns: int,
     ) -> None:
         """Fuse this frame's cues with their calibrated noise and outlier probability (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
 
@@ -921,7 +925,7 @@ class _FilterStage:
         if isinstance(tracker, ParticleFilter):
             for m in ms:
                 tracker.set_outlier_prob(m.source, calibration.outlier(m))
-        calibration.update(ms, sigmas, self._scale, predicted)
+        calibration.update(ms, sigmas, self._scale, predicted, timestamp_ns)
 
     def _predicted(self, timestamp_ns: int) -> tuple[float, float, float] | None:
         """The filter's prediction of this frame and its per-axis variance (u, v px, px^2) while it tracks, else None.
@@ -1073,7 +1077,7 @@ class _FilterStage:
         # the prediction of this frame, what the cues and the motion are learned against (two cues or more)
         predicted = self._predicted(row.timestamp_ns) if len(ms) >= 2 else None
         if self._calibration is not None and ms:
-            self._calibrate(ms, trust, predicted)
+            self._calibrate(ms, trust, predicted, row.timestamp_ns)
         best = min(ms, key=lambda m: trust[m.source]) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue

@@ -255,3 +255,97 @@ def test_a_cue_off_by_a_few_px_in_runs_is_not_fitted_its_good_half():
     expected = math.sqrt(np.median(0.5 * (d**2).sum(axis=1)) / math.log(2.0))
     assert math.sqrt(var) == pytest.approx(expected, rel=0.15)
     assert math.sqrt(var) > 1.5
+
+
+def test_difference_weights_are_the_unit_norm_divided_difference():
+    from fusion_pf.filter.calibration import difference_weights
+
+    # equal steps: the third difference's binomial coefficients (-1, 3, -3, 1) / sqrt(20), whatever the step
+    np.testing.assert_allclose(difference_weights(np.array([0.0, 1.0, 2.0, 3.0])), np.array([-1, 3, -3, 1]) / 20**0.5)
+    np.testing.assert_allclose(
+        difference_weights(np.array([5e7, 8e7, 1.1e8, 1.4e8])), np.array([-1, 3, -3, 1]) / 20**0.5
+    )
+    # uneven steps (a dropped frame): unit norm, and blind to any quadratic (columns 1, t, t^2 of the Vandermonde matrix)
+    t = np.array([0.0, 1.0, 3.0, 4.0])
+    w = difference_weights(t)
+    assert float(w @ w) == pytest.approx(1.0)
+    np.testing.assert_allclose(np.vander(t, 3).T @ w, 0.0, atol=1e-12)
+
+
+def _smooth_track(n: int) -> np.ndarray:
+    """A palm path over ``n`` frames, px: a slow figure of eight 60 x 40 px wide (0.2-3 px per frame)."""
+    k = np.arange(n)
+    return np.stack([200 + 60 * np.sin(2 * np.pi * k / 120), 150 + 40 * np.sin(4 * np.pi * k / 120)], axis=1)
+
+
+def test_white_noise_of_a_moving_biased_cue_is_its_simulated_noise():
+    # reference: the simulation's own white noise (0.3 px per axis), under a bias drifting 4 px over 60 frames
+    from fusion_pf.filter.calibration import difference_weights, white_noise
+
+    gen = np.random.default_rng(5)
+    n = 400
+    k = np.arange(n)
+    bias = 4.0 * np.stack([np.sin(2 * np.pi * k / 240), np.cos(2 * np.pi * k / 240)], axis=1)
+    z = _smooth_track(n) + bias + gen.normal(0.0, 0.3, (n, 2))
+    w = difference_weights(np.arange(4.0))
+    windows = np.lib.stride_tricks.sliding_window_view(z, 4, axis=0)  # (n - 3, 2, 4)
+    d = 0.5 * ((windows @ w) ** 2).sum(axis=1)
+    assert math.sqrt(white_noise(d)) == pytest.approx(0.3, rel=0.1)
+
+
+def _run_moving(
+    frames: int, noise: dict, prior: float = 4.0, rng: int = 0, timestamps: bool = True
+) -> NoiseCalibration:
+    """Cues ``noise[(source, quality)] = per-axis px`` on a moving palm, learned against a prediction whose stated
+    variance (9 px^2 per axis) is 9 x its real error's (1 px), as issue 23's far scenes have it."""
+    cal = NoiseCalibration(lambda m: prior)
+    gen = np.random.default_rng(rng)
+    palm = _smooth_track(frames)
+    for i in range(frames):
+        ms = [Measurement(s, *(palm[i] + gen.normal(0, sd, 2)), quality=q) for (s, q), sd in noise.items()]
+        pred = (*(palm[i] + gen.normal(0.0, 1.0, 2)), 9.0)
+        t = 1_000_000_000 + i * 33_333_333 if timestamps else None
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, pred, t)
+    return cal
+
+
+def test_a_cue_more_precise_than_the_prediction_is_trusted_below_the_floor():
+    # issue 23, far-hand-sharp-960: a 0.05 px cue beside two 2 px ones, against a prediction whose stated
+    # variance hides every cue's noise: all three were fitted 0 and fused at the floor. Its own white noise
+    # (measured without the prediction) lets the floor go down to SELF_FLOOR of it; a 0.25 px cue is learned
+    # at its simulated noise / SELF_FLOOR; a low-quality cue, whose error is mostly slow bias, keeps the floor
+    from fusion_pf.filter.calibration import SELF_FLOOR, SELF_QUALITY
+
+    noise = {("sharp", 0.9): 0.05, ("mid", 0.9): 0.25, ("vague", 0.2): 0.05, ("b", 0.9): 2.0, ("c", 0.9): 2.0}
+    assert 0.05 / SELF_FLOOR < SELF_FLOOR * FLOOR < 0.25 / SELF_FLOOR < FLOOR
+    assert 0.2 < SELF_QUALITY <= 0.9
+    w = WINDOW / (PRIOR_COUNT + WINDOW)
+    shrunk = 4.0 ** (1 - w)
+    new, old = _run_moving(300, noise), _run_moving(300, noise, timestamps=False)
+    sharp, mid, vague = (Measurement(s, 0, 0, quality=q) for s, q in (("sharp", 0.9), ("mid", 0.9), ("vague", 0.2)))
+    # without timestamps (the calibration before): the floor
+    for m in (sharp, mid, vague):
+        assert old.sigma(m) == pytest.approx(shrunk * FLOOR**w)
+    assert new.sigma(sharp) == pytest.approx(shrunk * (SELF_FLOOR * FLOOR) ** w)
+    assert new.sigma(mid) == pytest.approx(shrunk * (0.25 / SELF_FLOOR) ** w, rel=0.15)
+    assert new.sigma(vague) == pytest.approx(shrunk * FLOOR**w)
+    assert math.sqrt(new.white("sharp", 0.9)) == pytest.approx(0.05, rel=0.15)
+    # the 2 px cues: above the floor, learned from the prediction as before
+    b = Measurement("b", 0, 0, quality=0.9)
+    assert new.sigma(b) == pytest.approx(old.sigma(b))
+
+
+def test_white_noise_needs_frames_in_a_row():
+    # a cue seen every other frame (another cue seen in each) never has SELF_ORDER + 1 frames in a row
+    from fusion_pf.filter.calibration import SELF_MIN
+
+    cal = NoiseCalibration(lambda m: 4.0)
+    for i in range(40):
+        ms = [Measurement("b", 100.0, 100.0 + i)] + ([Measurement("a", 100.0 + i, 100.0, quality=0.9)] if i % 2 else [])
+        cal.update(ms, {"a": 4.0, "b": 4.0}, 1.0, None, i * 33_333_333)
+    assert cal.white("a", 0.9) is None and cal.white("b", 1.0) is not None
+    # time not moving forward starts again as well
+    cal = NoiseCalibration(lambda m: 4.0)
+    for i in range(SELF_MIN + 20):
+        cal.update([Measurement("a", 100.0, 100.0)], {"a": 4.0}, 1.0, None, (i % 3) * 33_333_333)
+    assert cal.white("a", 1.0) is None
