@@ -3,7 +3,7 @@
 Usage (from the repository root)::
 
     python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...]
-        [--recordings DIR] [--save FILE.json] [--compare FILE.json] [-- TRACK OPTIONS]
+        [--recordings DIR] [--save FILE.json] [--compare FILE.json] [--noise-split] [-- TRACK OPTIONS]
 
 Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
 variations: depth noise, the palm's distance in front of the body, lighting, skin tone, skeleton
@@ -25,7 +25,10 @@ The ratio alone can flatter a worse track: each cue is measured in the tracker's
 track can make the best cue worse too. ``--save`` keeps a run's table as JSON and ``--compare``
 prints every scene's fused RMSE against such an earlier run, and per split the geometric mean of
 new / old. ``--recordings`` takes the rendered scenes from an earlier run's ``--out`` (same
-``--frames``) instead of rendering them again.
+``--frames``) instead of rendering them again. ``--noise-split`` also prints, per scene and cue, the
+median error and the white noise the calibration measures from the cue alone (``filter/calibration.py``):
+a cue whose median error is well above its white noise is off by a slow bias, which no floor set from the
+white noise may trust.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -184,6 +188,51 @@ def coverage_2sd(table: Path, scene: Scene, frames: int) -> float:
     return float(np.mean(hits)) if hits else float("nan")
 
 
+def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float, float]]:
+    """Per cue of the tracked ``table``: its median error per axis and its white noise per axis, px.
+
+    The median error is ``sqrt(median(|z - g|^2 / 2) / ln 2)`` against the synthetic source's ground
+    truth ``g``; the white noise is :func:`fusion_pf.filter.calibration.white_noise` of the cue's unit-norm
+    third differences over 4 frames in a row, what the calibration sees without the ground truth. A cue
+    whose median error is well above its white noise has an error that is mostly slow bias.
+    """
+    from drivers.synth import SynthSource
+    from fusion_pf.filter.calibration import SELF_ORDER, difference_weights, white_noise
+
+    w, h = (int(x) for x in scene.size.split("x"))
+    src = SynthSource(frames=frames, seed=scene.seed, size=(w, h), background_frames=10, **scene.options)
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+    frame = np.array([int(r["frame"]) for r in rows])
+    truth = [src.ground_truth(int(k)) for k in frame]
+    g = np.array([(t.u, t.v) if t is not None else (np.nan, np.nan) for t in truth])
+    weights = difference_weights(np.arange(SELF_ORDER + 1.0))
+    out = {}
+    for c in CUES:
+        if f"{c}_u" not in rows[0]:
+            continue
+        z = np.array([[float(r[f"{c}_{a}"]) if r[f"{c}_{a}"] else np.nan for a in "uv"] for r in rows])
+        e2 = 0.5 * ((z - g) ** 2).sum(axis=1)
+        if not np.isfinite(e2).any():
+            continue
+        # windows of SELF_ORDER + 1 rows in a row, frames consecutive, the cue in each
+        zw = np.lib.stride_tricks.sliding_window_view(z, SELF_ORDER + 1, axis=0)  # (m, 2, SELF_ORDER + 1)
+        fw = np.lib.stride_tricks.sliding_window_view(frame, SELF_ORDER + 1)
+        ok = np.isfinite(zw).all(axis=(1, 2)) & (fw[:, -1] - fw[:, 0] == SELF_ORDER)
+        d = 0.5 * ((zw[ok] @ weights) ** 2).sum(axis=1)
+        white = math.sqrt(white_noise(d)) if d.size else float("nan")
+        out[c] = (math.sqrt(float(np.nanmedian(e2)) / math.log(2.0)), white)
+    return out
+
+
+def print_noise_split(rows: list[dict]) -> None:
+    """Per scene and cue: median error / white noise per axis, px (:func:`noise_split`)."""
+    print("median error / white noise per axis, px (a cue whose error is mostly slow bias: the first well above)")
+    for r in rows:
+        cells = " ".join(f"{c} {m:6.2f} / {wn:5.2f}" for c, (m, wn) in r["noise"].items())
+        print(f"{r['scene'].name:<20} {r['scene'].split:<5} {cells}")
+
+
 def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str], recordings: Path | None = None) -> dict:
     """Render (or take from ``recordings``), track and score ``scene``; its row of the table."""
     tracked, table = out / f"{scene.name}.tracked.mcap", out / f"{scene.name}.csv"
@@ -211,6 +260,7 @@ def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str], recor
         "bestmax": fused["bestmax"] / score["bestmax"]["n_frames"],
         "coverage": fused["coverage"],
         "cover2sd": coverage_2sd(table, scene, frames),
+        "noise": noise_split(table, scene, frames),
     }
 
 
@@ -299,6 +349,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--save", type=Path, default=None, help="write the table as JSON (for a later --compare)")
     p.add_argument("--compare", type=Path, default=None, help="an earlier --save: print fused RMSE new / old")
+    p.add_argument(
+        "--noise-split",
+        action="store_true",
+        help="also print each cue's median error and its white noise (what the calibration measures) per scene",
+    )
     args = p.parse_args(argv)
     scenes = SCENES
     if args.only:
@@ -313,6 +368,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fusion_matrix: error: {exc}", file=sys.stderr)
         return 2
     print_table(rows)
+    if args.noise_split:
+        print_noise_split(rows)
     if args.save is not None:
         save(rows, args.save)
     if args.compare is not None:

@@ -43,3 +43,32 @@ def test_save_then_compare_prints_fused_new_over_old_and_the_geometric_mean(tmp_
     assert "default-320" in out and "2.00 ->    1.00 ( 0.50x)" in out and "8.00 ( 2.00x)" in out
     # geometric mean of 0.5 and 2: 1; the held split's ratio means 0.75 -> 0.75
     assert "held: fused new / old geometric mean 1.000 (1 of 2 worse); ratio mean 0.75 -> 0.75" in out
+
+
+def test_noise_split_finds_a_cues_white_noise_under_its_bias(tmp_path):
+    # reference: the simulated noise. colour 2 px off to the right plus 0.3 px of white noise; depth 1 px of
+    # white noise, missing every 7th frame (no difference spans the gap)
+    import csv
+
+    import numpy as np
+
+    from drivers.synth import SynthSource
+
+    scene = next(s for s in fusion_matrix.SCENES if s.name == "default-320")
+    frames = 200
+    src = SynthSource(frames=frames, seed=scene.seed, size=(320, 200), background_frames=10, **scene.options)
+    gen = np.random.default_rng(0)
+    table = tmp_path / "t.csv"
+    with open(table, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["frame", "colour_u", "colour_v", "depth_u", "depth_v"])
+        for k in range(10, frames):
+            g = src.ground_truth(k)
+            c = np.array([g.u + 2.0, g.v]) + gen.normal(0.0, 0.3, 2)
+            d = np.array([g.u, g.v]) + gen.normal(0.0, 1.0, 2)
+            out.writerow([k, *c, *(d if k % 7 else ("", ""))])
+    split = fusion_matrix.noise_split(table, scene, frames)
+    assert set(split) == {"colour", "depth"}
+    assert abs(split["colour"][1] - 0.3) < 0.3 * 0.25 and abs(split["depth"][1] - 1.0) < 0.25
+    # colour's median error is its bias: sqrt((2^2 + 2 * 0.3^2) / 2 / ln 2) = 1.74 px per axis
+    assert abs(split["colour"][0] - 1.74) < 0.15 and split["colour"][0] > 4 * split["colour"][1]
