@@ -127,25 +127,32 @@ NOISE_SLAB_SIGMAS = 2.0
 MIN_NOISE_SAMPLES = 50
 
 
-def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int) -> float:
-    """Robust depth noise sigma (mm) of the pixels in ``mask``: MAD of the second differences
-    ``z[i - lag] - 2 z[i] + z[i + lag]`` along rows and columns, all three pixels in ``mask``.
+def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float) -> float:
+    """Robust depth noise sigma (mm) at the depth ``at_mm`` of the pixels in ``mask``: MAD of the
+    second differences ``w[i - lag] - 2 w[i] + w[i + lag]`` of the inverse depth ``w = 1 / z``
+    along rows and columns, all three pixels in ``mask``, times ``at_mm ** 2``.
 
-    The second difference cancels a planar slope (the forearm receding from the wrist), the MAD
-    ignores the depth steps at the region's edges; for independent noise its sigma is
-    ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist.
+    A stereo sensor's noise is uniform in disparity, so in inverse depth: its depth noise grows
+    as ``z ** 2`` (``dz = z ** 2 dw``). Measured in inverse depth, the pixels of the whole region
+    (the palm, the torso behind it and noisy wall pixels 1-2 m farther, each as noisy in ``w``)
+    measure one noise, read at the nearest surface; measured in mm, the far pixels made it 2-3x
+    the palm's. The second difference cancels a planar slope (the forearm receding from the
+    wrist), the MAD ignores the depth steps at the region's edges; for independent noise its
+    sigma is ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist.
     """
-    z = depth.astype(np.float32)
+    valid = mask & (depth > 0)
+    w = np.zeros(depth.shape, np.float64)
+    w[valid] = 1.0 / depth[valid]  # inverse depth, 1/mm
     diffs = []
-    for a, m in ((z, mask), (z.T, mask.T)):
+    for a, m in ((w, valid), (w.T, valid.T)):
         if a.shape[1] <= 2 * lag:
             continue
         both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
         diffs.append((a[:, : -2 * lag] - 2.0 * a[:, lag:-lag] + a[:, 2 * lag :])[both])
-    dd = np.concatenate(diffs) if diffs else np.empty(0, np.float32)
+    dd = np.concatenate(diffs) if diffs else np.empty(0)
     if dd.size < MIN_NOISE_SAMPLES:
         return 0.0
-    return float(1.4826 * np.median(np.abs(dd)) / np.sqrt(6.0))
+    return float(1.4826 * np.median(np.abs(dd)) / np.sqrt(6.0) * at_mm * at_mm)  # sigma_z = z^2 sigma_w
 
 
 class DepthCue:
@@ -340,7 +347,7 @@ class DepthCue:
         if self.nearest_mm is not None and d5.any():
             near = d1[d5 > 0]  # valid depths of the coarse region
             z0 = float(np.partition(near, near.size // 50)[near.size // 50])  # nearest surface: 2nd percentile
-            sigma = depth_noise_mm(d1, d5 > 0, max(1, round(NOISE_LAG_PX / step)))
+            sigma = depth_noise_mm(d1, d5 > 0, max(1, round(NOISE_LAG_PX / step)), z0)  # the noise at z0
             slab = float(np.hypot(self.nearest_mm, NOISE_SLAB_SIGMAS * sigma))  # widths add in variance
             d5[d1 > z0 + slab] = 0  # the nearest surface's slab
             d5 = open_thin(d5, self.open_radius)  # the slab's ragged noisy edge removed
