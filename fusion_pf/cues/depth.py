@@ -100,7 +100,8 @@ We implement it as follows:
   palm can fill (no better: geometric mean about 1.0) and dropping the
   measurement (2-10x worse: depth is the one good cue in these scenes). The
   tuned matrix split, fused new / old: 0.97 (skeleton-lit-400 1.67 -> 1.42,
-  far-hand-noisy-640b 0.89 -> 1.04); ``recordings/sample.mcap`` depth 1.04 ->
+  far-hand-noisy-640b 0.89 -> 1.04), held out 0.96, new 1.02 (skeleton-best-
+  lit-320 1.21 -> 1.68), fresh 0.87; ``recordings/sample.mcap`` depth 1.04 ->
   0.96 px, fused 0.78 unchanged; the two-hand seeds unchanged.
 
 Invalid depth (0, in the frame or in the background) gives 0 in I_d2, which
