@@ -225,3 +225,18 @@ def test_depth_noise_is_measured_across_slopes_and_edges():
     near = np.rint(z).astype(np.uint16)
     assert depth_noise_mm(near, fg, 5) == pytest.approx(10.0, rel=0.1)
     assert depth_noise_mm(near, fg & (yy < 3), 5) == 0.0  # too few pixels to measure: the fixed slab
+
+
+def test_a_new_background_array_is_searched_against_not_the_kept_one(scene):
+    # the whole-frame search keeps its reduced background between frames: a new background array
+    # (a background model that changed) must replace it, a window of another size too
+    s = scene()
+    cue = DepthCue(**HAND_BAND)
+    first = cue(s["depth"], s["bg_depth"], keep_border=True).measurement
+    assert first is not None and _err(first, s["truth"]) < 2.0
+    cue.reset()
+    nearer = np.where(s["bg_depth"] > 0, s["depth"], 0).astype(np.uint16)  # the hand is now background
+    assert cue(s["depth"], nearer, keep_border=True).measurement is None
+    cue.reset()
+    again = cue(s["depth"], s["bg_depth"], keep_border=True).measurement
+    assert again is not None and (again.u, again.v) == (first.u, first.v)
