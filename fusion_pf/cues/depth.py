@@ -135,17 +135,20 @@ def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int) -> float:
     The second difference cancels a planar slope (the forearm receding from the wrist), the MAD
     ignores the depth steps at the region's edges; for independent noise its sigma is
     ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist. Only the
-    mask's bounding box is read (a whole-frame search's region is a small part of the frame).
+    mask's pixels are read, by flat index (a whole-frame search's coarse region is 1-2 % of the
+    frame, spread over all of it: 0.3 ms as whole-image differences, 0.09 ms so).
     """
-    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
-    z = depth[y : y + h, x : x + w].astype(np.float32)
-    mask = mask[y : y + h, x : x + w]
+    h, w = mask.shape
+    m = np.ravel(mask.astype(bool, copy=False))
+    z = np.ravel(depth)
+    first = np.flatnonzero(m)  # the first pixel of each triple
+    rows, cols = np.divmod(first, w)
     diffs = []
-    for a, m in ((z, mask), (z.T, mask.T)):
-        if a.shape[1] <= 2 * lag:
-            continue
-        both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
-        diffs.append((a[:, : -2 * lag] - 2.0 * a[:, lag:-lag] + a[:, 2 * lag :])[both])
+    for inside, stride in ((cols < w - 2 * lag, lag), (rows < h - 2 * lag, lag * w)):  # along rows, columns
+        i = first[inside]
+        i = i[m[i + stride] & m[i + 2 * stride]]
+        a, b, c = (z[i + k * stride].astype(np.float32) for k in range(3))
+        diffs.append(a - 2.0 * b + c)
     dd = np.concatenate(diffs) if diffs else np.empty(0, np.float32)
     if dd.size < MIN_NOISE_SAMPLES:
         return 0.0

@@ -240,3 +240,22 @@ def test_a_new_background_array_is_searched_against_not_the_kept_one(scene):
     cue.reset()
     again = cue(s["depth"], s["bg_depth"], keep_border=True).measurement
     assert again is not None and (again.u, again.v) == (first.u, first.v)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noise_equals_whole_image_second_differences(seed):
+    # the flat-index computation against the definition over whole-image shifted arrays
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(3, 60, size=2)
+    lag = int(rng.integers(1, 4))
+    depth = rng.integers(0, 5000, size=(h, w)).astype(np.uint16)
+    mask = rng.random((h, w)) < rng.uniform(0.3, 1.0)
+    z = depth.astype(np.float64)
+    dd = []
+    for a, m in ((z, mask), (z.T, mask.T)):
+        if a.shape[1] > 2 * lag:
+            both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
+            dd.append((a[:, : -2 * lag] - 2 * a[:, lag:-lag] + a[:, 2 * lag :])[both])
+    d = np.concatenate(dd) if dd else np.empty(0)
+    want = 0.0 if d.size < depth_module.MIN_NOISE_SAMPLES else 1.4826 * np.median(np.abs(d)) / np.sqrt(6.0)
+    assert depth_noise_mm(depth, mask, lag) == pytest.approx(want, rel=1e-6)
