@@ -34,6 +34,33 @@ call against 4.6 ms for the float model. Keeping the last blocks float as well (
 brought the fused RMSE on the development canvas from 10.8 to 10.6 px at 2.6 ms: not kept. Dynamic-range int8 (int8 weights, float activations)
 runs outside XNNPACK in this runtime and costs 12-14 ms; weight-only int8 or fp16 weights are
 dequantised at load (4.6 ms, no gain); int16 activations run outside XNNPACK (151 ms).
+
+Selective mixed precision (measured, not kept; issue 25). Per-operator sensitivity: the model
+quantised as above but with one of its 57 int8 operators kept float (a ``no_quantize`` recipe
+entry on the operator's scope, the output tensor names followed by ``;``), on 120 hand crops of
+the same photos drawn with another seed (tracking-like jitter: 5 % position, 0.9-1.2 x size,
+0.2 rad), as the mean 2-D landmark distance to the float model in 224 px crop pixels. The error
+is spread over the network: all-int8 0.80 px, the best single float operator (a convolution of the
+last block, 53rd of the 57) 0.72 px, every other 0.76-0.80 px. Keeping the k most sensitive float
+(CPU ms per call, single thread, against the float model's 4.8-4.9 ms in the same run; fused
+RMSE on the development canvas / crops, float model 10.37 / 5.92 px):
+
+====  =========  ========  ================
+k     ms/call    distance  RMSE canvas/crops
+====  =========  ========  ================
+0     2.05       0.80      10.79 / 6.18
+4     2.45       0.60      10.53 / 6.17
+10    2.80       0.58      10.39 / 6.18
+15    3.00       0.58      10.30 / 6.17
+20    3.78       0.50      10.18 / 5.87
+32    3.93       0.28
+45    4.40       0.19
+====  =========  ========  ================
+
+The last 16 operators float: 2.89 ms, 0.60 px; k = 20 without its five high-resolution
+operators: 3.34 ms, 0.66 px. Only k = 20 keeps the development accuracy, and its tracking frames
+cost 0.85x / 0.84x MediaPipe's CPU median (quiet / one core busy) and 0.94x / 1.05x its p95
+(``benchmarks/peer.py``, load 23-24 on 2 CPUs): short of issue 25's 0.8x and 1.0x.
 """
 
 from __future__ import annotations

@@ -52,6 +52,25 @@ def _labels(mask: np.ndarray) -> tuple[int, np.ndarray]:
     return n, labels
 
 
+def _components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """``connectedComponentsWithStats`` (8-connected) of ``mask``'s non-empty bounding box.
+
+    Its statistics pass visits every pixel of the image it is given: a palm in a whole-frame
+    search (427 x 240 at 1280 x 720) cost 0.56 ms, its bounding box 0.05 ms. Returns the number
+    of labels, the box's labels, the stats and centroids in ``mask``'s coordinates (label 0's
+    are the box's background) and the box's corner ``(x, y)``; the labels are numbered in the
+    same raster order as on the whole mask.
+    """
+    x, y, w, h = cv2.boundingRect(mask)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(
+        mask[y : y + h, x : x + w], connectivity=8, ltype=cv2.CV_32S
+    )
+    stats[:, cv2.CC_STAT_LEFT] += x
+    stats[:, cv2.CC_STAT_TOP] += y
+    centroids += (x, y)
+    return n, labels, stats, centroids, (x, y)
+
+
 def _paint(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """The mask of the labels where the boolean table ``keep`` is True (255) as one look-up-table gather."""
     lut = np.where(keep, np.uint8(255), np.uint8(0))
@@ -201,7 +220,7 @@ def largest_region(
     """
     if mask.size == 0 or not cv2.countNonZero(mask):
         return None
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    n, labels, stats, centroids, (ox, oy) = _components(mask)
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA]  # (ii) area of every region but the background
@@ -221,7 +240,7 @@ def largest_region(
     )
     if not core:
         return Region(float(centroids[best, 0]), float(centroids[best, 1]), area, (x, y, w, h))
-    cu, cv_ = core_centre(labels[y : y + h, x : x + w] == best)
+    cu, cv_ = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == best)
     return Region(cu + x, cv_ + y, area, (x, y, w, h))
 
 
@@ -355,7 +374,7 @@ def region_detections(
 
     if final.size == 0 or not cv2.countNonZero(final):
         return ()
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(final, connectivity=8, ltype=cv2.CV_32S)
+    n, labels, stats, centroids, (ox, oy) = _components(final)
     areas = stats[1:, cv2.CC_STAT_AREA]
     x0, y0 = offset
     k2 = step * step
@@ -369,13 +388,13 @@ def region_detections(
             int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
         )
         if core:
-            cu, cv_ = core_centre(labels[y : y + h, x : x + w] == i + 1)
+            cu, cv_ = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == i + 1)
             region = Region(cu + x, cv_ + y, area, (x, y, w, h))
         else:
             region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
         pieces: list[tuple[Region, dict]] = [(region, {})]
         if seeds is not None and all(x <= a <= x + w and y <= b <= y + h for a, b in seeds):
-            split = split_region(labels[y : y + h, x : x + w] == i + 1, seeds - (x, y), core=core)
+            split = split_region(labels[y - oy : y - oy + h, x - ox : x - ox + w] == i + 1, seeds - (x, y), core=core)
             if split is not None:
                 pieces = [
                     (

@@ -261,3 +261,39 @@ def test_the_noise_is_the_palms_not_the_far_walls():
         assert m is not None
         assert _err(m, (45.0, 80.0)) < 1.5
         assert m.extras["area"] < 1.3 * math.pi * 18**2
+
+
+def test_a_new_background_array_is_searched_against_not_the_kept_one(scene):
+    # the whole-frame search keeps its reduced background between frames: a new background array
+    # (a background model that changed) must replace it, a window of another size too
+    s = scene()
+    cue = DepthCue(**HAND_BAND)
+    first = cue(s["depth"], s["bg_depth"], keep_border=True).measurement
+    assert first is not None and _err(first, s["truth"]) < 2.0
+    cue.reset()
+    nearer = np.where(s["bg_depth"] > 0, s["depth"], 0).astype(np.uint16)  # the hand is now background
+    assert cue(s["depth"], nearer, keep_border=True).measurement is None
+    cue.reset()
+    again = cue(s["depth"], s["bg_depth"], keep_border=True).measurement
+    assert again is not None and (again.u, again.v) == (first.u, first.v)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noise_equals_whole_image_second_differences(seed):
+    # the flat-index computation against the definition over whole-image shifted arrays
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(3, 60, size=2)
+    lag = int(rng.integers(1, 4))
+    depth = rng.integers(0, 5000, size=(h, w)).astype(np.uint16)
+    mask = rng.random((h, w)) < rng.uniform(0.3, 1.0)
+    valid = mask & (depth > 0)
+    z = np.where(valid, 1.0 / np.maximum(depth, 1).astype(np.float64), 0.0)  # inverse depth
+    dd = []
+    for a, m in ((z, valid), (z.T, valid.T)):
+        if a.shape[1] > 2 * lag:
+            both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
+            dd.append((a[:, : -2 * lag] - 2 * a[:, lag:-lag] + a[:, 2 * lag :])[both])
+    d = np.concatenate(dd) if dd else np.empty(0)
+    at = float(rng.uniform(300, 4000))
+    want = 0.0 if d.size < depth_module.MIN_NOISE_SAMPLES else 1.4826 * np.median(np.abs(d)) / np.sqrt(6.0) * at * at
+    assert depth_noise_mm(depth, mask, lag, at) == pytest.approx(want, rel=1e-6)

@@ -190,3 +190,44 @@ def test_split_parts_with_core_are_the_palm_centres_not_pulled_up_the_forearms()
     assert all(120 - p.v > 15 for p in plain)  # the centroids lie up the forearms
     assert [(p.u, p.v) for p in core] == [pytest.approx((75, 120), abs=1.0), pytest.approx((125, 120), abs=1.0)]
     assert [(p.area, p.bbox) for p in core] == [(p.area, p.bbox) for p in plain]
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_region_statistics_equal_scipy_labelling(seed):
+    # every region's area, box, centroid and core centre against an independent labelling (scipy.ndimage),
+    # on masks whose regions lie anywhere in a larger window (the statistics run on their bounding box)
+    from scipy import ndimage
+
+    from fusion_pf.cues.regions import core_centre, region_detections
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(20, 120, size=2)
+    m = _mask(h, w)
+    y0, x0 = rng.integers(0, h - 10), rng.integers(0, w - 10)
+    y1, x1 = rng.integers(y0 + 5, h + 1), rng.integers(x0 + 5, w + 1)
+    m[y0:y1, x0:x1] = np.where(rng.random((y1 - y0, x1 - x0)) < rng.uniform(0.2, 0.9), np.uint8(255), np.uint8(0))
+    labels, n = ndimage.label(m > 0, structure=np.ones((3, 3)))
+    if n == 0:
+        return
+    boxes = ndimage.find_objects(labels)
+    areas = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    big = int(np.argmax(areas))  # the first of the largest, in raster order as OpenCV numbers them
+    sl = boxes[big]
+    want_box = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start, sl[0].stop - sl[0].start)
+    ys, xs = np.nonzero(labels == big + 1)
+    for core in (False, True):
+        r = largest_region(m, core=core)
+        assert r is not None and (r.area, r.bbox) == (areas[big], want_box)
+        if core:
+            cu, cv = core_centre(labels[sl] == big + 1)
+            want = (cu + want_box[0], cv + want_box[1])
+        else:
+            want = (xs.mean(), ys.mean())
+        assert (r.u, r.v) == pytest.approx(want, abs=1e-9)
+    dets = region_detections(m, (7, 3), "colour", palm_area=100.0, max_regions=n)
+    got = sorted((d.measurement.extras["area"], *d.measurement.extras["bbox"]) for d in dets)
+    want_all = sorted(
+        (int(areas[i]), b[1].start + 7, b[0].start + 3, b[1].stop - b[1].start, b[0].stop - b[0].start)
+        for i, b in enumerate(boxes)
+    )
+    assert got == want_all
