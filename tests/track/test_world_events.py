@@ -21,7 +21,7 @@ from drivers.synth import SynthSource
 from drivers.synth_rig import NOMINAL_CENTRE_M, SynthRig
 from fusion_pf.errors import InputError
 from fusion_pf.filter.world import project
-from fusion_pf.pipeline.events import EventConfig, pair_within
+from fusion_pf.pipeline.events import EventConfig, EventDetector, pair_within
 from fusion_pf.pipeline.world import WorldResult, WorldTarget
 from fusion_pf.pipeline.world_events import WORLD_EVENTS, WorldEvents, contact_limits
 from fusion_pf.score.events import parse_events_cell
@@ -91,6 +91,34 @@ def test_a_hand_resting_at_the_cheek_is_a_contact_within_three_frames_of_the_sur
     events = _events(seq)
     assert [e[1:] for e in events] == [("contact", ("right_hand", "head"))]
     assert 0 <= events[0][0] - first <= 3, (events, first)
+
+
+def test_the_exchange_is_decided_with_the_separation_from_the_colour_seen_since_its_onset():
+    # world millimetres: the right hand holds the ball (hue 130), the hands join (50 mm) and part (400 mm) with it at
+    # the left; the colour analysis of both hands from the frame they are apart (the separation's onset) on
+    detector = EventDetector(TARGETS, WORLD_EVENTS)
+    palms = dict.fromkeys(detector.hands, 95.0)
+    gaps = [400.0] * 6 + [50.0] * 6 + [400.0] * 6
+    holder = ["right_hand"] * 9 + ["left_hand"] * 9
+    partners: dict[str, str] = {}
+    events = []
+    for k, gap in enumerate(gaps):
+        points = {"right_hand": (0.0, 0.0, 1000.0), "left_hand": (gap, 0.0, 1000.0), "head": HEAD_MM}
+        partners = pair_within(points, partners, WORLD_EVENTS.join_on * 95.0, WORLD_EVENTS.join_off * 95.0)
+        out = detector.decide(
+            dict.fromkeys(TARGETS, "tracking"),
+            points,
+            k,
+            1000 + k,
+            palms=palms,
+            look=lambda hand, _p, _palm, k=k: 130.0 if hand == holder[k] else None,
+            partners=partners,
+        )
+        events += [(e.frame, e.event, e.targets) for e in out]
+    # separated at 12, confirmed at 13: the exchange in the same frame (one frame later when the second decision
+    # point took its samples only from the confirmation on)
+    assert events[-2:] == [(13, "separate", ("right_hand", "left_hand")), (13, "exchange", ("right_hand", "left_hand"))]
+    assert [e[1] for e in events] == ["pick_up", "join", "separate", "exchange"]
 
 
 def test_a_target_no_camera_sees_disappears_and_reappears():
