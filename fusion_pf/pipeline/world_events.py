@@ -56,8 +56,8 @@ __all__ = [
 ]
 
 #: A hand and the head as balls in 3-D (mm): the hand's radius is half its palm length; the head's is half of 195 mm,
-#: an adult head's length (glabella to the back of the skull; survey means 185-197 mm), measured from the tracked
-#: head point (the face). A hand touches the head when the balls meet.
+#: an adult head's length (glabella to the back of the skull; survey means 185-197 mm), around the tracked head
+#: point. A hand touches the head when the balls meet.
 HAND_RADIUS_MM, HEAD_RADIUS_MM = PALM_LENGTH_MM / 2.0, 97.5
 #: The contact ends when the surfaces are farther apart than this (mm): half a palm, so the estimates' frame-to-frame
 #: jitter (10-15 mm while the hand rests at the head) never ends and restarts one contact.
@@ -88,9 +88,10 @@ def contact_limits(
 #: frames late).
 #: Contacts are decided where the hand and the head touch (:func:`contact_limits`: 145 mm between centres, apart beyond
 #: 192.5 mm). One camera's 1.3 / 1.8 palm lengths (123.5 / 171 mm) lay inside the touching distance: a hand resting on
-#: the cheek is 105-110 mm from the face's centre on the scripted rig, its estimate 115-127 mm (the head's estimate sits
-#: 15-25 mm behind the face), so the contact was decided only once the eased approach had almost stopped (3-5 frames
-#: after the truth) or, with the estimate at the threshold, 6-7 frames late.
+#: the cheek is 105-110 mm from the face's centre on the scripted rig, its estimate 112-127 mm (the head's estimate sits
+#: 15-25 mm behind and above the face's centre, where the synthetic skeleton's head joint is), so the contact was
+#: decided only once the eased approach had almost stopped (3-5 frames after the truth) or, with the estimate at the
+#: threshold, 6-7 frames late.
 _CONTACT_ON, _CONTACT_OFF = contact_limits(HAND_RADIUS_MM, HEAD_RADIUS_MM, RELEASE_GAP_MM)
 WORLD_EVENTS = EventConfig(carry_persist=2, apart=1.5, contact_on=_CONTACT_ON, contact_off=_CONTACT_OFF)
 
