@@ -22,7 +22,8 @@ per frame (with its frame, for the colour analysis) and returns that frame's
     that are not the hand's skin (:func:`object_modes`) say whether it holds an
     object. The carriers are compared at the join's two decision points (§7.3.1):
     the last state before the hands join and the first confirmed state of
-    both hands after they separate; an object held by one hand before and by
+    both hands after they separate (their colour analysis counted from the
+    separation's onset, the first frame they were apart); an object held by one hand before and by
     the other after is an ``exchange`` (no pick-up or put-down is reported
     for it).
 
@@ -306,11 +307,16 @@ def object_modes(
 
 @dataclass
 class _Pending:
-    """A separated pair of hands waiting for its second decision point (§7.3.1)."""
+    """A joined pair of hands and, once separated, waiting for its second decision point (§7.3.1).
+
+    ``apart`` holds each hand's latest colour analysis (frame, hue) taken while the pair was apart but its
+    separation not yet confirmed: from the separation's onset it is the second decision point's first sample.
+    """
 
     before: dict[str, float | None]
     frame: int
     samples: dict[str, list[float | None]] | None = None
+    apart: dict[str, tuple[int, float | None]] = field(default_factory=dict)
 
 
 class EventDetector:
@@ -451,7 +457,9 @@ class EventDetector:
                     emit("separate", pair, p.onset)
                     pending = self._pending.get(pair)
                     if pending is not None:
-                        pending.frame, pending.samples = frame, {h: [] for h in pair}
+                        since = {h: pending.apart.get(h, (-1, None)) for h in pair}
+                        pending.frame = frame
+                        pending.samples = {h: [hue] if at >= p.onset else [] for h, (at, hue) in since.items()}
         head = positions.get(HEAD) if states.get(HEAD) in _HOLDING else None
         for h, p in self._contact.items():
             pos = positions.get(h) if states.get(h) in _HOLDING else None
@@ -491,8 +499,10 @@ class EventDetector:
             if waiting:
                 waiting[0][h].append(hue)  # the second decision point collects, the Persist waits
                 continue
-            if any(h in pair for pair in self._pending):
-                continue  # joined (the first decision point is taken)
+            joined = [q for pair, q in self._pending.items() if h in pair]
+            if joined:  # the first decision point is taken; apart already: the separation's onset, if confirmed
+                joined[0].apart[h] = (frame, hue)
+                continue
             p = self._carry[h]
             if hue is not None:
                 self._candidate_hue[h] = hue

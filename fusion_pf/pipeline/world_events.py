@@ -11,7 +11,9 @@ millimetres:
   is :data:`~fusion_pf.cues.roi.PALM_LENGTH_MM` (95 mm), so the thresholds of
   :class:`~fusion_pf.pipeline.events.EventConfig` (in palm lengths) are mm: a
   hand touches the head within ``contact_on`` x 95 mm of it and leaves it beyond
-  ``contact_off`` x 95 mm;
+  ``contact_off`` x 95 mm; in 3-D these are where the surfaces of the hand and the
+  head meet and part (:func:`contact_limits`: the two as balls of
+  :data:`HAND_RADIUS_MM` and :data:`HEAD_RADIUS_MM`);
 * two targets are ``combined`` (paper 004 §5.2; two hands: ``join``, a hand
   and the head: ``contact``) when their estimates come closer than
   ``join_on`` palm lengths and stay so until they are ``join_off`` apart
@@ -37,12 +39,44 @@ from collections.abc import Iterable, Iterator, Sequence
 import numpy as np
 
 from ..cues.roi import PALM_LENGTH_MM
+from ..errors import InputError
 from ..filter.world import in_view, project
 from ..rig import FrameSet
 from .events import Event, EventConfig, EventDetector, Look, _clothing_hue, object_modes, pair_within
 from .world import WorldResult
 
-__all__ = ["WORLD_EVENTS", "WorldEvents", "with_events"]
+__all__ = [
+    "HAND_RADIUS_MM",
+    "HEAD_RADIUS_MM",
+    "RELEASE_GAP_MM",
+    "WORLD_EVENTS",
+    "WorldEvents",
+    "contact_limits",
+    "with_events",
+]
+
+#: A hand and the head as balls in 3-D (mm): the hand's radius is half its palm length; the head's is half of 195 mm,
+#: an adult head's length (glabella to the back of the skull; survey means 185-197 mm), around the tracked head
+#: point. A hand touches the head when the balls meet.
+HAND_RADIUS_MM, HEAD_RADIUS_MM = PALM_LENGTH_MM / 2.0, 97.5
+#: The contact ends when the surfaces are farther apart than this (mm): half a palm, so the estimates' frame-to-frame
+#: jitter (10-15 mm while the hand rests at the head) never ends and restarts one contact.
+RELEASE_GAP_MM = PALM_LENGTH_MM / 2.0
+
+
+def contact_limits(
+    hand_radius_mm: float, head_radius_mm: float, release_gap_mm: float, palm_mm: float = PALM_LENGTH_MM
+) -> tuple[float, float]:
+    """``(contact_on, contact_off)`` in palm lengths of ``palm_mm``: the centre distances at which a hand and the head,
+    balls of the given radii, touch and are ``release_gap_mm`` apart."""
+    touch = hand_radius_mm + head_radius_mm
+    if min(hand_radius_mm, head_radius_mm, release_gap_mm) < 0.0 or touch <= 0.0 or palm_mm <= 0.0:
+        raise InputError(
+            f"contact radii and gap must be >= 0 mm (radii not both 0) and the palm > 0 mm, got hand {hand_radius_mm},"
+            f" head {head_radius_mm}, gap {release_gap_mm}, palm {palm_mm}"
+        )
+    return touch / palm_mm, (touch + release_gap_mm) / palm_mm
+
 
 #: The event thresholds in world coordinates (palm lengths of 95 mm), chosen on the scripted rig (seeds 1 and 2,
 #: 320 x 200, 2 and 3 cameras; over carry_persist {2, 3, 4}, apart {1.5, 1.8, 2.2}, join_on {1.07, 1.25},
@@ -52,7 +86,14 @@ __all__ = ["WORLD_EVENTS", "WorldEvents", "with_events"]
 #: frames after the true separation); joins at 1.25 palm lengths (119 mm; the true ones at 100 mm, the estimates
 #: trail the hands by 2-3 frames), apart again beyond 1.5 (142 mm; the tracker's own 1.87 reported separations 4-5
 #: frames late).
-WORLD_EVENTS = EventConfig(carry_persist=2, apart=1.5)
+#: Contacts are decided where the hand and the head touch (:func:`contact_limits`: 145 mm between centres, apart beyond
+#: 192.5 mm). One camera's 1.3 / 1.8 palm lengths (123.5 / 171 mm) lay inside the touching distance: a hand resting on
+#: the cheek is 105-110 mm from the face's centre on the scripted rig, its estimate 112-127 mm (the head's estimate sits
+#: 15-25 mm behind and above the face's centre, where the synthetic skeleton's head joint is), so the contact was
+#: decided only once the eased approach had almost stopped (3-5 frames after the truth) or, with the estimate at the
+#: threshold, 6-7 frames late.
+_CONTACT_ON, _CONTACT_OFF = contact_limits(HAND_RADIUS_MM, HEAD_RADIUS_MM, RELEASE_GAP_MM)
+WORLD_EVENTS = EventConfig(carry_persist=2, apart=1.5, contact_on=_CONTACT_ON, contact_off=_CONTACT_OFF)
 
 
 class WorldEvents:

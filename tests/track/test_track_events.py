@@ -139,7 +139,7 @@ def test_a_still_hand_picks_up_and_the_object_is_exchanged_across_a_join():
         (7, "pick_up", ("right_hand",)),
         (9, "join", ("right_hand", "left_hand")),
         (14, "separate", ("right_hand", "left_hand")),
-        (15, "exchange", ("right_hand", "left_hand")),
+        (14, "exchange", ("right_hand", "left_hand")),  # the left hand's ball seen from the separation's onset, 13
     ]
 
 

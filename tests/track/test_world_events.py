@@ -19,10 +19,11 @@ from mcap.reader import make_reader
 from drivers import synth_scene as sc
 from drivers.synth import SynthSource
 from drivers.synth_rig import NOMINAL_CENTRE_M, SynthRig
+from fusion_pf.errors import InputError
 from fusion_pf.filter.world import project
-from fusion_pf.pipeline.events import EventConfig, pair_within
+from fusion_pf.pipeline.events import EventConfig, EventDetector, pair_within
 from fusion_pf.pipeline.world import WorldResult, WorldTarget
-from fusion_pf.pipeline.world_events import WORLD_EVENTS, WorldEvents
+from fusion_pf.pipeline.world_events import WORLD_EVENTS, WorldEvents, contact_limits
 from fusion_pf.score.events import parse_events_cell
 
 TARGETS = ("right_hand", "left_hand", "head")
@@ -60,11 +61,64 @@ def test_joins_and_separations_are_decided_on_3d_distances_with_hysteresis():
 
 
 def test_a_hand_at_the_head_is_one_contact_in_mm_and_hovering_at_the_threshold_is_no_second():
-    far, near, hover = 400.0, 100.0, 140.0  # contact_on 1.3 x 95 = 123.5 mm, contact_off 1.8 x 95 = 171 mm
+    far, near, hover = 400.0, 100.0, 170.0  # contact_on 145 mm, contact_off 192.5 mm: the hover between them
+    assert WORLD_EVENTS.contact_on * 95.0 < hover < WORLD_EVENTS.contact_off * 95.0
     head = np.array(HEAD_MM)
     dists = [far] * 3 + [near] * 3 + [hover, near, hover, near] + [far] * 3
     seq = [_instant(k, tuple(head + (d, 0.0, 0.0)), (600.0, 0.0, 1000.0)) for k, d in enumerate(dists)]
     assert _events(seq) == [(4, "contact", ("right_hand", "head"))]
+
+
+def test_contact_limits_are_where_a_hand_and_a_head_as_balls_touch_and_part():
+    on, off = contact_limits(47.5, 97.5, 47.5)
+    assert (on * 95.0, off * 95.0) == pytest.approx((145.0, 192.5))
+    assert (WORLD_EVENTS.contact_on, WORLD_EVENTS.contact_off) == pytest.approx((on, off))
+    assert contact_limits(10.0, 20.0, 5.0, palm_mm=10.0) == pytest.approx((3.0, 3.5))
+    with pytest.raises(InputError, match="contact radii and gap must be >= 0 mm"):
+        contact_limits(47.5, -1.0, 47.5)
+
+
+def test_a_hand_resting_at_the_cheek_is_a_contact_within_three_frames_of_the_surfaces_meeting():
+    # the scripted move to the head: the palm's centre eased from 600 mm to 106 mm from the face's over 24 frames
+    # (the true contact: closer than 150 mm); the hand's estimate trails it by a frame and the head's sits 20 mm
+    # behind the face, so the estimated distance rests at 126 mm (beyond one camera's 1.3 palm lengths, 123.5 mm)
+    steps = np.arange(40)
+    true = 106.0 + 494.0 * (1.0 + np.cos(np.pi * np.clip(steps / 24.0, 0.0, 1.0))) / 2.0
+    estimated = np.concatenate([[true[0]], true[:-1]]) + 20.0
+    head = np.array(HEAD_MM)
+    seq = [_instant(k, tuple(head + (d, 0.0, 0.0)), (600.0, 0.0, 1000.0)) for k, d in enumerate(estimated)]
+    first = int(np.argmax(true < 150.0))
+    events = _events(seq)
+    assert [e[1:] for e in events] == [("contact", ("right_hand", "head"))]
+    assert 0 <= events[0][0] - first <= 3, (events, first)
+
+
+def test_the_exchange_is_decided_with_the_separation_from_the_colour_seen_since_its_onset():
+    # world millimetres: the right hand holds the ball (hue 130), the hands join (50 mm) and part (400 mm) with it at
+    # the left; the colour analysis of both hands from the frame they are apart (the separation's onset) on
+    detector = EventDetector(TARGETS, WORLD_EVENTS)
+    palms = dict.fromkeys(detector.hands, 95.0)
+    gaps = [400.0] * 6 + [50.0] * 6 + [400.0] * 6
+    holder = ["right_hand"] * 9 + ["left_hand"] * 9
+    partners: dict[str, str] = {}
+    events = []
+    for k, gap in enumerate(gaps):
+        points = {"right_hand": (0.0, 0.0, 1000.0), "left_hand": (gap, 0.0, 1000.0), "head": HEAD_MM}
+        partners = pair_within(points, partners, WORLD_EVENTS.join_on * 95.0, WORLD_EVENTS.join_off * 95.0)
+        out = detector.decide(
+            dict.fromkeys(TARGETS, "tracking"),
+            points,
+            k,
+            1000 + k,
+            palms=palms,
+            look=lambda hand, _p, _palm, k=k: 130.0 if hand == holder[k] else None,
+            partners=partners,
+        )
+        events += [(e.frame, e.event, e.targets) for e in out]
+    # separated at 12, confirmed at 13: the exchange in the same frame (one frame later when the second decision
+    # point took its samples only from the confirmation on)
+    assert events[-2:] == [(13, "separate", ("right_hand", "left_hand")), (13, "exchange", ("right_hand", "left_hand"))]
+    assert [e[1] for e in events] == ["pick_up", "join", "separate", "exchange"]
 
 
 def test_a_target_no_camera_sees_disappears_and_reappears():
