@@ -36,7 +36,7 @@ script keeps one core busy with a spinning process for the whole pass).
 
 ``--setups`` (default ``full:1``): the passes per recording and condition, each
 ``LANDMARK:COMPLEXITY``: fusion-pf's hand-landmark model (``--hand-landmark-model``: ``full``,
-``full_int8`` or ``lite``) against MediaPipe with ``model_complexity`` 0 (its lite models) or 1
+``full_mixed``, ``full_int8`` or ``lite``) against MediaPipe with ``model_complexity`` 0 (its lite models) or 1
 (its full models, MediaPipe Hands' default); e.g. ``full:1,full_int8:1,lite:0``. Every printed
 block names both sides' models.
 """
@@ -458,8 +458,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--setups",
         default="full:1",
-        help="passes as LANDMARK:COMPLEXITY, comma-separated: fusion-pf's hand-landmark model (full, full_int8, "
-        "lite) against MediaPipe's model_complexity (1 full, 0 lite)",
+        help="passes as LANDMARK:COMPLEXITY, comma-separated: fusion-pf's hand-landmark model (full, full_mixed, "
+        "full_int8, lite) against MediaPipe's model_complexity (1 full, 0 lite)",
     )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -472,7 +472,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give at least one REC.mcap and --conditions among quiet,busy")
     setups = parse_setups(args.setups)
     if setups is None:
-        ap.error(f"--setups must be LANDMARK:COMPLEXITY pairs (full, full_int8 or lite; 0 or 1), got {args.setups!r}")
+        ap.error(
+            f"--setups must be LANDMARK:COMPLEXITY pairs (full, full_mixed, full_int8 or lite; 0 or 1), got {args.setups!r}"
+        )
     for rec in args.recordings:
         if not rec.is_file():
             ap.error(f"recording {rec} not found")

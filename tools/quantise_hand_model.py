@@ -1,11 +1,12 @@
-"""Make ``fusion_pf/data/hand/hand_landmark_full_int8.tflite``: MediaPipe's full hand-landmark model in int8.
+"""Make ``fusion_pf/data/hand/hand_landmark_full_mixed.tflite`` and ``hand_landmark_full_int8.tflite``: MediaPipe's full hand-landmark model quantised.
 
 Offline tool, not a runtime dependency: it needs ``ai-edge-quantizer`` (PyPI, Apache-2.0), which
 fusion-pf itself never imports. Run it in a virtual environment of its own::
 
     python -m venv /tmp/qvenv
     /tmp/qvenv/bin/pip install ai-edge-quantizer==0.10.0 opencv-python-headless
-    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py
+    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py --variant full_mixed
+    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py --variant full_int8
 
 Steps (each needed by the next):
 
@@ -28,6 +29,10 @@ Steps (each needed by the next):
 6. **No unused tensors or buffers.** Left in the file: step 1's float16 weights, the float32
    weights the quantiser replaced and the int8 outputs step 4 bypasses; dropped (9.2 MB to 3.7 MB,
    outputs bit-identical).
+7. ``full_mixed`` only (:data:`VARIANTS`): 21 more operators of the float model kept float (the
+   input stage and first 56 x 56 block, operators 0-9; the last two 7 x 7 blocks, 46-56), and the
+   activation ranges from the 99th percentile of each tensor's per-crop extremes
+   (:func:`percentile_ranges`; the calibrator's moving average keeps the last few dozen crops').
 
 Measured (ai-edge-litert 2.3.0, XNNPACK, one thread, AMD EPYC with AVX-512 VNNI): 1.85 ms CPU per
 call against 4.6 ms for the float model. Keeping the last blocks float as well (conv2d_24-30)
@@ -61,6 +66,43 @@ The last 16 operators float: 2.89 ms, 0.60 px; k = 20 without its five high-reso
 operators: 3.34 ms, 0.66 px. Only k = 20 keeps the development accuracy, and its tracking frames
 cost 0.85x / 0.84x MediaPipe's CPU median (quiet / one core busy) and 0.94x / 1.05x its p95
 (``benchmarks/peer.py``, load 23-24 on 2 CPUs): short of issue 25's 0.8x and 1.0x.
+
+Cost-aware selection (the ``full_mixed`` variant). Each operator's float cost measured as the CPU
+time of the model with it kept float minus the all-int8 model's (0.00-0.37 ms; the 112 x 112
+convolution 3 costs most), its gain as the error it removes, on 100 crops of the test photos
+(seed 1, tracking jitter), of the **palm centre** (the mean of landmarks 0, 5, 9, 13, 17: what the
+cue measures) rather than of all 21 landmarks: the two disagree (keeping operator 52 float lowers
+the 21-landmark distance most and adds a palm-centre bias of 0.4 crop px; its model was less
+accurate on the development frames than all-int8). Single operators move the palm error by a few
+hundredths of a pixel either way (0.47 px all-int8), and greedy gain-per-ms sets do not add up
+(1-8 operators: 0.39-0.42 px). Whole stages do: the input stage kept float removes a quarter of
+it, the last blocks float most of the rest. Activation ranges (all-int8, 21-landmark distance): moving average 0.81,
+the mean of the per-crop extremes 0.78, their 99th / 95th percentile 0.77 / 0.77, global 0.81 px
+(the 99th kept: the smallest p95); 200 more calibration crops cut from square windows around the
+hands (replicated or constant border, as in the development crops): 0.02 px closer on such
+crops, not more accurate on the development frames (10.84 / 6.24 px all-int8). Measured
+(CPU ms per call interleaved in one run, float 4.58, all-int8 1.86; palm-centre error on the
+test photos' crops / on the same crops downscaled so the hand is 110-260 px, float reference;
+fused RMSE on the development canvas / crops with ``recentre`` 0.18, float 10.37 / 5.92 px):
+
+=================================  =======  ===========  ================
+float besides the heads            ms/call  palm error   RMSE canvas/crops
+=================================  =======  ===========  ================
+none (``full_int8``)               1.86     0.47 / 0.44  10.79 / 6.18
+1 (best gain per ms)               1.93     0.41 / 0.42  10.59 / 6.17
+1, 10, 26, 40, 51                  2.17     0.39 / 0.41  10.76 / 6.09
+0-2                                2.02     0.42 / 0.43  10.25 / 6.06
+0-5                                2.10     0.37 / 0.33  10.45 / 6.03
+0-9                                2.25     0.35 / 0.32  10.36 / 6.04
+0-5, 46-56                         2.56     0.15 / 0.15  10.37 / 5.98
+0-9, 46-56 (``full_mixed``)        2.77     0.12 / 0.12  10.48 / 5.92
+0-5, 35-56                         3.25     0.11 / 0.11  10.43 / 5.94
+=================================  =======  ===========  ================
+
+The development RMSE moves by about 0.1-0.2 px with the tracked ROIs' path (a landmark
+difference of a tenth of a pixel changes later ROIs); with ``recentre`` 0.14 ``full_mixed`` gives
+10.20 / 5.92 px (float 10.04 / 5.92 at 0.14 in ``benchmarks/peer.py``'s run; 0.1: float 10.03 /
+5.96, ``full_mixed`` 10.08 / 5.97).
 """
 
 from __future__ import annotations
@@ -122,7 +164,7 @@ def calibration_crops(n_per_hand: int = 40, seed: int = 0) -> np.ndarray:
 
     from fusion_pf.cues.hand import LANDMARK_INPUT, HandLandmarker, HandRoi, landmarks_roi
 
-    landmarker = HandLandmarker()
+    landmarker = HandLandmarker(landmark_model="full")  # the float model finds the hands, whatever the default
     rng = np.random.default_rng(seed)
     rois = []
     for path in sorted(PHOTOS.glob("*.jpg")):
@@ -147,19 +189,79 @@ def calibration_crops(n_per_hand: int = 40, seed: int = 0) -> np.ndarray:
     return np.stack(crops)
 
 
-def quantise(model_bytes: bytes, crops: np.ndarray) -> bytes:
-    """Static int8 with float fully-connected heads (step 4)."""
+def quantise(
+    model_bytes: bytes, crops: np.ndarray, float_ops: tuple[int, ...] = (), percentile: float | None = None
+) -> bytes:
+    """Static int8 with float fully-connected heads (step 4); ``float_ops``: the indices of further operators
+    of the float model kept float (step 7); ``percentile``: activation ranges from :func:`percentile_ranges`
+    instead of the calibrator's moving average."""
+    import re
+
+    from ai_edge_litert.interpreter import Interpreter
     from ai_edge_quantizer import quantizer, recipe
 
     heads_float = [
         {"regex": ".*", "operation": op, "algorithm_key": "no_quantize"} for op in ("FULLY_CONNECTED", "LOGISTIC")
     ]
-    q = quantizer.Quantizer(bytearray(model_bytes), recipe.static_wi8_ai8() + heads_float)
-    from ai_edge_litert.interpreter import Interpreter
-
+    graph = _read(model_bytes).subgraphs[0]
+    # an operator's scope is its output tensors' names joined by ";": the first one names it
+    kept_float = [
+        {
+            "regex": re.escape(graph.tensors[graph.operators[i].outputs[0]].name.decode()) + "(;|$)",
+            "operation": "*",
+            "algorithm_key": "no_quantize",
+        }
+        for i in float_ops
+    ]
+    q = quantizer.Quantizer(bytearray(model_bytes), recipe.static_wi8_ai8() + heads_float + kept_float)
     name = Interpreter(model_content=model_bytes).get_input_details()[0]["name"]
     result = q.calibrate({"serving_default": [{name: c} for c in crops]})
+    if percentile is not None:
+        result = percentile_ranges(model_bytes, crops, result, percentile)
     return bytes(q.quantize(result).quantized_model)
+
+
+def _read(model_bytes: bytes):
+    from ai_edge_litert.tools import flatbuffer_utils
+
+    return flatbuffer_utils.read_model_from_bytearray(bytearray(model_bytes))
+
+
+def percentile_ranges(model_bytes: bytes, crops: np.ndarray, result: dict, p: float) -> dict:
+    """``result`` (the calibrator's ranges) with every activation's range replaced by the ``p``-th percentile
+    of its per-crop maxima and the ``100 - p``-th of its per-crop minima (step 7).
+
+    The calibrator's moving average (weight 0.95 on the old value) keeps the ranges of the last few
+    dozen crops; the percentiles weigh every crop the same and drop the rarest extremes.
+    """
+    from ai_edge_litert.interpreter import Interpreter
+
+    it = Interpreter(model_content=model_bytes, num_threads=1, experimental_preserve_all_tensors=True)
+    it.allocate_tensors()
+    image = it.get_input_details()[0]["index"]
+    tensors = [d for d in it.get_tensor_details() if d["dtype"] == np.float32 and d["name"] in result]
+    lows: dict[str, list[float]] = {d["name"]: [] for d in tensors}
+    highs: dict[str, list[float]] = {d["name"]: [] for d in tensors}
+    for crop in crops:
+        it.set_tensor(image, crop)
+        it.invoke()
+        for d in tensors:
+            try:
+                a = it.get_tensor(d["index"])
+            except ValueError:  # a tensor the runtime does not keep
+                continue
+            if a.size:
+                lows[d["name"]].append(float(a.min()))
+                highs[d["name"]].append(float(a.max()))
+    out = dict(result)
+    for name, lo in lows.items():
+        if lo:
+            r = result[name]
+            out[name] = {
+                "min": np.full_like(r["min"], np.percentile(lo, 100 - p)),
+                "max": np.full_like(r["max"], np.percentile(highs[name], p)),
+            }
+    return out
 
 
 def finish(model_bytes: bytes, out: Path) -> None:
@@ -222,16 +324,29 @@ def drop_unused(model) -> None:
     model.metadataBuffer = None
 
 
+#: The landmark variants this tool makes: file suffix -> (float operators kept float besides the heads,
+#: activation-range percentile or None for the calibrator's moving average).
+VARIANTS = {
+    "full_int8": ((), None),
+    # the input stage (112 x 112: ops 0-3) and the first 56 x 56 block through its residual add (4-9), the
+    # last two 7 x 7 blocks after add_6 through the global average pooling (46-56)
+    "full_mixed": ((*range(0, 10), *range(46, 57)), 99.0),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--variant", choices=tuple(VARIANTS), default="full_mixed", help="the landmark model to make")
     ap.add_argument("--src", type=Path, default=HAND / "hand_landmark_full.tflite")
-    ap.add_argument("--out", type=Path, default=HAND / "hand_landmark_full_int8.tflite")
+    ap.add_argument("--out", type=Path, help="default: fusion_pf/data/hand/hand_landmark_<variant>.tflite")
     args = ap.parse_args(argv)
     from ai_edge_litert.tools import flatbuffer_utils
 
-    fp32 = flatbuffer_utils.convert_object_to_bytearray(float32_with_signature(args.src))
-    finish(quantise(bytes(fp32), calibration_crops()), args.out)
-    print(f"wrote {args.out} ({args.out.stat().st_size} bytes)")
+    out = args.out or HAND / f"hand_landmark_{args.variant}.tflite"
+    float_ops, percentile = VARIANTS[args.variant]
+    fp32 = bytes(flatbuffer_utils.convert_object_to_bytearray(float32_with_signature(args.src)))
+    finish(quantise(fp32, calibration_crops(), float_ops, percentile), out)
+    print(f"wrote {out} ({out.stat().st_size} bytes)")
     return 0
 
 

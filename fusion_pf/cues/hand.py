@@ -80,8 +80,9 @@ PALM_STRIDES = (8, 16, 16, 16)
 _ANCHORS_PER_LAYER = 2
 MODES = ("detect", "track", "hint", "flow")
 #: Shipped hand-landmark models (``fusion_pf/data/hand/hand_landmark_<name>.tflite``): MediaPipe's
-#: ``model_complexity`` 1 and 0, and the full one quantised to int8 (``tools/quantise_hand_model.py``).
-LANDMARK_MODELS = ("full", "full_int8", "lite")
+#: ``model_complexity`` 1 and 0, and the full one quantised (``tools/quantise_hand_model.py``): ``full_mixed``
+#: (int8 with its input stage and last blocks float) and ``full_int8`` (all int8 but the heads).
+LANDMARK_MODELS = ("full", "full_mixed", "full_int8", "lite")
 #: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0.
 PALM_MODELS = ("full", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
@@ -547,8 +548,10 @@ class HandLandmarker:
         (> 0); None = never (MediaPipe).
     landmark_model : str
         Hand-landmark model, one of :data:`LANDMARK_MODELS`: ``"full"``
-        (MediaPipe Hands' default, ``model_complexity=1``), ``"full_int8"``
-        (the full model quantised to int8) or ``"lite"`` (``model_complexity=0``).
+        (MediaPipe Hands' default, ``model_complexity=1``), ``"full_mixed"``
+        (the full model in int8 but its input stage and last two blocks),
+        ``"full_int8"`` (the full model quantised to int8) or ``"lite"``
+        (``model_complexity=0``).
     palm_model : str
         Palm detector, one of :data:`PALM_MODELS` (``"full"`` or ``"lite"``).
     model_dir : path or None
