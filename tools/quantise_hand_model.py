@@ -102,7 +102,15 @@ none (``full_int8``)               1.86     0.47 / 0.44  10.79 / 6.18
 The development RMSE moves by about 0.1-0.2 px with the tracked ROIs' path (a landmark
 difference of a tenth of a pixel changes later ROIs); with ``recentre`` 0.14 ``full_mixed`` gives
 10.20 / 5.92 px (float 10.04 / 5.92 at 0.14 in ``benchmarks/peer.py``'s run; 0.1: float 10.03 /
-5.96, ``full_mixed`` 10.08 / 5.97).
+5.96, ``full_mixed`` 10.08 / 5.97). Tracking frames against MediaPipe (``benchmarks/peer.py``,
+CPU ratio median / p95, quiet and one core busy, load 6-15 on 2 CPUs): ``full_mixed`` with
+``recentre`` 0.18 (a second call on 4 of 105 frames) 0.84x / 0.85x quiet, 0.71x / 0.78x busy,
+canvas 10.48 px; with 0.17 (6 frames) 0.75-0.77x / 1.07-1.12x quiet, 0.75x / 0.99-1.13x busy,
+10.24 px; with 0.16 (8 frames) 0.77x / 1.18x quiet, 0.75x / 1.28x busy, 10.14 px. A frame with
+a second call costs two model calls and two warps (about 6.5-7 ms CPU, MediaPipe's p95 6-7 ms):
+the p95 line holds only while fewer than 1 frame in 20 re-centres, and the canvas accuracy
+only with more. Shifting the landmark ROI by the filter's predicted displacement halves the
+second calls but costs accuracy (0.18: 10.84 / 5.99 px; 0.14: 10.35 / 6.07).
 """
 
 from __future__ import annotations
