@@ -110,7 +110,9 @@ canvas 10.48 px; with 0.17 (6 frames) 0.75-0.77x / 1.07-1.12x quiet, 0.75x / 0.9
 a second call costs two model calls and two warps (about 6.5-7 ms CPU, MediaPipe's p95 6-7 ms):
 the p95 line holds only while fewer than 1 frame in 20 re-centres, and the canvas accuracy
 only with more. Shifting the landmark ROI by the filter's predicted displacement halves the
-second calls but costs accuracy (0.18: 10.84 / 5.99 px; 0.14: 10.35 / 6.07).
+second calls but costs accuracy (0.18: 10.84 / 5.99 px; 0.14: 10.35 / 6.07). The second call on
+``full_int8`` (0.17: 10.17 / 5.92 px) still leaves the p95 at 1.07-1.22x (two runs each): a
+single-call frame costs 4.5 ms CPU at the median, so any second call passes MediaPipe's p95.
 """
 
 from __future__ import annotations
