@@ -1,11 +1,13 @@
 """Make ``fusion_pf/data/hand/hand_landmark_full_int8.tflite``: MediaPipe's full hand-landmark model in int8.
 
+``--model palm`` makes ``palm_detection_full_int8.tflite`` the same way (see "Palm detector" below).
+
 Offline tool, not a runtime dependency: it needs ``ai-edge-quantizer`` (PyPI, Apache-2.0), which
 fusion-pf itself never imports. Run it in a virtual environment of its own::
 
     python -m venv /tmp/qvenv
     /tmp/qvenv/bin/pip install ai-edge-quantizer==0.10.0 opencv-python-headless
-    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py
+    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py [--model palm]
 
 Steps (each needed by the next):
 
@@ -61,6 +63,30 @@ The last 16 operators float: 2.89 ms, 0.60 px; k = 20 without its five high-reso
 operators: 3.34 ms, 0.66 px. Only k = 20 keeps the development accuracy, and its tracking frames
 cost 0.85x / 0.84x MediaPipe's CPU median (quiet / one core busy) and 0.94x / 1.05x its p95
 (``benchmarks/peer.py``, load 23-24 on 2 CPUs): short of issue 25's 0.8x and 1.0x.
+
+Palm detector (``--model palm``; issue 25, acquisition frames). Steps 1, 2, 5 and 6 as above;
+step 3 is :func:`palm_calibration_frames` (240 whole frames letterboxed to 192 x 192 as the hand
+cue does, the test photos pasted at 0.3-1.2 x the frame height, a quarter without a hand); step 4
+keeps :data:`PALM_FLOAT` float. The quantiser has no int8 PReLU: the model's 31 PReLUs stay float
+between a dequantise and a quantise. Measured (the float detector as reference: recall and
+keypoint distance over 22 images, MediaPipe's test photos, mirrored, and pasted into 1280 x 720
+canvases at 0.3 / 0.5 / 0.8 x the height with another seed; CPU ms per call against the float
+model's 5.1-5.3 in the same run; fused RMSE / median / p95 on the development canvas, float
+10.4 / 8.8 / 16.7 px):
+
+=====================================  =======  ======  ===========  ==================
+float besides the heads                ms/call  recall  keypoint px  canvas RMSE/med/p95
+=====================================  =======  ======  ===========  ==================
+nothing                                3.72     0.91    9.5          10.2 / 8.5 / 16.7,
+                                                                     coverage 99.1 %
+the upsampling path (24 x 24, 12 x 12)  4.11     0.91    8.1
+the first 96 x 96 block (kept)         4.05     1.00    6.2          10.4 / 8.8 / 17.3
+MediaPipe's lite detector (reference)  --       0.86    14.2
+=====================================  =======  ======  ===========  ==================
+
+With nothing else float, the canvas's first frame had no palm (coverage 99.1 %) and a hand of
+``hands.jpg`` at half size was lost. The kept model finds every palm the float model finds (3
+more, weaker, detections) but the canvas p95 is 0.6 px worse: not the default.
 """
 
 from __future__ import annotations
@@ -147,13 +173,69 @@ def calibration_crops(n_per_hand: int = 40, seed: int = 0) -> np.ndarray:
     return np.stack(crops)
 
 
-def quantise(model_bytes: bytes, crops: np.ndarray) -> bytes:
-    """Static int8 with float fully-connected heads (step 4)."""
+#: Operators the landmark model keeps float (step 4): its fully-connected heads and their sigmoids.
+LANDMARK_FLOAT = tuple((".*", op) for op in ("FULLY_CONNECTED", "LOGISTIC"))
+#: Operators the palm detector keeps float: its first block at 96 x 96 (the stem convolution and
+#: four residual units: convolutions, depthwise convolutions, additions), its four SSD head
+#: convolutions (``classifier_palm_*``, ``regressor_palm_*``) and what reshapes and concatenates
+#: them into the outputs. (Its PReLUs stay float too: the quantiser has no int8 PReLU.)
+PALM_FLOAT = (
+    (".*(batch_normalization(_[1-4])?/|depthwise_conv2d(_[0-3])?/|add(_[0-3])?/).*", "*"),
+    (".*(classifier|regressor)_palm.*", "*"),
+    ("Identity.*", "*"),
+)
+
+
+def palm_calibration_frames(n: int = 240, seed: int = 0) -> np.ndarray:
+    """Float palm-detector inputs ``(n, 1, 192, 192, 3)`` in [0, 1]: frames letterboxed as
+    :meth:`HandLandmarker.palms` does (palm mode, step 3).
+
+    Each frame is 1280 x 720 or 640 x 480 (the cameras' sizes) holding one of the test photos
+    (mirrored half of the time), scaled 0.3-1.2 x the frame height, rotated up to 0.4 rad and
+    placed anywhere, on a grey, noisy or the hand-free ``dino_720.jpg`` background, with contrast
+    and brightness jitter; every fourth frame has no hand photo (the hand-free background alone),
+    so the score head's range covers "no palm" too."""
+    import cv2
+
+    from fusion_pf.cues.hand import PALM_INPUT, HandRoi
+
+    rng = np.random.default_rng(seed)
+    read = lambda p: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB)
+    hands = [read(p) for p in sorted(PHOTOS.glob("*.jpg")) if p.name != "dino_720.jpg"]
+    dino = read(PHOTOS / "dino_720.jpg")
+    out = []
+    for k in range(n):
+        w, h = ((1280, 720), (640, 480))[int(rng.integers(2))]
+        kind = int(rng.integers(3))
+        if kind == 0:
+            frame = np.full((h, w, 3), rng.integers(0, 256, 3), np.uint8)
+        elif kind == 1:
+            frame = rng.integers(0, 256, (h // 8, w // 8, 3)).astype(np.uint8)
+            frame = cv2.resize(frame, (w, h), interpolation=cv2.INTER_LINEAR)
+        else:
+            frame = cv2.resize(dino, (w, h), interpolation=cv2.INTER_LINEAR)
+        if k % 4:
+            photo = hands[int(rng.integers(len(hands)))]
+            photo = np.ascontiguousarray(photo[:, ::-1]) if rng.random() < 0.5 else photo
+            ph, pw = photo.shape[:2]
+            s = h * rng.uniform(0.3, 1.2) / ph
+            m = cv2.getRotationMatrix2D((pw / 2, ph / 2), float(np.degrees(rng.normal(0, 0.2))), s)
+            m[:, 2] += (rng.uniform(0, w) - pw / 2, rng.uniform(0, h) - ph / 2)
+            mask = cv2.warpAffine(np.full((ph, pw), 255, np.uint8), m, (w, h))
+            pasted = cv2.warpAffine(photo, m, (w, h))
+            frame = np.where(mask[..., None] > 127, pasted, frame)
+        roi = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))
+        c = roi.sample(frame, PALM_INPUT, zero_border=True).astype(np.float32)
+        c = np.clip((c - 128) * rng.uniform(0.7, 1.3) + 128 + rng.normal(0, 25), 0, 255)
+        out.append((c / 255).astype(np.float32)[None])
+    return np.stack(out)
+
+
+def quantise(model_bytes: bytes, crops: np.ndarray, keep_float: tuple[tuple[str, str], ...] = LANDMARK_FLOAT) -> bytes:
+    """Static int8 with the ``keep_float`` operators (scope regex, operation) float (step 4)."""
     from ai_edge_quantizer import quantizer, recipe
 
-    heads_float = [
-        {"regex": ".*", "operation": op, "algorithm_key": "no_quantize"} for op in ("FULLY_CONNECTED", "LOGISTIC")
-    ]
+    heads_float = [{"regex": rx, "operation": op, "algorithm_key": "no_quantize"} for rx, op in keep_float]
     q = quantizer.Quantizer(bytearray(model_bytes), recipe.static_wi8_ai8() + heads_float)
     from ai_edge_litert.interpreter import Interpreter
 
@@ -224,13 +306,20 @@ def drop_unused(model) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--src", type=Path, default=HAND / "hand_landmark_full.tflite")
-    ap.add_argument("--out", type=Path, default=HAND / "hand_landmark_full_int8.tflite")
+    ap.add_argument("--model", choices=("landmark", "palm"), default="landmark", help="which full model to quantise")
+    ap.add_argument("--src", type=Path, help="default: the shipped full model")
+    ap.add_argument("--out", type=Path, help="default: the shipped *_full_int8.tflite")
     args = ap.parse_args(argv)
     from ai_edge_litert.tools import flatbuffer_utils
 
+    stem = "hand_landmark" if args.model == "landmark" else "palm_detection"
+    args.src = args.src or HAND / f"{stem}_full.tflite"
+    args.out = args.out or HAND / f"{stem}_full_int8.tflite"
     fp32 = flatbuffer_utils.convert_object_to_bytearray(float32_with_signature(args.src))
-    finish(quantise(bytes(fp32), calibration_crops()), args.out)
+    if args.model == "palm":
+        finish(quantise(bytes(fp32), palm_calibration_frames(), PALM_FLOAT), args.out)
+    else:
+        finish(quantise(bytes(fp32), calibration_crops()), args.out)
     print(f"wrote {args.out} ({args.out.stat().st_size} bytes)")
     return 0
 

@@ -82,8 +82,9 @@ MODES = ("detect", "track", "hint", "flow")
 #: Shipped hand-landmark models (``fusion_pf/data/hand/hand_landmark_<name>.tflite``): MediaPipe's
 #: ``model_complexity`` 1 and 0, and the full one quantised to int8 (``tools/quantise_hand_model.py``).
 LANDMARK_MODELS = ("full", "full_int8", "lite")
-#: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0.
-PALM_MODELS = ("full", "lite")
+#: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0,
+#: and the full one quantised to int8 (``tools/quantise_hand_model.py --model palm``).
+PALM_MODELS = ("full", "full_int8", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
@@ -550,7 +551,8 @@ class HandLandmarker:
         (MediaPipe Hands' default, ``model_complexity=1``), ``"full_int8"``
         (the full model quantised to int8) or ``"lite"`` (``model_complexity=0``).
     palm_model : str
-        Palm detector, one of :data:`PALM_MODELS` (``"full"`` or ``"lite"``).
+        Palm detector, one of :data:`PALM_MODELS`: ``"full"``, ``"full_int8"`` (the full detector
+        quantised to int8 but its first block and heads; int8 input ``u8 - 128``) or ``"lite"``.
     model_dir : path or None
         Folder holding ``palm_detection_<palm_model>.tflite`` and
         ``hand_landmark_<landmark_model>.tflite``; None = the shipped models.
