@@ -81,12 +81,22 @@ nothing                                3.72     0.91    9.5          10.2 / 8.5 
                                                                      coverage 99.1 %
 the upsampling path (24 x 24, 12 x 12)  4.11     0.91    8.1
 the first 96 x 96 block (kept)         4.05     1.00    6.2          10.4 / 8.8 / 17.3
+both                                                                 10.4 / 8.7 / 16.8,
+                                                                     crops 6.0 / 4.7 / 10.6
 MediaPipe's lite detector (reference)  --       0.86    14.2
 =====================================  =======  ======  ===========  ==================
 
 With nothing else float, the canvas's first frame had no palm (coverage 99.1 %) and a hand of
 ``hands.jpg`` at half size was lost. The kept model finds every palm the float model finds (3
-more, weaker, detections) but the canvas p95 is 0.6 px worse: not the default.
+more, weaker, detections) but the canvas p95 is 0.6 px worse: not the default. Its first lock
+on the canvas is its first frame, as the float model's. Not faster: the PReLUs rewritten to int8
+after quantisation (per-tensor int8 slopes, the dequantise / quantise around them dropped) run
+outside XNNPACK in ai-edge-litert 2.3 (10.8 ms per call).
+
+``benchmarks/peer.py`` on the development canvas (acquisition frames: palm detection and one
+landmark call each side; CPU ms of fusion-pf / MediaPipe, median / p95 / p99, load 9-14 on 2 CPUs,
+so the wall times are not a measure): float detector 0.93 / 0.89 / 0.95x quiet, 0.95 / 0.86 /
+0.87x one core busy; this one 0.85 / 0.88 / 0.90x and 0.84 / 0.93 / 0.91x.
 """
 
 from __future__ import annotations

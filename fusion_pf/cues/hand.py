@@ -237,13 +237,13 @@ def decode_palms(
         Sorted by score, coordinates normalised to the input; boxes of
         non-positive width or height are dropped.
     """
-    raw_boxes = np.asarray(raw_boxes, dtype=np.float64)
+    raw_boxes = np.asarray(raw_boxes)
     logits = np.clip(np.asarray(raw_scores, dtype=np.float64).reshape(-1), -100.0, 100.0)
     scores = 1.0 / (1.0 + np.exp(-logits))
     keep = np.flatnonzero(scores >= min_score)
     keep = keep[(raw_boxes[keep, 2] > 0) & (raw_boxes[keep, 3] > 0)]
     keep = keep[np.argsort(-scores[keep], kind="stable")]
-    r = raw_boxes[keep] / input_size
+    r = raw_boxes[keep].astype(np.float64) / input_size  # only the kept rows in float64
     centre = r[:, :2] + anchors[keep]
     half = r[:, 2:4] / 2
     boxes = np.concatenate((centre - half, centre + half), axis=1)
