@@ -94,9 +94,11 @@ after quantisation (per-tensor int8 slopes, the dequantise / quantise around the
 outside XNNPACK in ai-edge-litert 2.3 (10.8 ms per call).
 
 ``benchmarks/peer.py`` on the development canvas (acquisition frames: palm detection and one
-landmark call each side; CPU ms of fusion-pf / MediaPipe, median / p95 / p99, load 9-14 on 2 CPUs,
-so the wall times are not a measure): float detector 0.93 / 0.89 / 0.95x quiet, 0.95 / 0.86 /
-0.87x one core busy; this one 0.85 / 0.88 / 0.90x and 0.84 / 0.93 / 0.91x.
+landmark call each side), CPU time ratios fusion-pf / MediaPipe, median / p95 / p99, quiet and one
+core busy: float detector 0.90 / 0.90 / 0.89x and 0.92 / 0.92 / 0.94x, this one 0.79 / 0.91 /
+0.90x and 0.82 / 0.84 / 0.85x (load average 2.1-2.4 on 2 CPUs; fusion-pf's wall p99 12-16 ms);
+in an earlier run at load 9-14 0.93 / 0.89 / 0.95x, 0.95 / 0.86 / 0.87x against 0.85 / 0.88 /
+0.90x, 0.84 / 0.93 / 0.91x (wall times there are no measure: p99 25-58 ms, MediaPipe's 31-76).
 """
 
 from __future__ import annotations
