@@ -37,8 +37,9 @@ script keeps one core busy with a spinning process for the whole pass).
 ``--setups`` (default ``full:1``): the passes per recording and condition, each
 ``LANDMARK:COMPLEXITY``: fusion-pf's hand-landmark model (``--hand-landmark-model``: ``full``,
 ``full_mixed``, ``full_int8`` or ``lite``) against MediaPipe with ``model_complexity`` 0 (its lite models) or 1
-(its full models, MediaPipe Hands' default); e.g. ``full:1,full_int8:1,lite:0``. Every printed
-block names both sides' models.
+(its full models, MediaPipe Hands' default), and optionally ``:PALM``, fusion-pf's palm detector
+(``--hand-palm-model``: ``full`` when not given, ``full_int8`` or ``lite``); e.g.
+``full_mixed:1,full:1,lite:0,full_mixed:1:full_int8``. Every printed block names both sides' models.
 """
 
 from __future__ import annotations
@@ -220,7 +221,7 @@ def _acquisition_cues(rec: Path, config):
     return cues, context
 
 
-def fusion_worker(conn, rec: str, landmark_model: str = "full") -> None:
+def fusion_worker(conn, rec: str, landmark_model: str = "full", palm_model: str = "full") -> None:
     """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
 
     Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
@@ -235,7 +236,7 @@ def fusion_worker(conn, rec: str, landmark_model: str = "full") -> None:
     from fusion_pf.cues.registry import CueOptions
     from fusion_pf.pipeline import TrackConfig, track
 
-    config = TrackConfig(cue_options=CueOptions(hand_landmark_model=landmark_model))
+    config = TrackConfig(cue_options=CueOptions(hand_landmark_model=landmark_model, hand_palm_model=palm_model))
     acq_cues, acq_context = _acquisition_cues(Path(rec), config)
     wait_cpu = [0.0]
 
@@ -278,7 +279,7 @@ def fusion_worker(conn, rec: str, landmark_model: str = "full") -> None:
         conn.send(("result", result.frame, step, cpu, tracking, acq, acq_cpu, u, v))
 
 
-def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full") -> dict:
+def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full", palm_model: str = "full") -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
     mode, then static-image mode), each in its own process, one after the other (the order alternating
     frame by frame)."""
@@ -294,7 +295,7 @@ def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full") -> dict:
     size = None
     ctx = mp.get_context("spawn")
     here, there = ctx.Pipe()
-    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec), landmark_model), daemon=True)
+    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec), landmark_model, palm_model), daemon=True)
     worker_proc.start()
     there.close()
 
@@ -395,13 +396,13 @@ class _Busy:
         self.proc.wait()
 
 
-def print_summary(rec: Path, condition: str, setup: tuple[str, int], load: tuple[float, float], s: dict) -> None:
+def print_summary(rec: Path, condition: str, setup: tuple[str, int, str], load: tuple[float, float], s: dict) -> None:
     w, h = s["size"]
     fp, mp = s["fp"], s["mp"]
     print(
         f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
         f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)\n"
-        f"models: fusion-pf hand landmarks {setup[0]} (palm detector full); "
+        f"models: fusion-pf hand landmarks {setup[0]}, palm detector {setup[2]}; "
         f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models)"
     )
     print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
@@ -435,16 +436,19 @@ def print_summary(rec: Path, condition: str, setup: tuple[str, int], load: tuple
         print(f"{'coverage':<48} {fp['coverage']:10.1%} {mp['coverage']:10.1%}")
 
 
-def parse_setups(text: str) -> list[tuple[str, int]] | None:
-    """``LANDMARK:COMPLEXITY,...`` as pairs (None when malformed)."""
-    from fusion_pf.cues.hand import LANDMARK_MODELS
+def parse_setups(text: str) -> list[tuple[str, int, str]] | None:
+    """``LANDMARK:COMPLEXITY[:PALM],...`` as ``(landmark, complexity, palm)`` (palm ``full`` when not
+    given; None when malformed)."""
+    from fusion_pf.cues.hand import LANDMARK_MODELS, PALM_MODELS
 
     out = []
     for item in text.split(","):
-        landmark, _, complexity = item.strip().partition(":")
-        if landmark not in LANDMARK_MODELS or complexity not in ("0", "1"):
+        landmark, _, rest = item.strip().partition(":")
+        complexity, _, palm = rest.partition(":")
+        palm = palm or "full"
+        if landmark not in LANDMARK_MODELS or complexity not in ("0", "1") or palm not in PALM_MODELS:
             return None
-        out.append((landmark, int(complexity)))
+        out.append((landmark, int(complexity), palm))
     return out or None
 
 
@@ -458,8 +462,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--setups",
         default="full:1",
-        help="passes as LANDMARK:COMPLEXITY, comma-separated: fusion-pf's hand-landmark model (full, full_mixed, "
-        "full_int8, lite) against MediaPipe's model_complexity (1 full, 0 lite)",
+        help="passes as LANDMARK:COMPLEXITY[:PALM], comma-separated: fusion-pf's hand-landmark model (full_mixed, "
+        "full, full_int8, lite) against MediaPipe's model_complexity (1 full, 0 lite); PALM: fusion-pf's palm detector "
+        "(full, full_int8, lite; default full)",
     )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -473,7 +478,8 @@ def main(argv: list[str] | None = None) -> int:
     setups = parse_setups(args.setups)
     if setups is None:
         ap.error(
-            f"--setups must be LANDMARK:COMPLEXITY pairs (full, full_mixed, full_int8 or lite; 0 or 1), got {args.setups!r}"
+            f"--setups must be LANDMARK:COMPLEXITY[:PALM] (full_mixed, full, full_int8 or lite; 0 or 1; full, full_int8 "
+            f"or lite), got {args.setups!r}"
         )
     for rec in args.recordings:
         if not rec.is_file():
@@ -485,21 +491,21 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from fusion_pf.errors import FusionPFError
 
-    peers = {c: MediaPipePeer(python, c) for c in sorted({c for _, c in setups})}
+    peers = {c: MediaPipePeer(python, c) for c in sorted({c for _, c, _ in setups})}
     results: dict = {}
     try:
         for rec in args.recordings:
             for condition in conditions:
-                for landmark, complexity in setups:
+                for landmark, complexity, palm in setups:
                     before = os.getloadavg()[0]
                     if condition == "busy":
                         with _Busy():
-                            s = summarise(race(rec, peers[complexity], landmark))
+                            s = summarise(race(rec, peers[complexity], landmark, palm))
                     else:
-                        s = summarise(race(rec, peers[complexity], landmark))
+                        s = summarise(race(rec, peers[complexity], landmark, palm))
                     load = (before, os.getloadavg()[0])
-                    print_summary(rec, condition, (landmark, complexity), load, s)
-                    results[f"{rec}:{condition}:{landmark}:{complexity}"] = {"load": load, **s}
+                    print_summary(rec, condition, (landmark, complexity, palm), load, s)
+                    results[f"{rec}:{condition}:{landmark}:{complexity}:{palm}"] = {"load": load, **s}
     except FusionPFError as exc:
         print(f"peer: error: {exc}", file=sys.stderr)
         return 2

@@ -1,5 +1,7 @@
 """Make ``fusion_pf/data/hand/hand_landmark_full_mixed.tflite`` and ``hand_landmark_full_int8.tflite``: MediaPipe's full hand-landmark model quantised.
 
+``--model palm`` makes ``palm_detection_full_int8.tflite`` the same way (see "Palm detector" below).
+
 Offline tool, not a runtime dependency: it needs ``ai-edge-quantizer`` (PyPI, Apache-2.0), which
 fusion-pf itself never imports. Run it in a virtual environment of its own::
 
@@ -7,6 +9,7 @@ fusion-pf itself never imports. Run it in a virtual environment of its own::
     /tmp/qvenv/bin/pip install ai-edge-quantizer==0.10.0 opencv-python-headless
     PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py --variant full_mixed
     PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py --variant full_int8
+    PYTHONPATH=. /tmp/qvenv/bin/python tools/quantise_hand_model.py --model palm
 
 Steps (each needed by the next):
 
@@ -85,7 +88,7 @@ crops, not more accurate on the development frames (10.84 / 6.24 px all-int8). M
 test photos' crops / on the same crops downscaled so the hand is 110-260 px, float reference;
 fused RMSE on the development canvas / crops with ``recentre`` 0.18, float 10.37 / 5.92 px):
 
-=================================  =======  ===========  ================
+=================================  =======  ===========  =========
 float besides the heads            ms/call  palm error   RMSE canvas/crops
 =================================  =======  ===========  ================
 none (``full_int8``)               1.86     0.47 / 0.44  10.79 / 6.18
@@ -113,6 +116,45 @@ only with more. Shifting the landmark ROI by the filter's predicted displacement
 second calls but costs accuracy (0.18: 10.84 / 5.99 px; 0.14: 10.35 / 6.07). The second call on
 ``full_int8`` (0.17: 10.17 / 5.92 px) still leaves the p95 at 1.07-1.22x (two runs each): a
 single-call frame costs 4.5 ms CPU at the median, so any second call passes MediaPipe's p95.
+=======
+Palm detector (``--model palm``; issue 25, acquisition frames). Steps 1, 2, 5 and 6 as above;
+step 3 is :func:`palm_calibration_frames` (240 whole frames letterboxed to 192 x 192 as the hand
+cue does, the test photos pasted at 0.3-1.2 x the frame height, a quarter without a hand); step 4
+keeps :data:`PALM_FLOAT` float. The quantiser has no int8 PReLU: the model's 31 PReLUs stay float
+between a dequantise and a quantise. Measured (the float detector as reference: recall and
+keypoint distance over 22 images, MediaPipe's test photos, mirrored, and pasted into 1280 x 720
+canvases at 0.3 / 0.5 / 0.8 x the height with another seed; CPU ms per call against the float
+model's 5.1-5.3 in the same run; fused RMSE / median / p95 on the development canvas, float
+10.4 / 8.8 / 16.7 px):
+
+=====================================  =======  ======  ===========  ==================
+float besides the heads                ms/call  recall  keypoint px  canvas RMSE/med/p95
+=====================================  =======  ======  ===========  ==================
+nothing                                3.72     0.91    9.5          10.2 / 8.5 / 16.7,
+                                                                     coverage 99.1 %
+the upsampling path (24 x 24, 12 x 12)  4.11     0.91    8.1
+the first 96 x 96 block (kept)         4.05     1.00    6.2          10.4 / 8.8 / 17.3
+both                                                                 10.4 / 8.7 / 16.8,
+                                                                     crops 6.0 / 4.7 / 10.6
+kept, 480 frames, seed 1                                             10.4 / 8.8 / 17.3,
+                                                                     crops 5.9 / 4.8 / 10.4
+MediaPipe's lite detector (reference)  --       0.86    14.2
+=====================================  =======  ======  ===========  ==================
+
+With nothing else float, the canvas's first frame had no palm (coverage 99.1 %) and a hand of
+``hands.jpg`` at half size was lost. The kept model finds every palm the float model finds (3
+more, weaker, detections) but the canvas p95 is 0.6 px worse (crops 5.9 / 4.8 / 10.2 against
+5.9 / 4.7 / 10.3), with twice the calibration frames too: not the default. Its first lock
+on the canvas is its first frame, as the float model's. Not faster: the PReLUs rewritten to int8
+after quantisation (per-tensor int8 slopes, the dequantise / quantise around them dropped) run
+outside XNNPACK in ai-edge-litert 2.3 (10.8 ms per call).
+
+``benchmarks/peer.py`` on the development canvas (acquisition frames: palm detection and one
+landmark call each side), CPU time ratios fusion-pf / MediaPipe, median / p95 / p99, quiet and one
+core busy: float detector 0.90 / 0.90 / 0.89x and 0.92 / 0.92 / 0.94x, this one 0.79 / 0.91 /
+0.90x and 0.82 / 0.84 / 0.85x (load average 2.1-2.4 on 2 CPUs; fusion-pf's wall p99 12-16 ms);
+in an earlier run at load 9-14 0.93 / 0.89 / 0.95x, 0.95 / 0.86 / 0.87x against 0.85 / 0.88 /
+0.90x, 0.84 / 0.93 / 0.91x (wall times there are no measure: p99 25-58 ms, MediaPipe's 31-76).
 """
 
 from __future__ import annotations
@@ -199,20 +241,80 @@ def calibration_crops(n_per_hand: int = 40, seed: int = 0) -> np.ndarray:
     return np.stack(crops)
 
 
+#: Operators the landmark model keeps float (step 4): its fully-connected heads and their sigmoids.
+LANDMARK_FLOAT = tuple((".*", op) for op in ("FULLY_CONNECTED", "LOGISTIC"))
+#: Operators the palm detector keeps float: its first block at 96 x 96 (the stem convolution and
+#: four residual units: convolutions, depthwise convolutions, additions), its four SSD head
+#: convolutions (``classifier_palm_*``, ``regressor_palm_*``) and what reshapes and concatenates
+#: them into the outputs. (Its PReLUs stay float too: the quantiser has no int8 PReLU.)
+PALM_FLOAT = (
+    (".*(batch_normalization(_[1-4])?/|depthwise_conv2d(_[0-3])?/|add(_[0-3])?/).*", "*"),
+    (".*(classifier|regressor)_palm.*", "*"),
+    ("Identity.*", "*"),
+)
+
+
+def palm_calibration_frames(n: int = 240, seed: int = 0) -> np.ndarray:
+    """Float palm-detector inputs ``(n, 1, 192, 192, 3)`` in [0, 1]: frames letterboxed as
+    :meth:`HandLandmarker.palms` does (palm mode, step 3).
+
+    Each frame is 1280 x 720 or 640 x 480 (the cameras' sizes) holding one of the test photos
+    (mirrored half of the time), scaled 0.3-1.2 x the frame height, rotated up to 0.4 rad and
+    placed anywhere, on a grey, noisy or the hand-free ``dino_720.jpg`` background, with contrast
+    and brightness jitter; every fourth frame has no hand photo (the hand-free background alone),
+    so the score head's range covers "no palm" too."""
+    import cv2
+
+    from fusion_pf.cues.hand import PALM_INPUT, HandRoi
+
+    rng = np.random.default_rng(seed)
+    read = lambda p: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB)
+    hands = [read(p) for p in sorted(PHOTOS.glob("*.jpg")) if p.name != "dino_720.jpg"]
+    dino = read(PHOTOS / "dino_720.jpg")
+    out = []
+    for k in range(n):
+        w, h = ((1280, 720), (640, 480))[int(rng.integers(2))]
+        kind = int(rng.integers(3))
+        if kind == 0:
+            frame = np.full((h, w, 3), rng.integers(0, 256, 3), np.uint8)
+        elif kind == 1:
+            frame = rng.integers(0, 256, (h // 8, w // 8, 3)).astype(np.uint8)
+            frame = cv2.resize(frame, (w, h), interpolation=cv2.INTER_LINEAR)
+        else:
+            frame = cv2.resize(dino, (w, h), interpolation=cv2.INTER_LINEAR)
+        if k % 4:
+            photo = hands[int(rng.integers(len(hands)))]
+            photo = np.ascontiguousarray(photo[:, ::-1]) if rng.random() < 0.5 else photo
+            ph, pw = photo.shape[:2]
+            s = h * rng.uniform(0.3, 1.2) / ph
+            m = cv2.getRotationMatrix2D((pw / 2, ph / 2), float(np.degrees(rng.normal(0, 0.2))), s)
+            m[:, 2] += (rng.uniform(0, w) - pw / 2, rng.uniform(0, h) - ph / 2)
+            mask = cv2.warpAffine(np.full((ph, pw), 255, np.uint8), m, (w, h))
+            pasted = cv2.warpAffine(photo, m, (w, h))
+            frame = np.where(mask[..., None] > 127, pasted, frame)
+        roi = HandRoi((w - 1) / 2, (h - 1) / 2, float(max(w, h)))
+        c = roi.sample(frame, PALM_INPUT, zero_border=True).astype(np.float32)
+        c = np.clip((c - 128) * rng.uniform(0.7, 1.3) + 128 + rng.normal(0, 25), 0, 255)
+        out.append((c / 255).astype(np.float32)[None])
+    return np.stack(out)
+
+
 def quantise(
-    model_bytes: bytes, crops: np.ndarray, float_ops: tuple[int, ...] = (), percentile: float | None = None
+    model_bytes: bytes,
+    crops: np.ndarray,
+    keep_float: tuple[tuple[str, str], ...] = LANDMARK_FLOAT,
+    float_ops: tuple[int, ...] = (),
+    percentile: float | None = None,
 ) -> bytes:
-    """Static int8 with float fully-connected heads (step 4); ``float_ops``: the indices of further operators
-    of the float model kept float (step 7); ``percentile``: activation ranges from :func:`percentile_ranges`
-    instead of the calibrator's moving average."""
+    """Static int8 with the ``keep_float`` operators (scope regex, operation) float (step 4); ``float_ops``: the
+    indices of further operators of the float model kept float (step 7); ``percentile``: activation ranges from
+    :func:`percentile_ranges` instead of the calibrator's moving average."""
     import re
 
     from ai_edge_litert.interpreter import Interpreter
     from ai_edge_quantizer import quantizer, recipe
 
-    heads_float = [
-        {"regex": ".*", "operation": op, "algorithm_key": "no_quantize"} for op in ("FULLY_CONNECTED", "LOGISTIC")
-    ]
+    heads_float = [{"regex": rx, "operation": op, "algorithm_key": "no_quantize"} for rx, op in keep_float]
     graph = _read(model_bytes).subgraphs[0]
     # an operator's scope is its output tensors' names joined by ";": the first one names it
     kept_float = [
@@ -346,16 +448,27 @@ VARIANTS = {
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--variant", choices=tuple(VARIANTS), default="full_mixed", help="the landmark model to make")
-    ap.add_argument("--src", type=Path, default=HAND / "hand_landmark_full.tflite")
-    ap.add_argument("--out", type=Path, help="default: fusion_pf/data/hand/hand_landmark_<variant>.tflite")
+    ap.add_argument("--model", choices=("landmark", "palm"), default="landmark", help="which full model to quantise")
+    ap.add_argument(
+        "--variant", choices=tuple(VARIANTS), default="full_mixed", help="--model landmark: the landmark model to make"
+    )
+    ap.add_argument("--src", type=Path, help="default: the shipped full model")
+    ap.add_argument(
+        "--out", type=Path, help="default: hand_landmark_<variant>.tflite or palm_detection_full_int8.tflite"
+    )
     args = ap.parse_args(argv)
     from ai_edge_litert.tools import flatbuffer_utils
 
-    out = args.out or HAND / f"hand_landmark_{args.variant}.tflite"
-    float_ops, percentile = VARIANTS[args.variant]
-    fp32 = bytes(flatbuffer_utils.convert_object_to_bytearray(float32_with_signature(args.src)))
-    finish(quantise(fp32, calibration_crops(), float_ops, percentile), out)
+    stem = "hand_landmark" if args.model == "landmark" else "palm_detection"
+    src = args.src or HAND / f"{stem}_full.tflite"
+    fp32 = bytes(flatbuffer_utils.convert_object_to_bytearray(float32_with_signature(src)))
+    if args.model == "palm":
+        out = args.out or HAND / f"{stem}_full_int8.tflite"
+        finish(quantise(fp32, palm_calibration_frames(), PALM_FLOAT), out)
+    else:
+        out = args.out or HAND / f"{stem}_{args.variant}.tflite"
+        float_ops, percentile = VARIANTS[args.variant]
+        finish(quantise(fp32, calibration_crops(), LANDMARK_FLOAT, float_ops, percentile), out)
     print(f"wrote {out} ({out.stat().st_size} bytes)")
     return 0
 

@@ -61,7 +61,7 @@ from .regions import (
     remove_small,
     window_regions,
 )
-from .roi import Roi, full_roi, search_step
+from .roi import Roi, full_roi, search_step, subsample
 
 
 def _check_pair(color: np.ndarray, background: np.ndarray | None) -> bool:
@@ -194,7 +194,7 @@ class ColourCue:
         step = search_step(roi) if keep_border else 1
         c1, b1 = roi.crop(color), roi.crop(background)
         if step > 1:
-            c1, b1 = np.ascontiguousarray(c1[::step, ::step]), np.ascontiguousarray(b1[::step, ::step])
+            c1, b1 = subsample(c1, step), subsample(b1, step)
         c2 = cv2.absdiff(c1, b1)  # I_C2 = |I - B| per channel
         c3 = cv2.cvtColor(c2, cv2.COLOR_RGB2GRAY)  # I_C3 = grayscale difference
         c4a = cv2.threshold(c3, self.lower, 255, cv2.THRESH_BINARY)[1]  # I_C4A = I_C3 > lower

@@ -83,8 +83,9 @@ MODES = ("detect", "track", "hint", "flow")
 #: ``model_complexity`` 1 and 0, and the full one quantised (``tools/quantise_hand_model.py``): ``full_mixed``
 #: (int8 with its input stage and last blocks float) and ``full_int8`` (all int8 but the heads).
 LANDMARK_MODELS = ("full", "full_mixed", "full_int8", "lite")
-#: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0.
-PALM_MODELS = ("full", "lite")
+#: Shipped palm detectors (``palm_detection_<name>.tflite``): MediaPipe's ``model_complexity`` 1 and 0,
+#: and the full one quantised to int8 (``tools/quantise_hand_model.py --model palm``).
+PALM_MODELS = ("full", "full_int8", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.18
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
@@ -237,13 +238,13 @@ def decode_palms(
         Sorted by score, coordinates normalised to the input; boxes of
         non-positive width or height are dropped.
     """
-    raw_boxes = np.asarray(raw_boxes, dtype=np.float64)
+    raw_boxes = np.asarray(raw_boxes)
     logits = np.clip(np.asarray(raw_scores, dtype=np.float64).reshape(-1), -100.0, 100.0)
     scores = 1.0 / (1.0 + np.exp(-logits))
     keep = np.flatnonzero(scores >= min_score)
     keep = keep[(raw_boxes[keep, 2] > 0) & (raw_boxes[keep, 3] > 0)]
     keep = keep[np.argsort(-scores[keep], kind="stable")]
-    r = raw_boxes[keep] / input_size
+    r = raw_boxes[keep].astype(np.float64) / input_size  # only the kept rows in float64
     centre = r[:, :2] + anchors[keep]
     half = r[:, 2:4] / 2
     boxes = np.concatenate((centre - half, centre + half), axis=1)
@@ -553,7 +554,8 @@ class HandLandmarker:
         ``"full_int8"`` (the full model quantised to int8) or ``"lite"``
         (``model_complexity=0``).
     palm_model : str
-        Palm detector, one of :data:`PALM_MODELS` (``"full"`` or ``"lite"``).
+        Palm detector, one of :data:`PALM_MODELS`: ``"full"``, ``"full_int8"`` (the full detector
+        quantised to int8 but its first block and heads; int8 input ``u8 - 128``) or ``"lite"``.
     model_dir : path or None
         Folder holding ``palm_detection_<palm_model>.tflite`` and
         ``hand_landmark_<landmark_model>.tflite``; None = the shipped models.

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..errors import InputError
@@ -42,6 +43,23 @@ def search_step(roi: "Roi") -> int:
     """
     h, w = roi.shape
     return max(1, round(math.sqrt(h * w / SEARCH_PIXELS)))
+
+
+def subsample(image: np.ndarray, step: int) -> np.ndarray:
+    """``image[::step, ::step]`` as a new contiguous array (a search at :func:`search_step`).
+
+    A colour image ``(H, W, 3)`` goes through OpenCV's nearest-neighbour resize by ``1 / step``
+    wherever that gives the same array (its size rounds, ``[::step]`` takes the ceiling: then the
+    strided copy): numpy copies three interleaved channels pixel by pixel, 0.34 ms for a
+    1280 x 720 frame at step 3 against 0.09 ms. A single-channel image is copied by numpy (faster
+    there than OpenCV).
+    """
+    h, w = image.shape[:2]
+    if image.ndim == 3 and step > 1 and min(h, w) >= step:
+        out = cv2.resize(image, None, fx=1 / step, fy=1 / step, interpolation=cv2.INTER_NEAREST)
+        if out.shape[:2] == (-(-h // step), -(-w // step)):
+            return out
+    return np.ascontiguousarray(image[::step, ::step])
 
 
 @dataclass(frozen=True, slots=True)

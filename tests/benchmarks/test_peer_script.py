@@ -70,18 +70,24 @@ def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
 
 
 def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys):
-    assert peer.parse_setups("full:1,full_int8:1, lite:0") == [("full", 1), ("full_int8", 1), ("lite", 0)]
-    for bad in ("full", "full:2", "tiny:1", "full:1,"):
+    assert peer.parse_setups("full:1,full_int8:1, lite:0,full:1:full_int8") == [
+        ("full", 1, "full"),
+        ("full_int8", 1, "full"),
+        ("lite", 0, "full"),
+        ("full", 1, "full_int8"),
+    ]
+    for bad in ("full", "full:2", "tiny:1", "full:1,", "full:1:tiny"):
         assert peer.parse_setups(bad) is None, bad
     with pytest.raises(SystemExit):
         peer.main(["x.mcap", "--setups", "full:2"])
-    assert "--setups must be LANDMARK:COMPLEXITY pairs" in capsys.readouterr().err
+    assert "--setups must be LANDMARK:COMPLEXITY[:PALM]" in capsys.readouterr().err
     stats = {k: 1.0 for k in ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")}
     stats |= {k: 1.0 for k in ("acq_median_ms", "acq_p95_ms", "acq_p99_ms")}
     stats |= {k: 1.0 for k in ("acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")}
     side = {**stats, "own_acquisition_frames": 0, "tracking_frames": 3}
     s = {"size": (64, 48), "frames": 3, "tracking_frames": 3, "fp": side, "mp": side}
     s |= {f"ratio_{k}": 1.0 for k in stats}
-    peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0), (1.0, 1.0), s)
+    peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0, "full_int8"), (1.0, 1.0), s)
     out = capsys.readouterr().out
-    assert "fusion-pf hand landmarks full_int8" in out and "MediaPipe model_complexity 0 (lite" in out
+    assert "fusion-pf hand landmarks full_int8, palm detector full_int8" in out
+    assert "MediaPipe model_complexity 0 (lite" in out

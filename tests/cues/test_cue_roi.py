@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from fusion_pf.cues.roi import PAPER_HALF_SIZE, make_roi
+from fusion_pf.cues.roi import PAPER_HALF_SIZE, make_roi, subsample
 from fusion_pf.errors import InputError
 
 
@@ -90,3 +90,18 @@ def test_reduced_search_finds_the_palm_the_full_resolution_search_finds(monkeypa
         assert d2.extras["area"] == pytest.approx(d1.extras["area"], rel=0.1)
         assert abs(d2.quality - d1.quality) < 0.1
         assert math.hypot(c2.u - c1.u, c2.v - c1.v) < 6.0
+
+
+def test_subsample_is_the_strided_copy_whatever_the_size_and_window():
+    """OpenCV's nearest resize where it matches, numpy's strided copy (the reference) elsewhere:
+    the same array for colour windows (views into a frame) and depth at every search step."""
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (731, 1283, 3), dtype=np.uint8)
+    depth = rng.integers(0, 65535, frame.shape[:2], dtype=np.uint16)
+    for y0, y1, x0, x1 in ((0, 720, 0, 1280), (3, 731, 1, 1283), (10, 550, 7, 968), (0, 2, 0, 1283), (5, 6, 9, 10)):
+        for step in (1, 2, 3, 4, 5):
+            for image in (frame[y0:y1, x0:x1], depth[y0:y1, x0:x1]):
+                out = subsample(image, step)
+                ref = image[::step, ::step]
+                assert out.flags.c_contiguous and out.dtype == image.dtype
+                np.testing.assert_array_equal(out, ref, err_msg=f"{(y0, y1, x0, x1)} step {step}")
