@@ -28,10 +28,11 @@ other tracked frame costs exactly one landmark call (:attr:`HandLandmarker.calls
 counts them). On the hand-graph-cnn development frames (1280 x 720, hand moving
 up to 158 px per frame) the palm RMSE is 12.9 px without re-centring (p95 17.7,
 max 60 px), 9.9 px with ``recentre`` = 0.1 (a second call on a quarter of the
-tracked frames: it set the p95 frame time) and 10.2 px with the default
-:data:`RECENTRE` = 0.18 (p95 17.0, max 25 px; a second call on 5 of 105 tracked
-frames, two large jumps among them); on the 256 x 256 crops 5.93 px either way
-(no second call).
+tracked frames: it set the p95 frame time), 10.2 px with ``recentre`` = 0.18 (p95
+17.0, max 25 px; a second call on 5 of 105 tracked frames, two large jumps among
+them) with the float ``full`` model; with the default ``full_mixed`` model 10.2 px
+at the default :data:`RECENTRE` = 0.17 (a second call on 6 of 105 frames; 10.5 px
+at 0.18); on the 256 x 256 crops 5.9 px either way (no second call).
 ``recentre=None`` gives MediaPipe's behaviour.
 
 Coordinates are full-frame pixels ``(u, v)`` with pixel centres at integer
@@ -87,7 +88,7 @@ LANDMARK_MODELS = ("full", "full_mixed", "full_int8", "lite")
 #: and the full one quantised to int8 (``tools/quantise_hand_model.py --model palm``).
 PALM_MODELS = ("full", "full_int8", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
-RECENTRE = 0.18
+RECENTRE = 0.17
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
 #: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
@@ -548,9 +549,10 @@ class HandLandmarker:
         centre is more than ``recentre`` x the ROI side from the ROI it was given
         (> 0); None = never (MediaPipe).
     landmark_model : str
-        Hand-landmark model, one of :data:`LANDMARK_MODELS`: ``"full"``
-        (MediaPipe Hands' default, ``model_complexity=1``), ``"full_mixed"``
-        (the full model in int8 but its input stage and last two blocks),
+        Hand-landmark model, one of :data:`LANDMARK_MODELS`: ``"full_mixed"``
+        (the default: MediaPipe's full model in int8 but its input stage and last two
+        blocks; 2.8 instead of 4.6 ms CPU per call, as accurate on the development
+        frames), ``"full"`` (MediaPipe Hands' default, ``model_complexity=1``),
         ``"full_int8"`` (the full model quantised to int8) or ``"lite"``
         (``model_complexity=0``).
     palm_model : str
@@ -575,7 +577,7 @@ class HandLandmarker:
         nms_iou: float = 0.3,
         max_hands: int = 2,
         recentre: float | None = RECENTRE,
-        landmark_model: str = "full",
+        landmark_model: str = "full_mixed",
         palm_model: str = "full",
         model_dir: str | Path | None = None,
     ) -> None:

@@ -48,7 +48,8 @@ def expected(name: str) -> tuple[list[np.ndarray], float]:
 
 @pytest.fixture(scope="module")
 def hl() -> HandLandmarker:
-    return HandLandmarker(num_threads=2)
+    """MediaPipe's own float models (the default landmark model is ``full_mixed``): the same graph as the reference."""
+    return HandLandmarker(num_threads=2, landmark_model="full")
 
 
 # ---------------------------------------------------------------- decode path
@@ -282,7 +283,8 @@ def test_model_variants_are_checked_and_reach_the_landmarker():
     lm = build_cues(["hand"], CueOptions(hand_landmark_model="lite", hand_palm_model="lite"))["hand"].landmarker
     assert (lm.landmark_model, lm.palm_model) == ("lite", "lite")
     default = build_cues(["hand"])["hand"].landmarker
-    assert (default.landmark_model, default.palm_model) == ("full", "full")  # MediaPipe Hands' default
+    # MediaPipe Hands' palm detector; its full landmark model in mixed precision (issue 25)
+    assert (default.landmark_model, default.palm_model) == ("full_mixed", "full")
 
 
 def test_roi_hint_replaces_missing_track(hl):
@@ -412,7 +414,7 @@ def test_deterministic_across_runs_and_instances(hl):
     rgb = load("hands.jpg")
     a = [o.landmarks.tobytes() for o in hl.detect(rgb)]
     b = [o.landmarks.tobytes() for o in hl.detect(rgb)]
-    c = [o.landmarks.tobytes() for o in HandLandmarker(num_threads=2).detect(rgb)]
+    c = [o.landmarks.tobytes() for o in HandLandmarker(num_threads=2, landmark_model="full").detect(rgb)]
     assert a == b == c
     p, q = hl.palms(rgb), hl.palms(rgb)
     assert p.boxes.tobytes() == q.boxes.tobytes() and p.scores.tobytes() == q.scores.tobytes()
