@@ -5,9 +5,12 @@ overhead (~20 array operations of a microsecond or two each); at large N it is
 memory traffic (every operation streams the arrays once more). These kernels
 fuse the phases into a few compiled passes over the ``(4, N)`` particle rows:
 
-* :func:`kernels` ``.gaussian`` -- eq. 4 (given the normals drawn by numpy, so the
-  random stream is the generator's) and eqs. 5-7 for the stacked Gaussian
-  sources in one pass, with the loss test;
+* :func:`kernels` ``.predict`` -- eq. 4, drawing its normals from the filter's
+  :class:`numpy.random.Generator` inside the kernel (numba's port of numpy's
+  ziggurat on the same bit generator: the same numbers, in the same order, as
+  ``rng.standard_normal(out=rows)``, without the ``(4, N)`` noise buffer);
+* ``.gaussian`` -- eqs. 5-7 for the stacked Gaussian sources in one pass, with
+  the loss test;
 * ``.robust`` -- the same with the per-source Gaussian + uniform mixtures;
 * ``.weigh`` -- eq. 3 and eq. 2 (log-weights, normalised weights), the point
   estimate, the weighted covariance and the ESS;
@@ -55,8 +58,8 @@ def _build() -> SimpleNamespace:
     jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
 
     @jit
-    def predict(x, noise, std, dt, lo, hi):  # pragma: no cover - runs compiled
-        # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4); noise rows lo..hi-1 hold sigma_x
+    def predict(x, rng, std, dt, lo, hi):  # pragma: no cover - runs compiled
+        # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4); rows lo..hi-1 get noise, drawn row by row
         n = x.shape[1]
         for i in range(n):
             x[0, i] += dt * x[2, i]
@@ -64,7 +67,7 @@ def _build() -> SimpleNamespace:
         for r in range(lo, hi):
             s = std[r]
             for i in range(n):
-                x[r, i] += noise[r - lo, i] * s
+                x[r, i] += rng.standard_normal() * s
 
     @jit
     def gaussian(x, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
@@ -242,7 +245,7 @@ def _compile_all() -> None:
     k = _build()
     x = np.zeros((4, 2))
     joint, w, logw = np.zeros(2), np.zeros(2), np.zeros(2)
-    k.predict(x, np.zeros((4, 2)), np.ones(4), 1.0, 0, 4)
+    k.predict(x, np.random.default_rng(0), np.ones(4), 1.0, 0, 4)
     k.gaussian(x, 0.0, 0.0, -0.5, joint)
     k.robust(x, np.zeros((1, 6)), joint)
     k.weigh(logw, joint, 1, w, x, x[:2], 0, 1)

@@ -385,11 +385,8 @@ class ParticleFilter(Tracker):
             # components without noise (std (pos, pos, vel, vel) of 0) draw nothing
             lo = 0 if std[0] > 0.0 else 2
             hi = 4 if std[2] > 0.0 else 2
-            noise = self._noise[lo:hi]
-            if lo < hi:
-                self.rng.standard_normal(out=noise)
-            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
-            kernels().predict(self._x, noise, std, float(dt), lo, hi)
+            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), the normals drawn from self.rng in the kernel
+            kernels().predict(self._x, self.rng, std, float(dt), lo, hi)
             return
         # eq. 4 without its position noise, then that noise and the manoeuvres
         predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)

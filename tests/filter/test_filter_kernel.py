@@ -27,14 +27,29 @@ def _cloud(n: int, seed: int = 0) -> np.ndarray:
     return x
 
 
-def test_predict_matches_eq4():
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.SFC64])
+def test_predict_matches_eq4(bit_generator):
     x = _cloud(257)
     ref = x.copy()
     std = np.array([3.0, 3.0, 1.0, 1.0])
-    predict(ref, std, np.random.default_rng(5), dt=2.0)
-    noise = np.random.default_rng(5).standard_normal((4, 257))
-    kernels().predict(x, noise, std, 2.0, 0, 4)
+    theirs, ours = np.random.Generator(bit_generator(5)), np.random.Generator(bit_generator(5))
+    predict(ref, std, theirs, dt=2.0)
+    kernels().predict(x, ours, std, 2.0, 0, 4)
     np.testing.assert_allclose(x, ref, rtol=0, atol=1e-12)
+    # the kernel drew exactly numpy's normals from the given generator: both streams are at the same point
+    assert ours.random() == theirs.random()
+
+
+def test_predict_velocity_rows_only_draw_2n_normals():
+    x = _cloud(100)
+    std = np.array([0.0, 0.0, 1.0, 2.0])
+    rng, ref_rng = np.random.default_rng(3), np.random.default_rng(3)
+    expected = x.copy()
+    expected[:2] += 1.0 * x[2:]
+    expected[2:] += ref_rng.standard_normal((2, 100)) * std[2:, None]
+    kernels().predict(x, rng, std, 1.0, 2, 4)
+    np.testing.assert_allclose(x, expected, rtol=0, atol=1e-12)
+    assert rng.random() == ref_rng.random()
 
 
 @pytest.mark.parametrize("likelihood", ["gaussian", "robust"])
