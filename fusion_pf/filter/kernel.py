@@ -14,7 +14,8 @@ fuse the phases into a few compiled passes over the ``(4, N)`` particle rows:
 * ``.robust`` -- the same with the per-source Gaussian + uniform mixtures;
 * ``.weigh`` -- eq. 3 and eq. 2 (log-weights, normalised weights), the point
   estimate, the weighted covariance and the ESS;
-* ``.systematic`` -- systematic resampling indices for one uniform offset.
+* ``.systematic`` -- systematic resampling for one uniform offset, copying the
+  drawn particles into the spare particle array in the same pass.
 
 The maths is that of the numpy functions they replace
 (:mod:`~fusion_pf.filter.motion`, :mod:`~fusion_pf.filter.likelihood`,
@@ -188,30 +189,29 @@ def _build() -> SimpleNamespace:
         return eu, ev, cuu, cuv, cvv, 1.0 / sw2
 
     @jit
-    def systematic(w, offset, out):  # pragma: no cover - runs compiled
+    def systematic(w, offset, x, out, cdf):  # pragma: no cover - runs compiled
+        # out[:, k] = x[:, i_k] for the systematic draws i_k (the copy fused into the resampling pass)
         # #{j : (j + U) / N < c_i} = ceil(N c_i - U), clipped to [0, N]; c scaled to end at exactly N
         n = w.shape[0]
-        total = 0.0
-        for i in range(n):
-            total += w[i]
-        last = 0
         c = 0.0
         for i in range(n):
             c += w[i]
-            if c >= total:
-                last = i
-                break
+            cdf[i] = c
+        total = cdf[n - 1]
+        # the last particle of positive weight: the first i with c_i = total (c ascends: search back)
+        last = n - 1
+        while last > 0 and cdf[last - 1] >= total:
+            last -= 1
         scale = n / total
-        c = 0.0
         below_prev = 0
         k = 0
+        rows = x.shape[0]
         for i in range(n):
-            c += w[i]
-            nc = n if i >= last else c * scale
-            below = min(max(np.ceil(nc - offset), 0.0), n)
-            b = int(below)
+            nc = n if i >= last else cdf[i] * scale
+            b = int(min(max(np.ceil(nc - offset), 0.0), n))
             for _ in range(b - below_prev):
-                out[k] = i
+                for r in range(rows):
+                    out[r, k] = x[r, i]
                 k += 1
             below_prev = b
 
@@ -249,4 +249,4 @@ def _compile_all() -> None:
     k.gaussian(x, 0.0, 0.0, -0.5, joint)
     k.robust(x, np.zeros((1, 6)), joint)
     k.weigh(logw, joint, 1, w, x, x[:2], 0, 1)
-    k.systematic(w + 0.5, 0.5, np.zeros(2, dtype=np.int64))
+    k.systematic(w + 0.5, 0.5, x, np.zeros((4, 2)), joint)

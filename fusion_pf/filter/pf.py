@@ -225,7 +225,6 @@ class ParticleFilter(Tracker):
         self._logw = np.empty(n)
         self._w = np.empty(n)
         self._joint = np.empty(n)
-        self._indices = np.empty(n, dtype=np.int64)
         self._std_unit = noise_std(self.process_noise, 1.0)
         self.reinitialisations = 0
         self._expected: np.ndarray | None = None
@@ -462,13 +461,11 @@ class ParticleFilter(Tracker):
         resampled = ess < self.ess_threshold * n
         if resampled:
             if self.resampler == "systematic":
-                idx = self._indices
-                kernels().systematic(w, self.rng.random(), idx)
-            elif self.resampler == "residual":
-                idx = residual_trusted(w, self.rng)
+                # _joint is free once weighed: the kernel's cumulative-weight buffer
+                kernels().systematic(w, self.rng.random(), self._x, self._spare, self._joint)
             else:
-                idx = self._resample(w, self.rng)
-            self._x.take(idx, axis=1, mode="clip", out=self._spare)
+                idx = residual_trusted(w, self.rng) if self.resampler == "residual" else self._resample(w, self.rng)
+                self._x.take(idx, axis=1, mode="clip", out=self._spare)
             self._x, self._spare = self._spare, self._x
             # w_i = 1 / N after resampling
             self._logw.fill(-math.log(n))
