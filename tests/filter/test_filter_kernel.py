@@ -34,22 +34,40 @@ def test_predict_matches_eq4(bit_generator):
     std = np.array([3.0, 3.0, 1.0, 1.0])
     theirs, ours = np.random.Generator(bit_generator(5)), np.random.Generator(bit_generator(5))
     predict(ref, std, theirs, dt=2.0)
-    kernels().predict(x, ours, std, 2.0, 0, 4)
+    given = x.copy()
+    kernels().predict(given, np.random.Generator(bit_generator(5)).standard_normal((4, 257)), std, 2.0, 0, 4)
+    np.testing.assert_allclose(given, ref, rtol=0, atol=1e-12)
+    kernels().predict_drawn(x, ours, np.empty((4, 257)), std, 2.0, 0, 4)
     np.testing.assert_allclose(x, ref, rtol=0, atol=1e-12)
     # the kernel drew exactly numpy's normals from the given generator: both streams are at the same point
     assert ours.random() == theirs.random()
 
 
-def test_predict_velocity_rows_only_draw_2n_normals():
+def test_predict_drawn_velocity_rows_only_draw_2n_normals():
     x = _cloud(100)
     std = np.array([0.0, 0.0, 1.0, 2.0])
     rng, ref_rng = np.random.default_rng(3), np.random.default_rng(3)
     expected = x.copy()
     expected[:2] += 1.0 * x[2:]
     expected[2:] += ref_rng.standard_normal((2, 100)) * std[2:, None]
-    kernels().predict(x, rng, std, 1.0, 2, 4)
+    kernels().predict_drawn(x, rng, np.empty((4, 100)), std, 1.0, 2, 4)
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-12)
     assert rng.random() == ref_rng.random()
+
+
+@pytest.mark.parametrize("n", [999, 1000])
+def test_steps_are_the_same_whichever_side_draws_the_normals(n, monkeypatch):
+    import fusion_pf.filter.pf as pf_module
+
+    ms = [Measurement("colour", 100.0, 100.0), Measurement("depth", 103.0, 98.0)]
+    runs = []
+    for threshold in (1, 10**9):
+        monkeypatch.setattr(pf_module, "DRAW_IN_KERNEL_N", threshold)
+        pf = ParticleFilter(n_particles=n, resampler="systematic", rng=11)
+        runs.append(
+            [(e.u, e.v, e.ess) for e in (pf.step(k * 33_333_333, ms) for k in range(5))] + [pf.particles.tobytes()]
+        )
+    assert runs[0] == runs[1]
 
 
 @pytest.mark.parametrize("likelihood", ["gaussian", "robust"])
