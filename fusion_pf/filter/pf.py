@@ -42,7 +42,7 @@ from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
 from .estimate import ESTIMATORS
-from .kernel import ESTIMATOR_CODES, kernels, warm_up
+from .kernel import DRAW_IN_KERNEL_N, ESTIMATOR_CODES, kernels, warm_up
 from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, UNDERFLOW_LOG, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
@@ -140,10 +140,14 @@ class ParticleFilter(Tracker):
     Notes
     -----
     The phases run as a few compiled passes over preallocated ``(4, N)``
-    buffers (:mod:`~fusion_pf.filter.kernel`; the normals of eq. 4 are drawn by
-    numpy from ``rng``): ~15-30 us per step at N = 100, ~0.5 ms at N = 1e4 on
-    one core, 10-20x Stone Soup's equivalent step (``benchmarks/bench.py``),
-    dominated from N ~ 1e3 on by the 4 N normal draws. The kernels are loaded
+    buffers (:mod:`~fusion_pf.filter.kernel`; the normals of eq. 4 come from
+    ``rng``, drawn by numpy below 1000 particles and inside the kernel from
+    there on, the same numbers either way; systematic resampling copies the
+    drawn particles in its own pass): ~20 us per step at N = 100, ~0.06 ms at
+    N = 1e3, ~0.35 ms at N = 1e4, ~7 ms at N = 1e5 on one core (interleaved
+    with Stone Soup's equivalent step, ``benchmarks/bench.py``: 8-22x faster;
+    1e4 is the weakest), dominated from N ~ 1e3 on by the 4 N normal draws
+    (~2.5 ns each in the kernel) and the N exponentials of the weights. The kernels are loaded
     from numba's on-disk cache by a background thread started at construction
     (~0.5 s of CPU once per process; after an install or an edit of the kernels
     numba compiles them once, ~5-20 s).
@@ -225,7 +229,6 @@ class ParticleFilter(Tracker):
         self._logw = np.empty(n)
         self._w = np.empty(n)
         self._joint = np.empty(n)
-        self._indices = np.empty(n, dtype=np.int64)
         self._std_unit = noise_std(self.process_noise, 1.0)
         self.reinitialisations = 0
         self._expected: np.ndarray | None = None
@@ -385,11 +388,13 @@ class ParticleFilter(Tracker):
             # components without noise (std (pos, pos, vel, vel) of 0) draw nothing
             lo = 0 if std[0] > 0.0 else 2
             hi = 4 if std[2] > 0.0 else 2
-            noise = self._noise[lo:hi]
+            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), the normals from self.rng (same stream either way)
+            if self.n_particles >= DRAW_IN_KERNEL_N:
+                kernels().predict_drawn(self._x, self.rng, self._noise, std, float(dt), lo, hi)
+                return
             if lo < hi:
-                self.rng.standard_normal(out=noise)
-            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4)
-            kernels().predict(self._x, noise, std, float(dt), lo, hi)
+                self.rng.standard_normal(out=self._noise[lo:hi])
+            kernels().predict(self._x, self._noise, std, float(dt), lo, hi)
             return
         # eq. 4 without its position noise, then that noise and the manoeuvres
         predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
@@ -465,13 +470,11 @@ class ParticleFilter(Tracker):
         resampled = ess < self.ess_threshold * n
         if resampled:
             if self.resampler == "systematic":
-                idx = self._indices
-                kernels().systematic(w, self.rng.random(), idx)
-            elif self.resampler == "residual":
-                idx = residual_trusted(w, self.rng)
+                # _joint is free once weighed: the kernel's cumulative-weight buffer
+                kernels().systematic(w, self.rng.random(), self._x, self._spare, self._joint)
             else:
-                idx = self._resample(w, self.rng)
-            self._x.take(idx, axis=1, mode="clip", out=self._spare)
+                idx = residual_trusted(w, self.rng) if self.resampler == "residual" else self._resample(w, self.rng)
+                self._x.take(idx, axis=1, mode="clip", out=self._spare)
             self._x, self._spare = self._spare, self._x
             # w_i = 1 / N after resampling
             self._logw.fill(-math.log(n))

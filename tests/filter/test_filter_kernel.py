@@ -27,14 +27,47 @@ def _cloud(n: int, seed: int = 0) -> np.ndarray:
     return x
 
 
-def test_predict_matches_eq4():
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.SFC64])
+def test_predict_matches_eq4(bit_generator):
     x = _cloud(257)
     ref = x.copy()
     std = np.array([3.0, 3.0, 1.0, 1.0])
-    predict(ref, std, np.random.default_rng(5), dt=2.0)
-    noise = np.random.default_rng(5).standard_normal((4, 257))
-    kernels().predict(x, noise, std, 2.0, 0, 4)
+    theirs, ours = np.random.Generator(bit_generator(5)), np.random.Generator(bit_generator(5))
+    predict(ref, std, theirs, dt=2.0)
+    given = x.copy()
+    kernels().predict(given, np.random.Generator(bit_generator(5)).standard_normal((4, 257)), std, 2.0, 0, 4)
+    np.testing.assert_allclose(given, ref, rtol=0, atol=1e-12)
+    kernels().predict_drawn(x, ours, np.empty((4, 257)), std, 2.0, 0, 4)
     np.testing.assert_allclose(x, ref, rtol=0, atol=1e-12)
+    # the kernel drew exactly numpy's normals from the given generator: both streams are at the same point
+    assert ours.random() == theirs.random()
+
+
+def test_predict_drawn_velocity_rows_only_draw_2n_normals():
+    x = _cloud(100)
+    std = np.array([0.0, 0.0, 1.0, 2.0])
+    rng, ref_rng = np.random.default_rng(3), np.random.default_rng(3)
+    expected = x.copy()
+    expected[:2] += 1.0 * x[2:]
+    expected[2:] += ref_rng.standard_normal((2, 100)) * std[2:, None]
+    kernels().predict_drawn(x, rng, np.empty((4, 100)), std, 1.0, 2, 4)
+    np.testing.assert_allclose(x, expected, rtol=0, atol=1e-12)
+    assert rng.random() == ref_rng.random()
+
+
+@pytest.mark.parametrize("n", [999, 1000])
+def test_steps_are_the_same_whichever_side_draws_the_normals(n, monkeypatch):
+    import fusion_pf.filter.pf as pf_module
+
+    ms = [Measurement("colour", 100.0, 100.0), Measurement("depth", 103.0, 98.0)]
+    runs = []
+    for threshold in (1, 10**9):
+        monkeypatch.setattr(pf_module, "DRAW_IN_KERNEL_N", threshold)
+        pf = ParticleFilter(n_particles=n, resampler="systematic", rng=11)
+        runs.append(
+            [(e.u, e.v, e.ess) for e in (pf.step(k * 33_333_333, ms) for k in range(5))] + [pf.particles.tobytes()]
+        )
+    assert runs[0] == runs[1]
 
 
 @pytest.mark.parametrize("likelihood", ["gaussian", "robust"])
@@ -83,9 +116,13 @@ def test_systematic_and_residual_match_the_numpy_resamplers(n):
     w = np.random.default_rng(n).exponential(1.0, n) ** 3
     w[: n // 3] = 0.0 if n > 2 else w[: n // 3]
     w /= w.sum()
-    out = np.empty(n, dtype=np.int64)
-    kernels().systematic(w, np.random.default_rng(9).random(), out)
-    assert np.array_equal(out, systematic(w, np.random.default_rng(9)))
+    x = _cloud(n)
+    out, cdf = np.empty_like(x), np.empty(n)
+    # trailing zero weights: rounding must never hand them a copy
+    for weights in (w, np.where(np.arange(n) < n - n // 2, w, 0.0) if n > 2 else w):
+        weights = weights / weights.sum()
+        kernels().systematic(weights, np.random.default_rng(9).random(), x, out, cdf)
+        assert np.array_equal(out, x[:, systematic(weights, np.random.default_rng(9))])
     assert np.array_equal(residual_trusted(w, np.random.default_rng(4)), residual(w, np.random.default_rng(4)))
 
 
