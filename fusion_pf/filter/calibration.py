@@ -81,6 +81,13 @@ decides above the floor and learns bursts and the outlier share. Tune split of
 ``benchmarks/fusion_matrix.py``: far-hand-sharp-960 fused 1.38 -> 0.87 px,
 ratio mean 1.10 -> 0.99; raising a cue to its white noise where that is above the
 floor made it worse (fused 1.06x on the tune split), and is not done.
+
+Slow error. Two cues' difference cancels the palm's motion; its median over the last
+:data:`SLOW_WINDOW` frames is their slow offset (:func:`slow_offset`), and the three-cornered hat
+on the offsets splits it per cue (:func:`slow_errors`). Once known, a cue's floor is lowered only to
+:data:`SLOW_FACTOR` x its white and slow error together, at most to :data:`SLOW_FLOOR` of the floor.
+Tune split: skeleton-best-960 fused 6.37 -> 2.94 px, far-hand-sharp-960 0.89 -> 0.77, ratio mean
+1.03 -> 0.94, no scene worse by more than 3 %.
 """
 
 from __future__ import annotations
@@ -255,8 +262,8 @@ def slow_errors(offsets: Mapping[tuple[str, str], float]) -> dict[str, float]:
 
     The three-cornered hat of clock metrology (Gray & Allan 1974) on the slow parts:
     ``B_a = (S_ab + S_ac - S_bc) / 2`` averaged over the pairs ``(b, c)`` of other cues measured with
-    ``a`` and with each other; with one other cue, ``S_ab / 2`` (the split is not identifiable). Each is
-    at least 0 and at most every ``S_ab`` (``B_b >= 0``).
+    ``a`` and with each other; with one other cue, ``S_ab / 2`` (the split is not identifiable); at least 0. It is not
+    clipped to the smallest ``S_ab``: a noisy pair's offset would pull it down.
 
     Parameters
     ----------
@@ -277,7 +284,7 @@ def slow_errors(offsets: Mapping[tuple[str, str], float]) -> dict[str, float]:
             if frozenset((b, c)) in pair
         ]
         est = float(np.mean(hats)) if hats else 0.5 * pair[frozenset((a, others[0]))]
-        out[a] = min(max(est, 0.0), min(pair[frozenset((a, b))] for b in others))
+        out[a] = max(est, 0.0)
     return out
 
 
