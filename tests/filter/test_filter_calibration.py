@@ -388,9 +388,10 @@ def test_slow_errors_recover_simulated_biases_under_white_noise():
 
 
 def test_a_smooth_biased_cue_keeps_its_floor_where_an_unbiased_one_goes_below():
-    # issue 23, skeleton-best-960: a colour blob with 0.3 px white noise 1.4 px off (B = 1 px^2 per axis) had its
-    # floor lowered to SELF_FLOOR x FLOOR by its white noise alone (the calibration before, which fails here) and
-    # pulled the fused track off; its slow error, seen against two unbiased 2 px cues, keeps it at the floor
+    # issue 23, skeleton-best-960: a confident depth blob with little white noise but 1.2 px of slow error had its
+    # floor lowered by its white noise alone (the calibration before, which fails here) and pulled the fused track
+    # off. Here a cue with 0.05 px white noise 1.4 px off (B = 1 px^2 per axis): its slow error, seen against two
+    # unbiased 2 px cues, keeps it at the floor
     from fusion_pf.filter.calibration import SLOW_FACTOR, SLOW_FLOOR
 
     cal = NoiseCalibration(lambda m: 4.0)
