@@ -188,16 +188,29 @@ def coverage_2sd(table: Path, scene: Scene, frames: int) -> float:
     return float(np.mean(hits)) if hits else float("nan")
 
 
-def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float, float]]:
-    """Per cue of the tracked ``table``: its median error per axis and its white noise per axis, px.
+def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float, float, float, float]]:
+    """Per cue of the tracked ``table``: its median error, white noise, slow error and online slow error per axis, px.
 
     The median error is ``sqrt(median(|z - g|^2 / 2) / ln 2)`` against the synthetic source's ground
     truth ``g``; the white noise is :func:`fusion_pf.filter.calibration.white_noise` of the cue's unit-norm
     third differences over 4 frames in a row, what the calibration sees without the ground truth. A cue
-    whose median error is well above its white noise has an error that is mostly slow bias.
+    whose median error is well above its white noise has an error that is mostly slow bias. The slow
+    error is ``sqrt(median error^2 - white^2)`` (from the truth); the online one, what the calibration
+    estimates without it, is the median over the frames of ``sqrt(B_s)`` of
+    :func:`fusion_pf.filter.calibration.slow_errors` on the last ``SLOW_WINDOW`` frames each pair of
+    cues measured with quality ``SELF_QUALITY`` or more (px here, at the palm scale of the scene).
     """
     from drivers.synth import SynthSource
-    from fusion_pf.filter.calibration import SELF_ORDER, difference_weights, white_noise
+    from fusion_pf.filter.calibration import (
+        SELF_ORDER,
+        SELF_QUALITY,
+        SLOW_MIN,
+        SLOW_WINDOW,
+        difference_weights,
+        slow_errors,
+        slow_offset,
+        white_noise,
+    )
 
     w, h = (int(x) for x in scene.size.split("x"))
     src = SynthSource(frames=frames, seed=scene.seed, size=(w, h), background_frames=10, **scene.options)
@@ -208,10 +221,13 @@ def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float
     g = np.array([(t.u, t.v) if t is not None else (np.nan, np.nan) for t in truth])
     weights = difference_weights(np.arange(SELF_ORDER + 1.0))
     out = {}
+    zs = {}
     for c in CUES:
         if f"{c}_u" not in rows[0]:
             continue
         z = np.array([[float(r[f"{c}_{a}"]) if r[f"{c}_{a}"] else np.nan for a in "uv"] for r in rows])
+        q = np.array([float(r[f"{c}_quality"]) if r.get(f"{c}_quality") else np.nan for r in rows])
+        zs[c] = np.where((q >= SELF_QUALITY)[:, None], z, np.nan)
         e2 = 0.5 * ((z - g) ** 2).sum(axis=1)
         if not np.isfinite(e2).any():
             continue
@@ -221,15 +237,35 @@ def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float
         ok = np.isfinite(zw).all(axis=(1, 2)) & (fw[:, -1] - fw[:, 0] == SELF_ORDER)
         d = 0.5 * ((zw[ok] @ weights) ** 2).sum(axis=1)
         white = math.sqrt(white_noise(d)) if d.size else float("nan")
-        out[c] = (math.sqrt(float(np.nanmedian(e2)) / math.log(2.0)), white)
-    return out
+        median = math.sqrt(float(np.nanmedian(e2)) / math.log(2.0))
+        out[c] = (median, white, math.sqrt(max(median**2 - white**2, 0.0)), float("nan"))
+    # per pair the frames both measured, and how many of them precede each frame
+    pairs = {}
+    for i, a in enumerate(sorted(zs)):
+        for b in sorted(zs)[i + 1 :]:
+            d = zs[a] - zs[b]
+            ok = np.isfinite(d).all(axis=1)
+            pairs[(a, b)] = (d[ok], np.cumsum(ok))
+    online: dict[str, list[float]] = {c: [] for c in out}
+    for end in range(len(rows)):
+        offsets = {}
+        for key, (d, count) in pairs.items():
+            n = int(count[end])
+            if n >= SLOW_MIN:
+                offsets[key] = slow_offset(d[max(n - SLOW_WINDOW, 0) : n])
+        for c, b in slow_errors(offsets).items():
+            online[c].append(math.sqrt(b))
+    return {c: (*v[:3], float(np.median(online[c])) if online[c] else float("nan")) for c, v in out.items()}
 
 
 def print_noise_split(rows: list[dict]) -> None:
-    """Per scene and cue: median error / white noise per axis, px (:func:`noise_split`)."""
-    print("median error / white noise per axis, px (a cue whose error is mostly slow bias: the first well above)")
+    """Per scene and cue: median error / white noise / slow error / online slow error per axis, px (:func:`noise_split`)."""
+    print(
+        "median error / white noise / slow error (truth) / slow error (online) per axis, px"
+        " (a cue whose error is mostly slow bias: the first well above the second)"
+    )
     for r in rows:
-        cells = " ".join(f"{c} {m:6.2f} / {wn:5.2f}" for c, (m, wn) in r["noise"].items())
+        cells = " ".join(f"{c} {m:5.2f}/{wn:5.2f}/{sl:5.2f}/{on:5.2f}" for c, (m, wn, sl, on) in r["noise"].items())
         print(f"{r['scene'].name:<20} {r['scene'].split:<5} {cells}")
 
 

@@ -61,14 +61,18 @@ def test_noise_split_finds_a_cues_white_noise_under_its_bias(tmp_path):
     table = tmp_path / "t.csv"
     with open(table, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["frame", "colour_u", "colour_v", "depth_u", "depth_v"])
+        out.writerow(["frame", "colour_u", "colour_v", "depth_u", "depth_v", "colour_quality", "depth_quality"])
         for k in range(10, frames):
             g = src.ground_truth(k)
             c = np.array([g.u + 2.0, g.v]) + gen.normal(0.0, 0.3, 2)
             d = np.array([g.u, g.v]) + gen.normal(0.0, 1.0, 2)
-            out.writerow([k, *c, *(d if k % 7 else ("", ""))])
+            out.writerow([k, *c, *(d if k % 7 else ("", "")), 0.9, 0.9 if k % 7 else ""])
     split = fusion_matrix.noise_split(table, scene, frames)
     assert set(split) == {"colour", "depth"}
     assert abs(split["colour"][1] - 0.3) < 0.3 * 0.25 and abs(split["depth"][1] - 1.0) < 0.25
     # colour's median error is its bias: sqrt((2^2 + 2 * 0.3^2) / 2 / ln 2) = 1.74 px per axis
     assert abs(split["colour"][0] - 1.74) < 0.15 and split["colour"][0] > 4 * split["colour"][1]
+    # slow error from the truth: sqrt(1.74^2 - 0.3^2) = 1.71 px; online, two cues cannot split their
+    # offset (2 px^2 per axis): half each, 1 px per axis
+    assert abs(split["colour"][2] - 1.71) < 0.15 and split["depth"][2] < 0.5
+    assert abs(split["colour"][3] - 1.0) < 0.2 and abs(split["depth"][3] - 1.0) < 0.2

@@ -312,12 +312,13 @@ def _run_moving(
 def test_a_cue_more_precise_than_the_prediction_is_trusted_below_the_floor():
     # issue 23, far-hand-sharp-960: a 0.05 px cue beside two 2 px ones, against a prediction whose stated
     # variance hides every cue's noise: all three were fitted 0 and fused at the floor. Its own white noise
-    # (measured without the prediction) lets the floor go down to SELF_FLOOR of it; a 0.25 px cue is learned
-    # at its simulated noise / SELF_FLOOR; a low-quality cue, whose error is mostly slow bias, keeps the floor
-    from fusion_pf.filter.calibration import SELF_FLOOR, SELF_QUALITY
+    # (measured without the prediction) and its slow error (none here) let the floor go down to SLOW_FLOOR of it; a
+    # 0.25 px cue is learned at SLOW_FACTOR x its simulated noise; a low-quality cue, whose error is mostly slow bias,
+    # keeps the floor
+    from fusion_pf.filter.calibration import SELF_QUALITY, SLOW_FACTOR, SLOW_FLOOR
 
     noise = {("sharp", 0.9): 0.05, ("mid", 0.9): 0.25, ("vague", 0.2): 0.05, ("b", 0.9): 2.0, ("c", 0.9): 2.0}
-    assert 0.05 / SELF_FLOOR < SELF_FLOOR * FLOOR < 0.25 / SELF_FLOOR < FLOOR
+    assert SLOW_FACTOR * 0.05 < SLOW_FLOOR * FLOOR < SLOW_FACTOR * 0.25 < FLOOR
     assert 0.2 < SELF_QUALITY <= 0.9
     w = WINDOW / (PRIOR_COUNT + WINDOW)
     shrunk = 4.0 ** (1 - w)
@@ -326,8 +327,8 @@ def test_a_cue_more_precise_than_the_prediction_is_trusted_below_the_floor():
     # without timestamps (the calibration before): the floor
     for m in (sharp, mid, vague):
         assert old.sigma(m) == pytest.approx(shrunk * FLOOR**w)
-    assert new.sigma(sharp) == pytest.approx(shrunk * (SELF_FLOOR * FLOOR) ** w)
-    assert new.sigma(mid) == pytest.approx(shrunk * (0.25 / SELF_FLOOR) ** w, rel=0.15)
+    assert new.sigma(sharp) == pytest.approx(shrunk * (SLOW_FLOOR * FLOOR) ** w)
+    assert new.sigma(mid) == pytest.approx(shrunk * (SLOW_FACTOR * 0.25) ** w, rel=0.15)
     assert new.sigma(vague) == pytest.approx(shrunk * FLOOR**w)
     assert math.sqrt(new.white("sharp", 0.9)) == pytest.approx(0.05, rel=0.15)
     # the 2 px cues: above the floor, learned from the prediction as before
@@ -349,3 +350,64 @@ def test_white_noise_needs_frames_in_a_row():
     for i in range(SELF_MIN + 20):
         cal.update([Measurement("a", 100.0, 100.0)], {"a": 4.0}, 1.0, None, (i % 3) * 33_333_333)
     assert cal.white("a", 1.0) is None
+
+
+def _biased_frames(frames: int, cues: dict, rng: int = 0) -> list[list[Measurement]]:
+    """Cues ``cues[source] = (white px per axis, bias (u, v) px)`` on a moving palm."""
+    gen = np.random.default_rng(rng)
+    palm = _smooth_track(frames)
+    out = []
+    for i in range(frames):
+        ms = []
+        for s, (sd, bias) in cues.items():
+            z = palm[i] + np.asarray(bias) + gen.normal(0, sd, 2)
+            ms.append(Measurement(s, *z, quality=0.9))
+        out.append(ms)
+    return out
+
+
+def test_slow_errors_recover_simulated_biases_under_white_noise():
+    # reference: the simulation's biases (orthogonal, as independent ones are on average), B_s = |b_s|^2 / 2 per
+    # axis: a (0.3 px white, 1 px off on each axis) 1.0, b (3 px white) 0, c (2 px white, 0.5 px off) 0.25
+    from fusion_pf.filter.calibration import slow_errors, slow_offset
+
+    cues = {"a": (0.3, (1.0, -1.0)), "b": (3.0, (0.0, 0.0)), "c": (2.0, (0.5, 0.5))}
+    found = {s: [] for s in cues}
+    for rng in range(20):
+        frames = _biased_frames(60, cues, rng)
+        z = {s: np.array([[m.u, m.v] for ms in frames for m in ms if m.source == s]) for s in cues}
+        offsets = {(x, y): slow_offset(z[x] - z[y]) for x, y in (("a", "b"), ("a", "c"), ("b", "c"))}
+        for s, b in slow_errors(offsets).items():
+            found[s].append(b)
+    assert np.mean(found["a"]) == pytest.approx(1.0, abs=0.15)
+    # the clip at 0 of noisy offsets lifts a zero slow error (3 px white over 60 frames) by about 0.2 px^2
+    assert 0.0 <= np.mean(found["b"]) < 0.35
+    assert np.mean(found["c"]) == pytest.approx(0.25, abs=0.2)
+    # two cues only: the split is not identifiable, each gets half the offset
+    assert slow_errors({("a", "b"): 2.0}) == {"a": 1.0, "b": 1.0}
+
+
+def test_a_smooth_biased_cue_keeps_its_floor_where_an_unbiased_one_goes_below():
+    # issue 23, skeleton-best-960: a confident depth blob with little white noise but 1.2 px of slow error had its
+    # floor lowered by its white noise alone (the calibration before, which fails here) and pulled the fused track
+    # off. Here a cue with 0.05 px white noise 1.4 px off (B = 1 px^2 per axis): its slow error, seen against two
+    # unbiased 2 px cues, keeps it at the floor
+    from fusion_pf.filter.calibration import SLOW_FACTOR, SLOW_FLOOR
+
+    cal = NoiseCalibration(lambda m: 4.0)
+    gen = np.random.default_rng(1)
+    cues = {"biased": (0.05, (1.0, 1.0)), "sharp": (0.05, (0.0, 0.0)), "b": (2.0, (0, 0)), "c": (2.0, (0, 0))}
+    frames = _biased_frames(200, cues)
+    palm = _smooth_track(200)
+    for i, ms in enumerate(frames):
+        pred = (*(palm[i] + gen.normal(0.0, 1.0, 2)), 9.0)
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, pred, 1_000_000_000 + i * 33_333_333)
+    assert 0.5 < cal.slow("biased") < 1.5
+    assert 0.0 <= cal.slow("sharp") < 0.35
+    w = WINDOW / (PRIOR_COUNT + WINDOW)
+    shrunk = 4.0 ** (1 - w)
+    assert SLOW_FACTOR * math.sqrt(0.5) > FLOOR  # the biased cue's white + slow error, with the estimate's slack
+    assert cal.sigma(Measurement("biased", 0, 0, quality=0.9)) == pytest.approx(shrunk * FLOOR**w)
+    low = max(SLOW_FACTOR * math.sqrt(cal.white("sharp", 0.9) + cal.slow("sharp")), SLOW_FLOOR * FLOOR)
+    assert low < FLOOR
+    assert cal.sigma(Measurement("sharp", 0, 0, quality=0.9)) == pytest.approx(shrunk * low**w)
