@@ -27,10 +27,12 @@ Baum-Welch step without the backward pass), shrunk towards :data:`START` and
 Cross-cue confirmation (:meth:`BurstFilter.weights`). The prediction follows
 whatever the filter fused, and a hand that moves faster than the motion model
 puts every cue off it at once. A cue's burst is therefore acted upon only when
-another cue of the same frame is in its good state (posterior burst
-probability below one half) and the two disagree beyond the chi-square 99 %
-gate of their noises, ``|z_s - z_j|^2 > G (sigma_s^2 + sigma_j^2)``. Then the
-cue is fused with its noise divided by ``sqrt(w)``, ``w = 1 - P(burst)`` at
+the cue is more likely in a burst than not (posterior burst probability at
+least one half), another cue of the same frame is in its good state (below one
+half) and it disagrees with every such cue beyond the chi-square 99 % gate of
+their noises, ``|z_s - z_j|^2 > G (sigma_s^2 + sigma_j^2)`` (a cue that some
+good cue agrees with is not set aside: the track may be the one that is off,
+pulled by a cue whose burst is small). Then the cue is fused with its noise divided by ``sqrt(w)``, ``w = 1 - P(burst)`` at
 least :data:`MIN_WEIGHT` (the weights of iteratively reweighted least squares:
 a cue certainly in a burst counts ``MIN_WEIGHT`` of a measurement). Not
 acted upon, and nothing learned: a frame with a single cue (nothing confirms),
@@ -148,7 +150,7 @@ class BurstFilter:
         self.start, self.end, self.count = float(start), float(end), float(count)
         self._burst: dict[str, float] = {}  # per source, the filtered burst probability of its last frame
         self._counts: dict[str, np.ndarray] = {}  # per source, expected transitions (2, 2)
-        self.bursts: dict[str, int] = {}  # per source, frames it was fused as a burst (weight below 1/2)
+        self.bursts: dict[str, int] = {}  # per source, frames it was set aside as a burst
 
     def transitions(self, source: str) -> tuple[float, float]:
         """``(a_gb, a_bg)`` of ``source``: its expected transitions shrunk towards the prior's."""
@@ -210,14 +212,16 @@ class BurstFilter:
             post[m.source] = self._burst[m.source] = burst_posterior(before, a_gb, a_bg, lr)
         out = {}
         for m in ms:
-            confirmed = any(
-                post[j.source] < 0.5
-                and (m.u - j.u) ** 2 + (m.v - j.v) ** 2 > CONSISTENT * (variances[m.source] + variances[j.source])
-                for j in ms
-                if j is not m
+            good = [j for j in ms if j is not m and post[j.source] < 0.5]
+            confirmed = (
+                post[m.source] >= 0.5
+                and bool(good)
+                and all(
+                    (m.u - j.u) ** 2 + (m.v - j.v) ** 2 > CONSISTENT * (variances[m.source] + variances[j.source])
+                    for j in good
+                )
             )
-            w = max(1.0 - post[m.source], MIN_WEIGHT) if confirmed else 1.0
-            out[m.source] = w
-            if w < 0.5:
+            out[m.source] = max(1.0 - post[m.source], MIN_WEIGHT) if confirmed else 1.0
+            if confirmed:
                 self.bursts[m.source] = self.bursts.get(m.source, 0) + 1
         return out
