@@ -1374,6 +1374,8 @@ class TrackStats:
         Per cue, the frames among those in which it raised (its fault, not the run's).
     first_error : dict of str to str
         Per failed cue, the first failure: ``"frame K: message"``.
+    bursts : dict of str to int
+        Per cue, the frames (summed over targets) it was set aside as a burst (``--burst-gate``).
     """
 
     losses: int = 0
@@ -1381,14 +1383,17 @@ class TrackStats:
     missing: dict[str, int] = field(default_factory=dict)
     failed: dict[str, int] = field(default_factory=dict)
     first_error: dict[str, str] = field(default_factory=dict)
+    bursts: dict[str, int] = field(default_factory=dict)
 
     def cue_summary(self, tracked: int) -> str:
-        """One line: per cue the frames it measured of ``tracked``, and its failures (first message)."""
+        """One line: per cue the frames it measured of ``tracked``, its failures (first message) and bursts set aside."""
         parts = []
         for name, missing in self.missing.items():
             part = f"{name} {tracked - missing}/{tracked}"
             if self.failed.get(name):
                 part += f" (failed on {self.failed[name]}, first {self.first_error[name]})"
+            if self.bursts.get(name):
+                part += f" ({self.bursts[name]} set aside as bursts)"
             parts.append(part)
         return "cues measured in: " + ", ".join(parts)
 
@@ -1446,6 +1451,10 @@ def track(
                 stats.losses = sum(f.losses for f in targets.stages.values())
                 stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
                 stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
+                stats.bursts = {}
+                for f in targets.stages.values():
+                    for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
+                        stats.bursts[name] = stats.bursts.get(name, 0) + n
         result.source_frame = frame
         result.events = events.feed(result)
         yield result
