@@ -112,7 +112,7 @@ from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
-from ..filter.bursts import BurstFilter
+from ..filter.bursts import BURST_PALMS, BurstFilter
 from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale, starting_sigma
 from ..filter.estimate import largest_std
 from ..filter.kernel import warm_up
@@ -1073,7 +1073,7 @@ class _FilterStage:
         if self.bursts is None:
             return {m.source: 1.0 for m in ms}
         palm = self.palm_px or REFERENCE_PALM_PX * self._scale
-        weights = self.bursts.weights(ms, self._var, predicted if self.tracking else None, palm)
+        weights = self.bursts.weights(ms, self._var, predicted if self.tracking else None, BURST_PALMS * palm)
         tracker = self.tracker
         assert tracker is not None  # created by _start
         for source, w in weights.items():

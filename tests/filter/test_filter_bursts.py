@@ -146,3 +146,16 @@ def test_the_gate_does_not_fire_while_cues_agree():
     old, _ = _errors(rows, truth, gate=False)
     assert stage.bursts is not None and stage.bursts.bursts == {}
     np.testing.assert_array_equal(err, old)  # the same estimates, bit for bit
+
+
+def test_a_good_cue_that_agrees_vouches_for_a_cue_off_the_track():
+    # colour (1 px noise) 6 px off the prediction is more likely in a burst; depth, the other cue, is good
+    def colour_weight(depth, depth_sigma):
+        bursts = BurstFilter()
+        ms = [Measurement("colour", 6.0, 0.0), Measurement("depth", *depth)]
+        w = bursts.weights(ms, {"colour": 1.0, "depth": depth_sigma**2}, (0.0, 0.0, 0.5), 20.0)
+        assert bursts.probability("colour") >= 0.5 > bursts.probability("depth")
+        return w["colour"]
+
+    assert colour_weight((0.5, 0.0), 1.0) < 0.5  # a precise depth on the track: colour is set aside
+    assert colour_weight((4.0, 0.0), 3.0) == 1.0  # a noisier depth that agrees with colour: the track may be off
