@@ -368,6 +368,14 @@ class TrackConfig:
         "prediction) in frames with two cues or more, between 0.3 and 1 x --process-noise "
         "(fusion_pf/filter/calibration.py, process_scale); off: --process-noise",
     )
+    burst_gate: bool = option(
+        True,
+        kind="bool",
+        help="set a cue aside in the frames it is in a burst (off the track in a run of frames while "
+        "another cue of the frame agrees with the track and disagrees with it): a good / burst state "
+        "per cue carried across frames, its transitions learned in this recording "
+        "(fusion_pf/filter/bursts.py); off: every cue fused with its calibrated noise",
+    )
     jump_sigmas: float = option(
         8.0,
         kind="float",

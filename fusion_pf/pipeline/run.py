@@ -112,6 +112,7 @@ from ..cues.registry import CUES, build_cues
 from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
+from ..filter.bursts import BURST_PALMS, BurstFilter
 from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale, starting_sigma
 from ..filter.estimate import largest_std
 from ..filter.kernel import warm_up
@@ -840,6 +841,7 @@ class _FilterStage:
         self._calibration = NoiseCalibration(self._starting_sigma) if config.adapt_noise else None
         self._moves: deque[float] = deque(maxlen=MOTION_WINDOW)
         self._motion_scale = 1.0
+        self.bursts = BurstFilter() if config.burst_gate else None
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
@@ -1029,9 +1031,14 @@ class _FilterStage:
             for m in ms
         )
 
-    def _uncertainty(self, ms: Sequence[Measurement], estimate: Estimate, spread: float) -> float:
+    def _uncertainty(
+        self, ms: Sequence[Measurement], estimate: Estimate, spread: float, weights: Mapping[str, float]
+    ) -> float:
         """``sigma_px`` (module docstring): posterior spread plus the cues' unexplained disagreement, px."""
-        excess = [max(0.0, (m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 - self._var[m.source]) for m in ms]
+        excess = [
+            max(0.0, (m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 - self._var[m.source] / weights[m.source])
+            for m in ms
+        ]
         return math.sqrt((spread if math.isfinite(spread) else 0.0) ** 2 + (sum(excess) / len(excess) if ms else 0.0))
 
     @staticmethod
@@ -1058,6 +1065,22 @@ class _FilterStage:
         r = self._motion_scale
         tracker.set_process_noise((self.config.process_noise[0] * k * r, self.config.process_noise[1] * k * r))
 
+    def _weights(self, ms: Sequence[Measurement], predicted: tuple[float, float, float] | None) -> dict[str, float]:
+        """Each cue's weight this frame (:class:`~fusion_pf.filter.bursts.BurstFilter`); a cue in a burst is fused with its noise over ``sqrt(w)``.
+
+        1 for every cue with ``--no-burst-gate``. The burst scale is one apparent palm length.
+        """
+        if self.bursts is None:
+            return {m.source: 1.0 for m in ms}
+        palm = self.palm_px or REFERENCE_PALM_PX * self._scale
+        weights = self.bursts.weights(ms, self._var, predicted if self.tracking else None, BURST_PALMS * palm)
+        tracker = self.tracker
+        assert tracker is not None  # created by _start
+        for source, w in weights.items():
+            if w < 1.0:
+                tracker.set_noise(source, math.sqrt(self._var[source] / w))
+        return weights
+
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
         return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
@@ -1078,7 +1101,8 @@ class _FilterStage:
         predicted = self._predicted(row.timestamp_ns) if len(ms) >= 2 else None
         if self._calibration is not None and ms:
             self._calibrate(ms, trust, predicted, row.timestamp_ns)
-        best = min(ms, key=lambda m: trust[m.source]) if ms else None
+        share = self._weights(ms, predicted)
+        best = min(ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source])) if ms else None
         if tracker.initialised and best is not None and self._jumped(best, row.timestamp_ns):
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
@@ -1097,6 +1121,9 @@ class _FilterStage:
             # stays on it (the weighted mean of a cloud one cue spread lags it, re-entering hands 3.5 px)
             tracker.set_estimator("weighted_mean" if len(ms) >= 2 else "robust_mean")
         estimate = tracker.step(row.timestamp_ns, ms)
+        for m in ms:
+            if share[m.source] < 1.0:
+                tracker.set_noise(m.source, math.sqrt(self._var[m.source]))  # the burst's weight was this frame's
         if (
             predicted is not None
             and estimate is not None
@@ -1114,6 +1141,8 @@ class _FilterStage:
         if not self.tracking and estimate is not None:
             self.losses += before in HOLDING
             tracker.reset()
+            if self.bursts is not None:
+                self.bursts.reset()
             self._history = []
             estimate = None
         elif self.tracking and before == TrackState.LOST:
@@ -1122,7 +1151,7 @@ class _FilterStage:
         if estimate is not None:
             self._history = [*self._history[-1:], (row.timestamp_ns, estimate.u, estimate.v)]
             xyz = _xyz(row, estimate.u, estimate.v, self.config.depth_radius)
-            sigma = self._uncertainty(ms, estimate, spread)
+            sigma = self._uncertainty(ms, estimate, spread, share)
             sigma_mm = None if xyz is None else sigma * float(xyz[2]) / row.intrinsics.fx
             if isinstance(tracker, ParticleFilter):
                 particles = tracker.particles[:, :2].copy()
@@ -1345,6 +1374,8 @@ class TrackStats:
         Per cue, the frames among those in which it raised (its fault, not the run's).
     first_error : dict of str to str
         Per failed cue, the first failure: ``"frame K: message"``.
+    bursts : dict of str to int
+        Per cue, the frames (summed over targets) it was set aside as a burst (``--burst-gate``).
     """
 
     losses: int = 0
@@ -1352,14 +1383,17 @@ class TrackStats:
     missing: dict[str, int] = field(default_factory=dict)
     failed: dict[str, int] = field(default_factory=dict)
     first_error: dict[str, str] = field(default_factory=dict)
+    bursts: dict[str, int] = field(default_factory=dict)
 
     def cue_summary(self, tracked: int) -> str:
-        """One line: per cue the frames it measured of ``tracked``, and its failures (first message)."""
+        """One line: per cue the frames it measured of ``tracked``, its failures (first message) and bursts set aside."""
         parts = []
         for name, missing in self.missing.items():
             part = f"{name} {tracked - missing}/{tracked}"
             if self.failed.get(name):
                 part += f" (failed on {self.failed[name]}, first {self.first_error[name]})"
+            if self.bursts.get(name):
+                part += f" ({self.bursts[name]} set aside as bursts)"
             parts.append(part)
         return "cues measured in: " + ", ".join(parts)
 
@@ -1417,6 +1451,10 @@ def track(
                 stats.losses = sum(f.losses for f in targets.stages.values())
                 stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
                 stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
+                stats.bursts = {}
+                for f in targets.stages.values():
+                    for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
+                        stats.bursts[name] = stats.bursts.get(name, 0) + n
         result.source_frame = frame
         result.events = events.feed(result)
         yield result
