@@ -161,23 +161,28 @@ def clear_border(mask: np.ndarray) -> np.ndarray:
     return _paint(labels, ~drop)
 
 
-def core_centre(mask: np.ndarray) -> tuple[float, float]:
-    """The centroid ``(u, v)`` of the core of the one region ``mask`` holds (non-zero pixels, mask coordinates).
+def core_centre(mask: np.ndarray) -> tuple[float, float, float]:
+    """The centroid ``(u, v)`` of the core of the one region ``mask`` holds (non-zero pixels, mask coordinates), and
+    the region's inscribed radius (px).
 
     The core is the pixels whose Euclidean distance to the nearest pixel
     outside the region (the mask's edge counts as outside) is at least
     :data:`CORE_FRACTION` of the largest such distance: the centre of the
     widest part. A palm with a length of forearm attached keeps its centre
     (the plain centroid moves toward the elbow by an amount that grows with
-    the forearm's visible length, at every image size alike).
+    the forearm's visible length, at every image size alike). The largest
+    distance is the radius of the widest disc inside the region: the palm's
+    half-width, whatever forearm is attached (its apparent size,
+    :attr:`Region.radius`).
     """
     m = cv2.copyMakeBorder((mask > 0).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     dist = cv2.distanceTransform(m, cv2.DIST_L2, 5)
-    weight = np.maximum(dist - CORE_FRACTION * float(dist.max()), 0.0)
+    top = float(dist.max())
+    weight = np.maximum(dist - CORE_FRACTION * top, 0.0)
     ys, xs = np.nonzero(weight)
     w = weight[ys, xs].astype(np.float64)
     total = float(w.sum())
-    return float(xs @ w) / total - 1.0, float(ys @ w) / total - 1.0
+    return float(xs @ w) / total - 1.0, float(ys @ w) / total - 1.0, top
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,12 +197,15 @@ class Region:
         Pixel count.
     bbox : tuple of int
         ``(x, y, w, h)`` bounding box.
+    radius : float or None
+        With a core centre (:func:`core_centre`): the largest distance of a region pixel from the outline, px.
     """
 
     u: float
     v: float
     area: int
     bbox: tuple[int, int, int, int]
+    radius: float | None = None
 
     @property
     def roundness(self) -> float:
@@ -240,8 +248,8 @@ def largest_region(
     )
     if not core:
         return Region(float(centroids[best, 0]), float(centroids[best, 1]), area, (x, y, w, h))
-    cu, cv_ = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == best)
-    return Region(cu + x, cv_ + y, area, (x, y, w, h))
+    cu, cv_, radius = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == best)
+    return Region(cu + x, cv_ + y, area, (x, y, w, h), radius)
 
 
 def region_quality(region: Region, palm_area: float) -> float:
@@ -276,7 +284,7 @@ def measure(
     ``near`` (full-frame pixels) picks the region nearest to it instead of the
     largest (:func:`largest_region`). The centroid is shifted by the window ``offset``
     ``(x0, y0)`` into full-frame pixels; ``quality`` is :func:`region_quality`;
-    ``extras`` gets ``area`` (px) and ``bbox`` (full-frame ``[x, y, w, h]``).
+    ``extras`` gets ``area`` (px), ``bbox`` (full-frame ``[x, y, w, h]``) and with ``core`` ``radius`` (px, :attr:`Region.radius`).
     ``step`` > 1: ``final`` holds every ``step``-th row and column of the window
     (a reduced whole-frame search); ``min_area`` and ``palm_area`` are full-resolution
     pixels and everything returned is in full-resolution pixels. ``core``: the
@@ -294,6 +302,8 @@ def measure(
     info["area"] = region.area * k2
     bx, by, bw, bh = region.bbox
     info["bbox"] = [bx * step + x0, by * step + y0, bw * step, bh * step]
+    if region.radius is not None:
+        info["radius"] = region.radius * step
     return Measurement(
         source,
         region.u * step + x0,  # window centroid + ROI offset = full-frame column
@@ -340,7 +350,7 @@ def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> 
         if core:
             m = np.zeros(mask.shape, np.uint8)
             m[ys[part], xs[part]] = 1
-            u, v = core_centre(m)
+            u, v, _ = core_centre(m)
         else:
             u, v = float(p[:, 0].mean()), float(p[:, 1].mean())
         out.append(Region(u, v, int(part.sum()), box))
@@ -388,8 +398,8 @@ def region_detections(
             int(stats[i + 1, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
         )
         if core:
-            cu, cv_ = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == i + 1)
-            region = Region(cu + x, cv_ + y, area, (x, y, w, h))
+            cu, cv_, radius = core_centre(labels[y - oy : y - oy + h, x - ox : x - ox + w] == i + 1)
+            region = Region(cu + x, cv_ + y, area, (x, y, w, h), radius)
         else:
             region = Region(float(centroids[i + 1, 0]), float(centroids[i + 1, 1]), area, (x, y, w, h))
         pieces: list[tuple[Region, dict]] = [(region, {})]
@@ -409,6 +419,7 @@ def region_detections(
                 **(extras or {}),
                 "area": r.area * k2,
                 "bbox": [bx * step + x0, by * step + y0, bw * step, bh * step],
+                **({} if r.radius is None else {"radius": r.radius * step}),
                 **tag,
             }
             m = Measurement(source, r.u * step + x0, r.v * step + y0, region_quality(r, palm_area / k2), info)

@@ -51,6 +51,7 @@ __all__ = [
     "PointObservation",
     "RESEED_FRACTION",
     "RangeObservation",
+    "SizeObservation",
     "WorldObservation",
     "SURFACE_DEPTH_MM",
     "WorldParticleFilter",
@@ -63,6 +64,8 @@ __all__ = [
     "project",
     "range_loglik",
     "ray",
+    "size_depth",
+    "size_loglik",
 ]
 
 #: Default measurement noise per source in the world (mm, 1 sigma per axis; ``--world-noise``): chosen on the
@@ -98,6 +101,9 @@ OUTLIER_RANGE_MM = 1000.0
 #: on the hand's near surface; on the synthetic two-hand rig (seeds 1 and 2, 640 x 400) the colour and depth regions'
 #: points lay a median 22 mm (hands apart) to 32 mm (joined) in front of the palm's centre along the line of sight.
 SURFACE_DEPTH_MM = 20.0
+#: The uniform outlier density of an apparent size (:class:`SizeObservation`) spans sizes from 0 to this many times
+#: the learned one: a region merged with another (twice as large) or cut by an occluder.
+OUTLIER_SIZE_FACTOR = 2.0
 #: Nearest depth in front of a camera at which a point projects (mm).
 MIN_DEPTH_MM = 1.0
 
@@ -257,8 +263,37 @@ class RangeObservation:
     sigma_mm: float
 
 
+@dataclass(frozen=True)
+class SizeObservation:
+    """The target's apparent size in one camera: its depth there, ``z = fx size_mm / size_px`` (pinhole: a disc of
+    radius ``size_mm`` facing the camera at depth ``z`` images as a disc of radius ``fx size_mm / z`` px).
+
+    A measurement along a colour-only camera's line of sight, which a pixel leaves unobserved. Its likelihood is
+    Gaussian in the size a particle implies, ``size_px z / fx`` (mm, ``z`` its depth in the camera), about
+    ``size_mm`` (both learned: the same variable the size was learned in), plus a uniform outlier density over sizes
+    from 0 to :data:`OUTLIER_SIZE_FACTOR` times ``size_mm``.
+
+    Attributes
+    ----------
+    size_px : float
+        The apparent size, px (e.g. the colour region's inscribed radius, :attr:`fusion_pf.cues.regions.Region.radius`).
+    size_mm : float
+        The target's size the apparent one measures, mm.
+    sigma_mm : float
+        Noise of the implied size, mm.
+    pose : CameraPose
+    intrinsics : Intrinsics
+    """
+
+    size_px: float
+    size_mm: float
+    sigma_mm: float
+    pose: CameraPose
+    intrinsics: Intrinsics
+
+
 #: Any observation of :class:`WorldParticleFilter`.
-WorldObservation = PointObservation | PixelObservation | RangeObservation
+WorldObservation = PointObservation | PixelObservation | RangeObservation | SizeObservation
 
 
 @dataclass(frozen=True)
@@ -311,6 +346,21 @@ def range_loglik(points_mm: np.ndarray, ob: RangeObservation, outlier_prob: floa
     plus the uniform outlier density over :data:`OUTLIER_RANGE_MM`."""
     d = np.linalg.norm(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3) - ob.centre_mm, axis=1) - ob.range_mm
     return robust_loglik(d * d, ob.sigma_mm, outlier_prob, OUTLIER_RANGE_MM, dims=1)
+
+
+def size_depth(size_mm: float, size_px: float, fx: float) -> float:
+    """The depth (mm, along the camera's axis) at which a disc of radius ``size_mm`` facing the camera images with
+    radius ``size_px``: ``z = fx size_mm / size_px`` (``fx`` px)."""
+    return fx * size_mm / size_px
+
+
+def size_loglik(points_mm: np.ndarray, ob: SizeObservation, outlier_prob: float = OUTLIER_PROB) -> np.ndarray:
+    """The log-likelihood ``(N,)`` of an apparent size at points ``(N, 3)``: ``d = size_px z / fx - size_mm`` (``z``
+    their depth in the camera; behind it only the outlier term), Gaussian in mm plus the uniform outlier density."""
+    z = ob.pose.to_camera(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3))[:, 2]
+    d2 = (ob.size_px * z / ob.intrinsics.fx - ob.size_mm) ** 2
+    d2[z <= MIN_DEPTH_MM] = np.inf
+    return robust_loglik(d2, ob.sigma_mm, outlier_prob, OUTLIER_SIZE_FACTOR * ob.size_mm, dims=1)
 
 
 class WorldParticleFilter:
@@ -419,6 +469,9 @@ class WorldParticleFilter:
         for ob in observations:
             if isinstance(ob, RangeObservation):
                 total += range_loglik(self.particles[:, :3], ob, self.outlier_prob)
+                continue
+            if isinstance(ob, SizeObservation):
+                total += size_loglik(self.particles[:, :3], ob, self.outlier_prob)
                 continue
             x = measured_point(self.particles[:, :3], ob.partner_mm)
             if isinstance(ob, PointObservation):

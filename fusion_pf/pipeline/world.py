@@ -96,6 +96,8 @@ from ..filter.world import (
     PixelObservation,
     PointObservation,
     RangeObservation,
+    SizeObservation,
+    WorldObservation,
     WorldParticleFilter,
     beyond,
     closest_point,
@@ -188,6 +190,9 @@ REACH_JOINTS = {"right_hand": "right_elbow", "left_hand": "left_elbow"}
 #: The kinematic range is used once learned from this many instants with the target measured in 3-D; its noise is the
 #: learned spread, at least :data:`REACH_MIN_SIGMA_MM` (mm). Not tuned.
 REACH_MIN_SAMPLES, REACH_MIN_SIGMA_MM = 10, 10.0
+#: A colour-only camera's apparent size of a target (:class:`_Size`) is used once learned from this many instants with
+#: the target measured in 3-D; its noise is the learned spread, at least :data:`SIZE_MIN_SIGMA_MM` (mm). Not tuned.
+SIZE_MIN_SAMPLES, SIZE_MIN_SIGMA_MM = 10, 1.0
 
 
 @dataclass
@@ -455,7 +460,27 @@ def _one_line(seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservatio
     return not any(isinstance(ob, PointObservation) for *_, ob in seen) and len({cam.name for cam, *_ in seen}) == 1
 
 
-class _Reach:
+class _Running:
+    """A running mean and variance (Welford), learned online one value at a time."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.mean = 0.0
+        self.m2 = 0.0
+
+    def learn(self, value: float) -> None:
+        """Add one value."""
+        self.count += 1
+        delta = value - self.mean
+        self.mean += delta / self.count
+        self.m2 += delta * (value - self.mean)
+
+    def sigma(self, floor: float) -> float:
+        """The sample standard deviation, at least ``floor`` (needs two values)."""
+        return max(math.sqrt(self.m2 / (self.count - 1)), floor)
+
+
+class _Reach(_Running):
     """A target's distance from a skeleton joint (:data:`REACH_JOINTS`; a hand from its elbow), learned online.
 
     Learned (running mean and variance, Welford) at the instants the target was measured in 3-D (a depth camera's
@@ -464,24 +489,52 @@ class _Reach:
     along it.
     """
 
-    def __init__(self) -> None:
-        self.count = 0
-        self.mean = 0.0
-        self.m2 = 0.0
-
-    def learn(self, distance_mm: float) -> None:
-        """Add one distance (mm)."""
-        self.count += 1
-        delta = distance_mm - self.mean
-        self.mean += delta / self.count
-        self.m2 += delta * (distance_mm - self.mean)
-
     def observation(self, joint_mm: np.ndarray) -> RangeObservation | None:
         """The range from ``joint_mm``, None before :data:`REACH_MIN_SAMPLES` distances were learned."""
         if self.count < REACH_MIN_SAMPLES:
             return None
-        sigma = max(math.sqrt(self.m2 / (self.count - 1)), REACH_MIN_SIGMA_MM)
-        return RangeObservation(np.asarray(joint_mm, dtype=np.float64), self.mean, sigma)
+        return RangeObservation(np.asarray(joint_mm, dtype=np.float64), self.mean, self.sigma(REACH_MIN_SIGMA_MM))
+
+
+class _Size(_Running):
+    """A target's size (mm) as one colour-only camera's region measures it, learned online: the region's inscribed
+    radius (the ``radius`` extra, px: the palm's half-width whatever forearm is attached) times the target's depth in
+    the camera over ``fx``.
+
+    Learned at the instants the target was measured in 3-D, from the camera's pixels whose region holds the estimate
+    (its projection within the inscribed radius of the pixel); used as a
+    :class:`~fusion_pf.filter.world.SizeObservation` while that camera alone measures the target: the apparent size
+    measures the depth along the line of sight a pixel leaves unobserved.
+    """
+
+    def learn_at(self, estimate_mm: np.ndarray, m: Measurement, ob: PixelObservation) -> None:
+        """Learn from ``m`` (``ob`` its pixel) at the target's estimate, when it has an apparent size and its region
+        holds the estimate."""
+        size = _apparent_size(m, ob)
+        if size is None:
+            return
+        uv, z = project(np.asarray(estimate_mm, dtype=np.float64)[None], ob.pose, ob.intrinsics)
+        if np.isfinite(uv[0, 0]) and math.hypot(float(uv[0, 0]) - m.u, float(uv[0, 1]) - m.v) <= size:
+            self.learn(size * float(z[0]) / ob.intrinsics.fx)
+
+    def observation(self, m: Measurement, ob: PointObservation | PixelObservation) -> SizeObservation | None:
+        """``m``'s apparent size as an observation, None without one (a 3-D point has none) or before
+        :data:`SIZE_MIN_SAMPLES` were learned."""
+        if not isinstance(ob, PixelObservation) or self.count < SIZE_MIN_SAMPLES:
+            return None
+        size = _apparent_size(m, ob)
+        if size is None:
+            return None
+        return SizeObservation(size, self.mean, self.sigma(SIZE_MIN_SIGMA_MM), ob.pose, ob.intrinsics)
+
+
+def _apparent_size(m: Measurement, ob: PixelObservation) -> float | None:
+    """The apparent size (px) of a pixel observation's region: its ``radius`` extra, None without one, for a region two
+    combined targets share (``partner_mm``) or a part of one (``part``), or a reduced whole-frame search."""
+    radius = m.extras.get("radius")
+    if ob.partner_mm is not None or radius is None or "part" in m.extras or m.extras.get("search_step", 1) != 1:
+        return None
+    return float(cast("float", radius))
 
 
 class _WorldTarget:
@@ -494,6 +547,7 @@ class _WorldTarget:
         self.status = TrackStatus()
         self.noise_scale = 1.0
         self.reach = _Reach()
+        self.sizes: dict[str, _Size] = {}
         self.states = StateConfig(
             max_spread_px=config.max_spread * math.hypot(*REFERENCE_SIZE) * scale,
             min_likelihood=0.0,
@@ -537,10 +591,15 @@ class _WorldTarget:
                 self.noise_scale = 1.0
                 self.filter.reset(start[0], start[1])
                 self.filter.predict(t)
-        reach = None if joint_mm is None or not _one_line(seen) else self.reach.observation(joint_mm)
+        one = _one_line(seen)
+        reach = None if joint_mm is None or not one else self.reach.observation(joint_mm)
+        extra: list[WorldObservation] = [reach] if reach is not None else []
+        if one:
+            sized = (self.sizes.setdefault(cam.name, _Size()).observation(m, ob) for cam, _, m, ob in seen)
+            extra += [ob for ob in sized if ob is not None]
         if self.filter.initialised:
             self.filter.update(
-                [*observations, reach] if reach is not None else observations,
+                [*observations, *extra],
                 () if apart is None or not self.tracking else (apart,),
             )
         measured_3d = bool(seen) and not _one_line(seen)
@@ -549,6 +608,10 @@ class _WorldTarget:
         estimate, spread = self.filter.estimate() if self.filter.initialised else (None, None)
         if estimate is not None and joint_mm is not None and measured_3d:
             self.reach.learn(float(np.linalg.norm(estimate - joint_mm)))
+        if estimate is not None and seen and not one:
+            for cam, _, m, ob in seen:
+                if isinstance(ob, PixelObservation):
+                    self.sizes.setdefault(cam.name, _Size()).learn_at(estimate, m, ob)
         support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
         position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
         self.status = step_state(

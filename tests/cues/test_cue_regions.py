@@ -10,6 +10,7 @@ from fusion_pf.cues.regions import (
     fill_holes,
     largest_region,
     measure,
+    region_detections,
     region_quality,
     remove_small,
 )
@@ -170,9 +171,17 @@ def test_core_centre_is_the_palm_centre_whatever_forearm_is_attached():
     assert plain.u - 80 > 20  # the centroid is pulled along the forearm
     assert (core.u, core.v) == pytest.approx((80.0, 100.0), abs=0.5)
     assert (core.area, core.bbox) == (plain.area, plain.bbox)
+    assert plain.radius is None and core.radius == pytest.approx(25.0, abs=1.0)  # the palm's, not the forearm's 8.5
     shifted = np.roll(m, (7, -11), axis=(0, 1))
     moved = measure(shifted, (3, 5), "colour", palm_area=2000.0, core=True)
     assert (moved.u, moved.v) == pytest.approx((80.0 - 11 + 3, 100.0 + 7 + 5), abs=0.5)
+    assert (
+        moved.extras["radius"] == core.radius and "radius" not in measure(m, (0, 0), "colour", palm_area=2000.0).extras
+    )
+    (found,) = region_detections(m, (0, 0), "colour", palm_area=2000.0, core=True)
+    assert found.measurement.extras["radius"] == core.radius
+    halved = measure(np.ascontiguousarray(m[::2, ::2]), (0, 0), "colour", palm_area=2000.0, step=2, core=True)
+    assert halved.extras["radius"] == pytest.approx(25.0, abs=2.0)  # every other row and column: full-resolution px
 
 
 def test_split_parts_with_core_are_the_palm_centres_not_pulled_up_the_forearms():
@@ -198,7 +207,7 @@ def test_region_statistics_equal_scipy_labelling(seed):
     # on masks whose regions lie anywhere in a larger window (the statistics run on their bounding box)
     from scipy import ndimage
 
-    from fusion_pf.cues.regions import core_centre, region_detections
+    from fusion_pf.cues.regions import core_centre
 
     rng = np.random.default_rng(seed)
     h, w = rng.integers(20, 120, size=2)
@@ -219,7 +228,7 @@ def test_region_statistics_equal_scipy_labelling(seed):
         r = largest_region(m, core=core)
         assert r is not None and (r.area, r.bbox) == (areas[big], want_box)
         if core:
-            cu, cv = core_centre(labels[sl] == big + 1)
+            cu, cv, _ = core_centre(labels[sl] == big + 1)
             want = (cu + want_box[0], cv + want_box[1])
         else:
             want = (xs.mean(), ys.mean())

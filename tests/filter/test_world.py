@@ -17,6 +17,7 @@ from fusion_pf.filter.world import (
     PixelObservation,
     PointObservation,
     RangeObservation,
+    SizeObservation,
     WorldParticleFilter,
     beyond,
     closest_point,
@@ -27,6 +28,8 @@ from fusion_pf.filter.world import (
     project,
     range_loglik,
     ray,
+    size_depth,
+    size_loglik,
 )
 from fusion_pf.frame import Intrinsics
 from fusion_pf.rig import CameraPose
@@ -213,6 +216,77 @@ def test_a_range_from_a_joint_fixes_the_depth_along_one_line_of_sight():
         assert np.linalg.norm(np.cross(est - o, d)) < 15.0
     assert along["pixel"] > 80.0  # measured 137 mm
     assert along["pixel and range"] < 15.0
+
+
+def _disc(centre_mm, radius_mm, pose, n=360):
+    """The rim of a disc facing ``pose``'s camera (in the plane of its image) in the world, ``(n, 3)``."""
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    return centre_mm + radius_mm * (np.outer(np.cos(a), pose.rotation[:, 0]) + np.outer(np.sin(a), pose.rotation[:, 1]))
+
+
+def _opencv_pixels(points_mm, pose, intrinsics=K):
+    w2c = pose.inverse()
+    ref, _ = cv2.projectPoints(points_mm, cv2.Rodrigues(w2c.rotation)[0], w2c.translation_mm, intrinsics.K, None)
+    return ref.reshape(-1, 2)
+
+
+def test_size_depth_is_the_depth_of_a_disc_of_that_size_projected_by_opencv():
+    # a 50 mm disc facing the camera off its axis at several depths, projected by OpenCV: its image radius gives back
+    # the depth (pinhole: a circle of radius fx R / z about the centre's image)
+    o, d = _line(LEFT, np.array([25.0, 70.0]))
+    for depth in (600.0, 1500.0, 3200.0):
+        centre = o + d * depth / float(d @ LEFT.rotation[:, 2])  # the point of that depth on the line
+        rim = _opencv_pixels(_disc(centre, 50.0, LEFT), LEFT)
+        radius_px = np.linalg.norm(rim - _opencv_pixels(centre[None], LEFT)[0], axis=1)
+        assert radius_px.std() < 1e-9 * radius_px.mean()  # a circle
+        assert size_depth(50.0, float(radius_px.mean()), K.fx) == pytest.approx(depth, rel=1e-9)
+
+
+def test_a_colour_regions_radius_gives_the_depth_of_a_drawn_disc():
+    # the disc drawn (OpenCV's filled polygon of the projected rim, 1/16 px), measured as a colour region with a core
+    # centre: its inscribed radius is the disc's within the pixel grid, and so is the depth it gives
+    from fusion_pf.cues.regions import measure
+
+    big = Intrinsics(fx=499.2, fy=499.2, cx=319.5, cy=199.5, width=640, height=400)
+    pose = CameraPose.from_rvec([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    for depth in (700.0, 1100.0, 1600.0):
+        rim = _opencv_pixels(_disc(np.array([-90.0, 40.0, depth]), 50.0, pose), pose, big)
+        mask = np.zeros((big.height, big.width), np.uint8)
+        cv2.fillPoly(mask, [np.round(rim * 16).astype(np.int32)], 255, shift=4)
+        m = measure(mask, (0, 0), "colour", palm_area=1000.0, core=True)
+        assert m is not None
+        assert size_depth(50.0, float(m.extras["radius"]), big.fx) == pytest.approx(depth, rel=0.03)
+
+
+def test_size_loglik_is_the_one_dimensional_mixture_of_the_size_a_particle_implies():
+    # points on a line of sight at known depths: a particle at depth z implies the size size_px z / fx (mm)
+    size_px, size_mm, sigma, eps = 12.0, 50.0, 4.0, 0.1
+    o, d = _line(LEFT, np.array([60.0, 30.0]))
+    depths = np.array([900.0, 1040.0, 1200.0, 2500.0])
+    points = o + np.outer(depths / float(d @ LEFT.rotation[:, 2]), d)
+    r = size_px * depths / K.fx - size_mm
+    ref = np.log(
+        (1 - eps) * np.exp(-(r**2) / (2 * sigma**2)) / math.sqrt(2 * math.pi * sigma**2) + eps / (2.0 * size_mm)
+    )
+    ob = SizeObservation(size_px, size_mm, sigma, LEFT, K)
+    assert size_loglik(points, ob, eps) == pytest.approx(ref, rel=1e-12)
+    behind = o - 500.0 * LEFT.rotation[:, 2]
+    assert size_loglik(behind[None], ob, eps)[0] == pytest.approx(math.log(eps / (2.0 * size_mm)))
+
+
+def test_an_apparent_size_fixes_the_depth_along_one_line_of_sight():
+    # one colour-only camera's pixel and the target's apparent size (its 50 mm seen as fx 50 / z px): the estimate goes
+    # to that depth on the line, the pixel alone leaves it where it started
+    uv = project(POINT[None], LEFT, K)[0][0]
+    o, d = _line(LEFT, uv)
+    z = float(LEFT.to_camera(POINT[None])[0, 2])
+    along = {}
+    for name, extra in (("pixel", []), ("pixel and size", [SizeObservation(K.fx * 50.0 / z, 50.0, 2.0, LEFT, K)])):
+        est, _ = _run(lambda extra=extra: [PixelObservation(uv, 20.0, LEFT, K), *extra])
+        along[name] = abs(float(np.dot(est - POINT, d)))
+        assert np.linalg.norm(np.cross(est - o, d)) < 15.0
+    assert along["pixel"] > 80.0  # measured 137 mm
+    assert along["pixel and size"] < 15.0
 
 
 def test_predict_scales_the_process_noise():
