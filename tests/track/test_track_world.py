@@ -363,6 +363,46 @@ def test_a_joint_in_the_world_from_depth_or_from_two_lines_of_sight(rig2):
     assert _joint_world(fs, "no_such_joint") is None
 
 
+def test_a_target_measured_in_3d_keeps_more_of_its_velocity_and_lags_a_move_less(rig2):
+    # two cameras' points on a hand moving 8 mm per instant: measured in 3-D the filter keeps VELOCITY_DAMPING_3D of
+    # its velocity per step and trails the hand less than with VELOCITY_DAMPING (the one-line damping); a target one
+    # camera alone measures along its line of sight keeps VELOCITY_DAMPING
+    from fusion_pf.filter.world import VELOCITY_DAMPING, PixelObservation
+    from fusion_pf.pipeline.world import VELOCITY_DAMPING_3D, _WorldTarget
+
+    config = TrackConfig(targets=HANDS, cues=("colour",))
+    frames = rig2.frames(BACKGROUND)
+    cams = {name: _Camera(name, config, frame, rig2.poses[name]) for name, frame in frames.items()}
+    intr = frames["cam0"].intrinsics
+    start = rig2.truth_mm(BACKGROUND)["right_hand"]
+    step = np.array([8.0, 0.0, 0.0])
+    lags = {}
+    for keep_3d in (True, False):
+        target = _WorldTarget("right_hand", config, np.random.default_rng(1))
+        trail = []
+        for k in range(40):
+            at = start + k * step
+            if target.filter.initialised:
+                if not keep_3d:
+                    target.filter.damping = VELOCITY_DAMPING  # the damping before measured targets kept more
+                target.filter.predict(k * 33_333_333)
+            seen = [
+                (cam, intr, Measurement("colour", 0.0, 0.0, 1.0), PointObservation(at, 20.0)) for cam in cams.values()
+            ]
+            est, _ = target.step(k * 33_333_333, seen)
+            assert target.filter.damping == VELOCITY_DAMPING_3D
+            if k >= 20:
+                trail.append(float((at - est) @ step) / 8.0)  # mm behind the hand along its motion (8 mm/instant)
+        lags[keep_3d] = float(np.mean(trail))
+    assert VELOCITY_DAMPING_3D > VELOCITY_DAMPING
+    assert lags[True] < lags[False] - 1.0, lags  # measured 5.4 and 7.3 mm behind (0.67 and 0.91 instants)
+    cam1 = cams["cam1"]
+    (u, v) = project(start[None], cam1.pose, intr)[0][0]
+    pixel = (cam1, intr, Measurement("colour", u, v, 1.0), PixelObservation(np.array([u, v]), 20.0, cam1.pose, intr))
+    target.step(41 * 33_333_333, [pixel])
+    assert target.filter.damping == VELOCITY_DAMPING
+
+
 def disc_rig(hidden_path_mm, cameras, intrinsics, static=15, background=3):
     """Frame sets of a 50 mm skin disc (a palm facing each camera) over grey walls: seen by every camera for ``static``
     instants at the path's start, then along ``hidden_path_mm`` by the colour-only cameras only (no depth image)."""
