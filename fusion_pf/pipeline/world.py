@@ -53,6 +53,11 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    distance's mean and spread learned online at the instants the target was measured in 3-D,
    :class:`_Reach`), a :class:`~fusion_pf.filter.world.RangeObservation`: the line of sight
    leaves the depth along it unobserved, the range fixes it where the line crosses the shell;
+   and at the depth its region's apparent size gives (the colour region's inscribed radius in px,
+   the palm's half-width, times the depth over ``fx``: the size in mm learned online per camera at
+   the instants the target was measured in 3-D, :class:`_Size`, a
+   :class:`~fusion_pf.filter.world.SizeObservation`); its region pixels then weigh with
+   :data:`ONE_LINE_PIXEL_SCALE` of their noise (nothing else measures it across the line);
 4. acquisition (a target without a track): paper 004 §6.3's line-of-sight
    triangulation of the most trusted measurement of every camera that saw the
    target (:func:`~fusion_pf.filter.world.closest_point`; a line farther than
@@ -125,10 +130,13 @@ __all__ = [
     "ACQUIRE_GATE_MM",
     "MAX_WORLD_NOISE_SCALE",
     "MM_PER_REFERENCE_PX",
+    "ONE_LINE_PIXEL_SCALE",
     "REACH_JOINTS",
     "REACH_MIN_SAMPLES",
     "REACH_MIN_SIGMA_MM",
     "RESEED_AGREE_MM",
+    "SIZE_MIN_SAMPLES",
+    "SIZE_MIN_SIGMA_MM",
     "WorldResult",
     "WorldTarget",
     "track_world",
