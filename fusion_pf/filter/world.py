@@ -18,7 +18,9 @@ OpenCV). Units: world millimetres, pixels of the camera's colour image.
   pixel's line of sight, Gaussian in mm at the particle, plus a uniform outlier
   density over the image seen at the particles' median depth) and of ranges (:class:`RangeObservation`: the
   particle's distance from a point, e.g. a hand's from its elbow; Gaussian in mm plus a uniform outlier
-  density over :data:`OUTLIER_RANGE_MM`), residual resampling and the weighted mean
+  density over :data:`OUTLIER_RANGE_MM`) and of apparent sizes (:class:`SizeObservation`: the size in mm a
+  particle's depth in a camera implies from an apparent size in px, :func:`size_depth`'s pinhole ``z = fx size_mm /
+  size_px``; Gaussian in mm plus a uniform outlier density), residual resampling and the weighted mean
   (:mod:`fusion_pf.filter.resample`,
   :func:`fusion_pf.filter.likelihood.robust_loglik`).
 """
@@ -46,6 +48,7 @@ __all__ = [
     "Exclusion",
     "OUTLIER_PROB",
     "OUTLIER_RANGE_MM",
+    "OUTLIER_SIZE_FACTOR",
     "OUTLIER_VOLUME_MM3",
     "PixelObservation",
     "PointObservation",
