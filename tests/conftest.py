@@ -3,6 +3,8 @@
 * ``fusion_pf`` fixture: run the ``fusion-pf`` command line in a subprocess,
   ``fusion_pf(*args, timeout=300) -> subprocess.CompletedProcess`` (text output);
   arguments are converted with ``str``.
+* ``stream_normals`` fixture: ``stream_normals(state, shape) -> float32 array``, the next
+  normals of a particle-filter kernel stream, drawn by numpy itself from the same state.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import signal
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 
@@ -48,3 +51,22 @@ def run_cli(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
 def fusion_pf():
     """The command line in a subprocess (:func:`run_cli`); a plain function, so any fixture may use it."""
     return run_cli
+
+
+def _stream_normals(state: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Normals of a kernel stream ``(a, b, c, counter, has_uint32, uinteger)`` (:func:`fusion_pf.filter.kernel.stream`),
+    drawn by numpy's own SFC64 and float32 ziggurat from a copy of the state (the reference the kernels must match)."""
+    bg = np.random.SFC64()
+    bg.state = {
+        "bit_generator": "SFC64",
+        "state": {"state": state[:4].copy()},
+        "has_uint32": int(state[4]),
+        "uinteger": int(state[5]),
+    }
+    return np.random.Generator(bg).standard_normal(int(np.prod(shape)), dtype=np.float32).reshape(shape)
+
+
+@pytest.fixture(scope="session")
+def stream_normals():
+    """:func:`_stream_normals` (a plain function)."""
+    return _stream_normals

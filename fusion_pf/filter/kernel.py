@@ -39,14 +39,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-__all__ = ["DRAW_IN_KERNEL_N", "ESTIMATOR_CODES", "kernels", "warm_up"]
+__all__ = ["ESTIMATOR_CODES", "kernels", "stream", "warm_up"]
 
 #: Estimator name -> code of ``kernels().weigh``.
 ESTIMATOR_CODES = {"weighted_mean": 0, "robust_mean": 1, "map": 2}
-
-#: From this many particles eq. 4's normals are drawn inside the kernel (``predict_drawn``;
-#: interleaved with Stone Soup, N = 100: 22 us a step with numpy's draws, 37 us in the kernel).
-DRAW_IN_KERNEL_N = 1000
 
 
 _lock = threading.Lock()
@@ -66,13 +62,98 @@ def kernels() -> SimpleNamespace:
 @functools.cache
 def _build() -> SimpleNamespace:
     import numba
+    from numba.np.random._constants import fi_float, ki_float, wi_float, ziggurat_nor_inv_r_f, ziggurat_nor_r_f
 
     jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
+    # reassociation lets LLVM vectorise the sums and maxima (only their rounding order changes)
+    fast = numba.njit(
+        cache=True, nogil=True, boundscheck=False, error_model="numpy", fastmath={"reassoc", "nsz", "contract", "nnan"}
+    )
+
+    u1, u3, u11, u24, u32, u40 = (numba.uint64(k) for k in (1, 3, 11, 24, 32, 40))
+    low32 = numba.uint64(0xFFFFFFFF)
+    f32 = numba.float32
 
     @jit
-    def predict(x, noise, std, dt, lo, hi):  # pragma: no cover - runs compiled
-        # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4); noise rows lo..hi-1 hold the normals
+    def sfc64(a, b, c, w):  # pragma: no cover - runs compiled
+        # numpy's SFC64 step on the state (a, b, c, counter w): the word, then the next state
+        out = a + b + w
+        return out, b ^ (b >> u11), c + (c << u3), ((c << u24) | (c >> u40)) + out, w + u1
+
+    @jit
+    def next32(s):  # pragma: no cover - runs compiled
+        # numpy's next_uint32 of SFC64: a word's low half, its high half kept for the next call
+        a, b, c, w, has, buf = s
+        if has:
+            return numba.uint32(buf), (a, b, c, w, numba.uint64(0), buf)
+        out, a, b, c, w = sfc64(a, b, c, w)
+        return numba.uint32(out & low32), (a, b, c, w, u1, out >> u32)
+
+    @jit
+    def next_float(s):  # pragma: no cover - runs compiled
+        r, s = next32(s)
+        return f32(f32(r >> numba.uint32(8)) * f32(1.0) / f32(16777216.0)), s
+
+    @jit
+    def normal(s):  # pragma: no cover - runs compiled
+        # numpy's random_standard_normal_f (256-layer ziggurat on 32-bit draws), every branch
+        while True:
+            r, s = next32(s)
+            idx = r & numba.uint32(0xFF)
+            rabs = (r >> numba.uint32(9)) & numba.uint32(0x7FFFFF)
+            x = f32(f32(rabs) * wi_float[idx])
+            if r & numba.uint32(0x100):
+                x = -x
+            if rabs < ki_float[idx]:
+                return x, s
+            if idx == 0:
+                # the tail beyond r: Marsaglia's exponential method
+                while True:
+                    f1, s = next_float(s)
+                    f2, s = next_float(s)
+                    xx = f32(-ziggurat_nor_inv_r_f * np.log1p(f32(-f1)))
+                    yy = f32(-np.log1p(f32(-f2)))
+                    if f32(yy + yy) > f32(xx * xx):
+                        tail = f32(ziggurat_nor_r_f + xx)
+                        return (-tail if (rabs >> numba.uint32(8)) & numba.uint32(1) else tail), s
+            f, s = next_float(s)
+            if (fi_float[idx - 1] - fi_float[idx]) * f + fi_float[idx] < f32(np.exp(-f32(0.5) * x * x)):
+                return x, s
+
+    @jit
+    def normals(state, out):  # pragma: no cover - runs compiled
+        # out[:] = N(0, 1) float32, exactly numpy's Generator(SFC64).standard_normal(out.size, dtype=float32)
+        # continuing from state (a, b, c, counter, has_uint32, uinteger), which is advanced
+        a, b, c, w, has, buf = state[0], state[1], state[2], state[3], state[4], state[5]
+        n = out.shape[0]
+        i = 0
+        while i < n:
+            if has == 0 and i + 1 < n:
+                # one word, two normals: both halves on the ziggurat's fast path (98.6 %)
+                r, a2, b2, c2, w2 = sfc64(a, b, c, w)
+                lo, hi = numba.uint32(r & low32), numba.uint32(r >> u32)
+                ra, rb = (
+                    (lo >> numba.uint32(9)) & numba.uint32(0x7FFFFF),
+                    (hi >> numba.uint32(9)) & numba.uint32(0x7FFFFF),
+                )
+                ia, ib = lo & numba.uint32(0xFF), hi & numba.uint32(0xFF)
+                if ra < ki_float[ia] and rb < ki_float[ib]:
+                    xa, xb = f32(f32(ra) * wi_float[ia]), f32(f32(rb) * wi_float[ib])
+                    out[i] = -xa if lo & numba.uint32(0x100) else xa
+                    out[i + 1] = -xb if hi & numba.uint32(0x100) else xb
+                    a, b, c, w = a2, b2, c2, w2
+                    i += 2
+                    continue
+            out[i], (a, b, c, w, has, buf) = normal((a, b, c, w, has, buf))
+            i += 1
+        state[0], state[1], state[2], state[3], state[4], state[5] = a, b, c, w, has, buf
+
+    @jit
+    def move(x, state, noise, std, dt, lo, hi, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
+        # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), the normals of rows lo..hi-1 drawn into noise first;
+        # then log Lh = -P |p - z_bar|^2 / 2 (eqs. 5-7 stacked, unnormalised) into joint; returns its maximum
         n = x.shape[1]
+        normals(state, noise[lo:hi].reshape(-1))
         for i in range(n):
             x[0, i] += dt * x[2, i]
             x[1, i] += dt * x[3, i]
@@ -80,14 +161,14 @@ def _build() -> SimpleNamespace:
             s = std[r]
             for i in range(n):
                 x[r, i] += noise[r, i] * s
-
-    @jit
-    def predict_drawn(x, rng, noise, std, dt, lo, hi):  # pragma: no cover - runs compiled
-        # predict, its normals drawn here row by row: numpy's rng.standard_normal(out=noise[lo:hi])
-        for r in range(lo, hi):
-            for i in range(x.shape[1]):
-                noise[r, i] = rng.standard_normal()
-        predict(x, noise, std, dt, lo, hi)
+        peak = -np.inf
+        for i in range(n):
+            du = x[0, i] - zu
+            dv = x[1, i] - zv
+            ll = (du * du + dv * dv) * half_prec
+            joint[i] = ll
+            peak = max(peak, ll)
+        return peak
 
     @jit
     def gaussian(x, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
@@ -133,37 +214,45 @@ def _build() -> SimpleNamespace:
             joint[i] -= peaks
         return inlier
 
-    @jit
-    def weigh(logw, joint, mode, w, x, centres, estimator, top_k):  # pragma: no cover - runs compiled
-        # mode 0: weights as they are; 1: add joint, then normalise; 2: normalise
+    @fast
+    def shift(logw, joint, add, w):  # pragma: no cover - runs compiled
+        # log w_k = log w_(k-1) + log p(z_k | x_k)   (eq. 3, logs; when add), then w = log w - max log w
         n = logw.shape[0]
-        if mode > 0:
-            peak = -np.inf
+        if add:
             for i in range(n):
-                # w_k ∝ w_(k-1) p(z_k | x_k)   (eq. 3, logs)
-                if mode == 1:
-                    logw[i] += joint[i]
-                if logw[i] > peak:
-                    peak = logw[i]
+                logw[i] += joint[i]
+        peak = -np.inf
+        for i in range(n):
+            peak = max(peak, logw[i])
+        for i in range(n):
+            w[i] = logw[i] - peak
+        return peak
+
+    @fast
+    def weigh(logw, w, peak, normalise, x, centres, estimator, top_k):  # pragma: no cover - runs compiled
+        # normalise: w holds exp(log w - peak); w~_i = w_i / sum_j w_j   (eq. 2), log w likewise
+        n = logw.shape[0]
+        if normalise:
             total = 0.0
             for i in range(n):
-                e = np.exp(logw[i] - peak)
-                w[i] = e
-                total += e
-            # w~_i = w_i / sum_j w_j   (eq. 2)
+                total += w[i]
             scale = 1.0 / total
-            shift = peak + np.log(total)
+            drop = peak + np.log(total)
             for i in range(n):
                 w[i] *= scale
-                logw[i] -= shift
+                logw[i] -= drop
         mu = 0.0
         mv = 0.0
+        eu = 0.0
+        ev = 0.0
         sw2 = 0.0
         wsum = 0.0
         for i in range(n):
             wi = w[i]
             mu += wi * x[0, i]
             mv += wi * x[1, i]
+            eu += wi * centres[0, i]
+            ev += wi * centres[1, i]
             sw2 += wi * wi
             wsum += wi
         mu /= wsum
@@ -178,12 +267,16 @@ def _build() -> SimpleNamespace:
             cuu += w[i] * du * du
             cuv += w[i] * du * dv
             cvv += w[i] * dv * dv
-        if estimator == 2:
+        if estimator == 0:
+            # x_hat = sum_i w_i p_i / sum_i w_i
+            eu /= wsum
+            ev /= wsum
+        elif estimator == 2:
             # x_hat = p_argmax(w)
             best = np.argmax(w)
             eu, ev = centres[0, best], centres[1, best]
         else:
-            k = n if estimator == 0 else top_k
+            k = top_k
             thr = -1.0 if k >= n else np.partition(w, n - k)[n - k]
             above = 0
             if k < n:
@@ -208,8 +301,8 @@ def _build() -> SimpleNamespace:
         return eu, ev, cuu, cuv, cvv, 1.0 / sw2
 
     @jit
-    def systematic(w, offset, x, out, cdf):  # pragma: no cover - runs compiled
-        # out[:, k] = x[:, i_k] for the systematic draws i_k (the copy fused into the resampling pass)
+    def systematic(w, offset, x, out, cdf, idx):  # pragma: no cover - runs compiled
+        # out[:, k] = x[:, i_k] for the systematic draws i_k; idx (N + 2 slots): the i_k
         # #{j : (j + U) / N < c_i} = ceil(N c_i - U), clipped to [0, N]; c scaled to end at exactly N
         n = w.shape[0]
         c = 0.0
@@ -222,26 +315,41 @@ def _build() -> SimpleNamespace:
         while last > 0 and cdf[last - 1] >= total:
             last -= 1
         scale = n / total
-        below_prev = 0
         k = 0
-        rows = x.shape[0]
         for i in range(n):
             nc = n if i >= last else cdf[i] * scale
             b = int(min(max(np.ceil(nc - offset), 0.0), n))
-            for _ in range(b - below_prev):
-                for r in range(rows):
-                    out[r, k] = x[r, i]
-                k += 1
-            below_prev = b
+            # usually 0-2 copies: two written unconditionally, the next particle overwrites extras
+            idx[k] = i
+            idx[k + 1] = i
+            for j in range(k + 2, b):
+                idx[j] = i
+            k = b
+        for r in range(x.shape[0]):
+            for j in range(n):
+                out[r, j] = x[r, idx[j]]
 
     return SimpleNamespace(
-        predict=predict,
-        predict_drawn=predict_drawn,
+        normals=normals,
+        move=move,
+        shift=shift,
         gaussian=gaussian,
         robust=robust,
         weigh=weigh,
         systematic=systematic,
     )
+
+
+def stream(rng: np.random.Generator) -> np.ndarray:
+    """A new SFC64 stream for :func:`kernels` ``.normals`` / ``.move``, seeded from ``rng``.
+
+    Returns the state ``(a, b, c, counter, has_uint32, uinteger)`` as 6 uint64: that of
+    ``numpy.random.SFC64(seed)`` for 128 bits ``seed`` drawn from ``rng`` (numpy's
+    SeedSequence spreads them), so the kernels' normals are exactly
+    ``Generator(SFC64(seed)).standard_normal(k, dtype=np.float32)``.
+    """
+    st = np.random.SFC64(rng.integers(0, 2**63, size=2, dtype=np.uint64)).state
+    return np.array([*st["state"]["state"], st["has_uint32"], st["uinteger"]], dtype=np.uint64)
 
 
 _warm: threading.Thread | None = None
@@ -271,10 +379,12 @@ def _compile_all() -> None:
     k = _build()
     x = np.zeros((4, 2))
     joint, w, logw = np.zeros(2), np.zeros(2), np.zeros(2)
-    k.predict(x, np.zeros((4, 2)), np.ones(4), 1.0, 0, 4)
-    for bit_generator in (np.random.PCG64, np.random.SFC64):
-        k.predict_drawn(x, np.random.Generator(bit_generator(0)), np.zeros((4, 2)), np.ones(4), 1.0, 0, 4)
+    k.move(
+        x, stream(np.random.default_rng(0)), np.zeros((4, 2), np.float32), np.ones(4), 1.0, 0, 4, 0.0, 0.0, -0.5, joint
+    )
     k.gaussian(x, 0.0, 0.0, -0.5, joint)
     k.robust(x, np.zeros((1, 6)), joint)
-    k.weigh(logw, joint, 1, w, x, x[:2], 0, 1)
-    k.systematic(w + 0.5, 0.5, x, np.zeros((4, 2)), joint)
+    peak = k.shift(logw, joint, True, w)
+    np.exp(w, out=w)
+    k.weigh(logw, w, peak, True, x, x[:2], 0, 1)
+    k.systematic(w, 0.5, x, np.zeros((4, 2)), joint, np.zeros(4, np.int64))

@@ -42,7 +42,7 @@ from fusion_pf.rng import as_rng
 
 from .base import Estimate, Tracker, check_prior, check_timestamp, fused_position
 from .estimate import ESTIMATORS
-from .kernel import DRAW_IN_KERNEL_N, ESTIMATOR_CODES, kernels, warm_up
+from .kernel import ESTIMATOR_CODES, kernels, stream, warm_up
 from .likelihood import DEFAULT_NOISE_PX, DEFAULT_OUTLIER_AREA_PX2, MIN_QUALITY, UNDERFLOW_LOG, JointLikelihood
 from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, noise_std, predict
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
@@ -219,13 +219,16 @@ class ParticleFilter(Tracker):
         self._clock = FrameClock(frame_period_ns)
         self.frame_period_ns = self._clock.frame_period_ns
         self.keep_particles = bool(keep_particles)
-        # eq. 4 draws 4 N normals per step, about half the step: an int seed gets SFC64
         self.rng = as_rng(rng, bit_generator=np.random.SFC64)
+        # eq. 4's 4 N normals per step come from the kernels' own SFC64 stream, seeded from rng
+        self._stream = stream(self.rng)
         n = self.n_particles
         # particles stored transposed (4, N): each component is one contiguous row
         self._x = np.empty((4, n))
         self._spare = np.empty((4, n))
         self._noise = np.empty((4, n))
+        self._normals = np.empty((4, n), dtype=np.float32)
+        self._idx = np.empty(n + 2, dtype=np.int64)
         self._logw = np.empty(n)
         self._w = np.empty(n)
         self._joint = np.empty(n)
@@ -329,9 +332,13 @@ class ParticleFilter(Tracker):
         sigma = {m.source: self._like.noise_px[m.source] for m in measurements}
         return np.concatenate([fused_position(measurements, sigma), [0.0, 0.0]])
 
-    def _update(self, measurements: Sequence[Measurement]) -> None:
-        """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising when the target is lost."""
-        if self._lost(measurements):
+    def _update(self, measurements: Sequence[Measurement], top: float | None = None) -> None:
+        """Weights from eqs. 5-7 then eq. 3 and eq. 2, re-initialising when the target is lost.
+
+        ``top``: the largest Gaussian log-likelihood when the prediction already computed
+        the joint likelihood into ``_joint`` (:meth:`_move`).
+        """
+        if self._lost(measurements) if top is None else top < UNDERFLOW_LOG:
             self.reinitialisations += 1
             self._initialise(self._centre_of(measurements))
             self._lost(measurements)
@@ -375,30 +382,39 @@ class ParticleFilter(Tracker):
                 self._last_ns = t
                 self._guided(ms, dt)
                 return self._finish(t)
-            self._move(dt)
+            top = self._move(dt, ms)
+            if top is not None:
+                self._last_ns = t
+                self._update(ms, top)
+                return self._finish(t)
         self._last_ns = t
         if ms:
             self._update(ms)
         return self._finish(t)
 
-    def _move(self, dt: float) -> None:
-        """The prior proposal: eq. 4 over ``dt`` frame steps (with manoeuvres when configured)."""
+    def _move(self, dt: float, ms: Sequence[Measurement]) -> float | None:
+        """The prior proposal: eq. 4 over ``dt`` frame steps (with manoeuvres when configured).
+
+        Without manoeuvres one compiled pass also computes the Gaussian likelihood of ``ms``
+        (eqs. 5-7, unnormalised) into ``_joint`` and returns its largest log value; else None.
+        """
         std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
         if self.manoeuvre[0] == 0.0:
             # components without noise (std (pos, pos, vel, vel) of 0) draw nothing
             lo = 0 if std[0] > 0.0 else 2
             hi = 4 if std[2] > 0.0 else 2
-            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), the normals from self.rng (same stream either way)
-            if self.n_particles >= DRAW_IN_KERNEL_N:
-                kernels().predict_drawn(self._x, self.rng, self._noise, std, float(dt), lo, hi)
-                return
-            if lo < hi:
-                self.rng.standard_normal(out=self._noise[lo:hi])
-            kernels().predict(self._x, self._noise, std, float(dt), lo, hi)
-            return
+            gaussian = bool(ms) and self.likelihood == "gaussian"
+            # log Lh = -P |p - z_bar|^2 / 2 - C
+            zu, zv, total, c = self._like.stacked(ms) if gaussian else (0.0, 0.0, 0.0, 0.0)
+            # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), then log Lh
+            peak = kernels().move(
+                self._x, self._stream, self._normals, std, float(dt), lo, hi, zu, zv, -0.5 * total, self._joint
+            )
+            return peak - c if gaussian else None
         # eq. 4 without its position noise, then that noise and the manoeuvres
         predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
         prior_positions(self._x, self.process_noise[0], self.manoeuvre, self.rng, dt)
+        return None
 
     def _guided(self, ms: Sequence[Measurement], dt: float) -> None:
         """Guided step: positions from the anchor cue's optimal proposal, weights from all cues.
@@ -462,8 +478,14 @@ class ParticleFilter(Tracker):
         # guided steps estimate from E[x_k | x_(k-1), z] (Rao-Blackwellised over the proposal's components)
         centres = self._x[:2] if self._expected is None else self._expected
         self._expected = None
-        u, v, cuu, cuv, cvv, ess = kernels().weigh(
-            self._logw, self._joint, self._weighed, self._w, self._x, centres, self._estimator_code, self._top_k
+        k = kernels()
+        peak = 0.0
+        if self._weighed:
+            # w = exp(log w - max log w), log w with the joint likelihood added first (eq. 3) when _weighed is 1
+            peak = k.shift(self._logw, self._joint, self._weighed == 1, self._w)
+            np.exp(self._w, out=self._w)
+        u, v, cuu, cuv, cvv, ess = k.weigh(
+            self._logw, self._w, peak, self._weighed > 0, self._x, centres, self._estimator_code, self._top_k
         )
         self._weighed = 0
         w = self._w
@@ -471,7 +493,7 @@ class ParticleFilter(Tracker):
         if resampled:
             if self.resampler == "systematic":
                 # _joint is free once weighed: the kernel's cumulative-weight buffer
-                kernels().systematic(w, self.rng.random(), self._x, self._spare, self._joint)
+                k.systematic(w, self.rng.random(), self._x, self._spare, self._joint, self._idx)
             else:
                 idx = residual_trusted(w, self.rng) if self.resampler == "residual" else self._resample(w, self.rng)
                 self._x.take(idx, axis=1, mode="clip", out=self._spare)

@@ -21,13 +21,7 @@ NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
 MS = [Measurement("colour", 320.0, 200.0), Measurement("depth", 324.0, 197.0), Measurement("skeleton", 310.0, 210.0)]
 
 
-def _clone(rng: np.random.Generator) -> np.random.Generator:
-    twin = np.random.default_rng()
-    twin.bit_generator.state = rng.bit_generator.state
-    return twin
-
-
-def test_step_reproduces_equations_3_to_7_by_hand():
+def test_step_reproduces_equations_3_to_7_by_hand(stream_normals):
     """Predict (eq. 4) and weight update (eqs. 3, 5-7) recomputed independently, to 1e-12."""
     rng = np.random.default_rng(11)
     pf = ParticleFilter(
@@ -36,7 +30,7 @@ def test_step_reproduces_equations_3_to_7_by_hand():
     pf.step(0, MS)
     x0 = pf.particles.copy()
     logw0 = pf.log_weights.copy()
-    noise = _clone(rng).standard_normal((4, 257)).T
+    noise = stream_normals(pf._stream, (4, 257)).T.astype(np.float64)
     frame = [MS[0], MS[2]]  # depth missing this frame: it must contribute nothing
     est = pf.step(1, frame)
     m = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
