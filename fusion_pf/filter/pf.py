@@ -121,8 +121,9 @@ class ParticleFilter(Tracker):
         :attr:`log_weights`); False saves that copy (benchmarks, sweeps).
     rng : numpy.random.Generator, int or None
         Random source (see :func:`fusion_pf.rng.as_rng`); an int seed or None
-        makes an SFC64 Generator, whose normals are about 20 % faster than
-        PCG64's. A Generator is used as given.
+        makes an SFC64 Generator. A Generator is used as given. Eq. 4's
+        normals (without manoeuvres) come from a second SFC64 stream seeded
+        from it at construction (:func:`~fusion_pf.filter.kernel.stream`).
 
     Attributes
     ----------
@@ -228,7 +229,7 @@ class ParticleFilter(Tracker):
         self._spare = np.empty((4, n))
         self._noise = np.empty((4, n))
         self._normals = np.empty((4, n), dtype=np.float32)
-        self._idx = np.empty(n + 2, dtype=np.int64)
+        self._idx = np.empty(n, dtype=np.int64)
         self._logw = np.empty(n)
         self._w = np.empty(n)
         self._joint = np.empty(n)

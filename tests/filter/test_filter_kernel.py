@@ -131,7 +131,7 @@ def test_systematic_and_residual_match_the_numpy_resamplers(n):
     w[: n // 3] = 0.0 if n > 2 else w[: n // 3]
     w /= w.sum()
     x = _cloud(n)
-    out, cdf, idx = np.empty_like(x), np.empty(n), np.empty(n + 2, np.int64)
+    out, cdf, idx = np.empty_like(x), np.empty(n), np.empty(n, np.int64)
     # trailing zero weights: rounding must never hand them a copy
     for weights in (w, np.where(np.arange(n) < n - n // 2, w, 0.0) if n > 2 else w):
         weights = weights / weights.sum()
