@@ -123,7 +123,8 @@ class ParticleFilter(Tracker):
         Random source (see :func:`fusion_pf.rng.as_rng`); an int seed or None
         makes an SFC64 Generator. A Generator is used as given. Eq. 4's
         normals (without manoeuvres) come from a second SFC64 stream seeded
-        from it at construction (:func:`~fusion_pf.filter.kernel.stream`).
+        from it by the first step that draws them
+        (:func:`~fusion_pf.filter.kernel.stream`).
 
     Attributes
     ----------
@@ -221,8 +222,8 @@ class ParticleFilter(Tracker):
         self.frame_period_ns = self._clock.frame_period_ns
         self.keep_particles = bool(keep_particles)
         self.rng = as_rng(rng, bit_generator=np.random.SFC64)
-        # eq. 4's 4 N normals per step come from the kernels' own SFC64 stream, seeded from rng
-        self._stream = stream(self.rng)
+        # eq. 4's 4 N normals per step come from the kernels' own SFC64 stream, seeded from rng when first used
+        self._stream: np.ndarray | None = None
         n = self.n_particles
         # particles stored transposed (4, N): each component is one contiguous row
         self._x = np.empty((4, n))
@@ -407,6 +408,8 @@ class ParticleFilter(Tracker):
             gaussian = bool(ms) and self.likelihood == "gaussian"
             # log Lh = -P |p - z_bar|^2 / 2 - C
             zu, zv, total, c = self._like.stacked(ms) if gaussian else (0.0, 0.0, 0.0, 0.0)
+            if self._stream is None:
+                self._stream = stream(self.rng)
             # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), then log Lh
             peak = kernels().move(
                 self._x, self._stream, self._normals, std, float(dt), lo, hi, zu, zv, -0.5 * total, self._joint
