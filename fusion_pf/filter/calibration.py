@@ -98,14 +98,16 @@ the cue was known one bin lower: on far-hand-sharp-960 the 0.2 px depth cue, lea
 quality 0.5-0.75, was fused at 18 px when its quality crossed 0.75 (frames 22-24, 61-66, 100-103),
 the 5-6 px skeleton and the biased colour took over and those frames were 2.5-4 px off: two thirds of
 the scene's squared error. A more confident measurement of a cue is taken as no noisier than a less
-confident one: once the next lower bin holds :data:`BORROW_MIN` residuals, its noise bounds the
-target this bin's estimate is shrunk towards (the bin's own residuals take over as they come, with
-the weight ``n / (n + PRIOR_COUNT)``; floor and bound stay the prior's). Fewer residuals below are no
-evidence (the first frames' fits against an unsettled prediction: skeleton-lit-400 fused 1.43 ->
-1.76 px when any lower bin counted). Tune split, filter-only reruns over seeds 0-2
-(together with the guided first step, :meth:`~fusion_pf.filter.pf.ParticleFilter._guided_start`):
-far-hand-sharp-960 fused 0.83 -> 0.63 px, big-1280 2.42 -> 1.99, dark-skin-320 1.09 -> 0.94; the
-scene where a lower bin of a biased cue was fitted small, skeleton-best, 2.22 -> 2.45.
+confident one: once the next lower bin, of quality :data:`SELF_QUALITY` or more, holds
+:data:`BORROW_MIN` residuals, its noise bounds the target this bin's estimate is shrunk towards
+(the bin's own residuals take over as they come, with the weight ``n / (n + PRIOR_COUNT)``; floor
+and bound stay the prior's). Fewer residuals below are no evidence (the first frames' fits against
+an unsettled prediction: skeleton-lit-400 fused 1.43 -> 1.76 px when any lower bin counted), nor
+are the bins below :data:`SELF_QUALITY`, where the biased blobs are (skeleton-best: a colour blob of
+quality 0.2 fitted 1.3 px lent it to quality 0.3-0.45, fused 2.22 -> 2.45 px). Tune split,
+filter-only reruns over seeds 0-2 (with the guided first step,
+:meth:`~fusion_pf.filter.pf.ParticleFilter._guided_start`): far-hand-sharp-960 fused 0.83 -> 0.61
+px, big-1280 2.42 -> 1.97, skeleton-best 2.22 -> 2.22.
 """
 
 from __future__ import annotations
@@ -454,7 +456,7 @@ class NoiseCalibration:
         b = quality_bin(m.quality)
         if b > 0 and m.source not in PROBABILITY_QUALITY:
             lower = replace(m, quality=math.nextafter(b / QUALITY_BINS, 0.0))
-            if self.samples(m.source, lower.quality) >= BORROW_MIN:
+            if lower.quality >= SELF_QUALITY and self.samples(m.source, lower.quality) >= BORROW_MIN:
                 # a more confident measurement is no noisier: the next lower bin's noise bounds this one's target
                 target = min(s0, self.sigma(lower))
         fit = self._fit((m.source, b))

@@ -420,12 +420,12 @@ def test_a_bin_without_residuals_is_no_noisier_than_the_bin_below_once_that_one_
     def prior(m):
         return starting_sigma(5.0, m)
 
-    def fed(frames):
+    def fed(frames, quality=0.6):
         cal = NoiseCalibration(prior)
         gen = np.random.default_rng(2)
         for _ in range(frames):
             palm = gen.uniform(50, 250, 2)
-            ms = [Measurement(s, *(palm + gen.normal(0, sd, 2)), quality=0.6) for s, sd in (("a", 1.0), ("b", 2.0))]
+            ms = [Measurement(s, *(palm + gen.normal(0, sd, 2)), quality=quality) for s, sd in (("a", 1.0), ("b", 2.0))]
             cal.update(ms, {m.source: cal.sigma(m) for m in ms})
         return cal
 
@@ -440,3 +440,8 @@ def test_a_bin_without_residuals_is_no_noisier_than_the_bin_below_once_that_one_
     assert early.sigma(up) == pytest.approx(prior(up))
     # a less confident bin borrows nothing from a more confident one
     assert known.sigma(Measurement("a", 0.0, 0.0, quality=0.3)) == pytest.approx(prior(Measurement("a", 0, 0, 0.3)))
+    # nor from a bin below SELF_QUALITY (the biased low-quality blobs of the lit scenes)
+    low = fed(2 * BORROW_MIN, quality=0.4)
+    mid = Measurement("a", 0.0, 0.0, quality=0.6)
+    assert low.sigma(Measurement("a", 0.0, 0.0, quality=0.4)) < 0.5 * prior(mid)
+    assert low.sigma(mid) == pytest.approx(prior(mid))
