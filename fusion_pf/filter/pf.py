@@ -430,8 +430,10 @@ class ParticleFilter(Tracker):
         drawing it blind and weighting it by the cues (100 particles spread 20 px leave the weighted
         mean ~2 px off a 0.2 px cue), the positions are drawn from the optimal proposal of that
         prior given the anchor cue (:meth:`_guided_draw` from the centre, position noise
-        ``init_spread_px``, no manoeuvre), every particle's expected position is the same posterior
-        mean, and the other cues weigh them as in a guided step. The velocities keep their initial draw.
+        ``init_spread_px``, no manoeuvre). With the anchor alone (one cue, or the Gaussian
+        likelihood's product of all) every particle expects the same posterior mean, the estimate;
+        other cues weigh the drawn positions as in a guided step, and the estimate averages those.
+        The velocities keep their initial draw.
         """
         self._x[:2] = self._centre[:2, None]
         self._guided_draw(ms, 1.0, self.init_spread_px, (0.0, 0.0))
