@@ -91,6 +91,23 @@ Tune split: skeleton-best-960 fused 6.37 -> 2.94 px (its confident depth blob, 1
 unbiased depth cue goes lower), ratio mean 1.03 -> 0.94, no scene worse by more than 3 %. With two
 cues the split is not identifiable (half each): far-hand-sharp-960's depth is estimated 0.3 px slow
 (truth 0) beside colour's 0.33 (truth 0.65).
+
+Bins without samples. A cue whose quality enters a bin for the first time has no residuals there,
+and the bin's noise was its configured prior, ``sigma / q`` (:func:`starting_sigma`), however well
+the cue was known one bin lower: on far-hand-sharp-960 the 0.2 px depth cue, learned at 1.1 px in
+quality 0.5-0.75, was fused at 18 px when its quality crossed 0.75 (frames 22-24, 61-66, 100-103),
+the 5-6 px skeleton and the biased colour took over and those frames were 2.5-4 px off: two thirds of
+the scene's squared error. A more confident measurement of a cue is taken as no noisier than a less
+confident one: once the next lower bin, of quality :data:`SELF_QUALITY` or more, holds
+:data:`BORROW_MIN` residuals, its noise bounds the target this bin's estimate is shrunk towards
+(the bin's own residuals take over as they come, with the weight ``n / (n + PRIOR_COUNT)``; floor
+and bound stay the prior's). Fewer residuals below are no evidence (the first frames' fits against
+an unsettled prediction: skeleton-lit-400 fused 1.43 -> 1.76 px when any lower bin counted), nor
+are the bins below :data:`SELF_QUALITY`, where the biased blobs are (skeleton-best: a colour blob of
+quality 0.2 fitted 1.3 px lent it to quality 0.3-0.45, fused 2.22 -> 2.45 px). Tune split,
+filter-only reruns over seeds 0-2 (with the guided first step,
+:meth:`~fusion_pf.filter.pf.ParticleFilter._guided_start`): far-hand-sharp-960 fused 0.83 -> 0.61
+px, big-1280 2.42 -> 1.97, skeleton-best 2.22 -> 2.22.
 """
 
 from __future__ import annotations
@@ -98,6 +115,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -107,6 +125,7 @@ from fusion_pf.frame import Measurement
 from .likelihood import DEFAULT_NOISE_PX, MIN_QUALITY, PROBABILITY_QUALITY
 
 __all__ = [
+    "BORROW_MIN",
     "BOUND",
     "DEFAULT_EPS",
     "FLOOR",
@@ -171,6 +190,9 @@ SLOW_FACTOR = 1.25
 SLOW_FLOOR = 0.35
 #: Frames a pair of cues needs before its slow offset counts (:func:`slow_offset`).
 SLOW_MIN = 20
+#: Residuals a quality bin needs before its noise bounds the next higher bin's shrinkage target
+#: (module docstring, "Bins without samples").
+BORROW_MIN = 20
 #: ``-ln(1 - 0.99)``: a core residual's ``r / (sigma^2 + p)`` is beyond it 1 % of the time.
 _TAIL = -math.log(0.01)
 
@@ -423,11 +445,23 @@ class NoiseCalibration:
         return self._slow.get(source)
 
     def sigma(self, m: Measurement, scale: float = 1.0) -> float:
-        """Noise of ``m`` in px at palm scale ``scale``: the bin's learned core noise shrunk towards the prior."""
+        """Noise of ``m`` in px at palm scale ``scale``: the bin's learned core noise shrunk towards the prior.
+
+        The shrinkage target is the configured prior (:attr:`prior`), at most the noise of the same
+        source one quality bin lower once that bin holds :data:`BORROW_MIN` residuals (module
+        docstring, "Bins without samples"); the bounds stay the prior's.
+        """
         s0 = self.prior(m)
-        fit = self._fit((m.source, quality_bin(m.quality)))
+        target = s0
+        b = quality_bin(m.quality)
+        if b > 0 and m.source not in PROBABILITY_QUALITY:
+            lower = replace(m, quality=math.nextafter(b / QUALITY_BINS, 0.0))
+            if lower.quality >= SELF_QUALITY and self.samples(m.source, lower.quality) >= BORROW_MIN:
+                # a more confident measurement is no noisier: the next lower bin's noise bounds this one's target
+                target = min(s0, self.sigma(lower))
+        fit = self._fit((m.source, b))
         if fit is None:
-            return s0 * scale
+            return target * scale
         var, _, n = fit
         low = min(self.floor, s0)
         white = self.white(m.source, m.quality) if m.quality >= SELF_QUALITY else None
@@ -443,7 +477,7 @@ class NoiseCalibration:
         learned = min(max(math.sqrt(var), low), s0 * BOUND)
         # log sigma = (n0 log sigma_0 + n log sigma_hat) / (n0 + n)
         w = n / (self.prior_count + n)
-        return s0 ** (1.0 - w) * learned**w * scale
+        return target ** (1.0 - w) * learned**w * scale
 
     def outlier(self, m: Measurement) -> float:
         """Outlier probability of ``m``: the bin's learned share shrunk towards :data:`DEFAULT_EPS`."""

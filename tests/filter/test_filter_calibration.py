@@ -7,6 +7,7 @@ import pytest
 
 from fusion_pf.errors import InputError
 from fusion_pf.filter.calibration import (
+    BORROW_MIN,
     FLOOR,
     PRIOR_COUNT,
     QUALITY_BINS,
@@ -411,3 +412,36 @@ def test_a_smooth_biased_cue_keeps_its_floor_where_an_unbiased_one_goes_below():
     low = max(SLOW_FACTOR * math.sqrt(cal.white("sharp", 0.9) + cal.slow("sharp")), SLOW_FLOOR * FLOOR)
     assert low < FLOOR
     assert cal.sigma(Measurement("sharp", 0, 0, quality=0.9)) == pytest.approx(shrunk * low**w)
+
+
+def test_a_bin_without_residuals_is_no_noisier_than_the_bin_below_once_that_one_is_known():
+    # issue 23, far-hand-sharp-960: a 0.2 px cue learned one quality bin lower was fused at its 1 / q
+    # prior (15x) in the frames its quality crossed into a bin without residuals
+    def prior(m):
+        return starting_sigma(5.0, m)
+
+    def fed(frames, quality=0.6):
+        cal = NoiseCalibration(prior)
+        gen = np.random.default_rng(2)
+        for _ in range(frames):
+            palm = gen.uniform(50, 250, 2)
+            ms = [Measurement(s, *(palm + gen.normal(0, sd, 2)), quality=quality) for s, sd in (("a", 1.0), ("b", 2.0))]
+            cal.update(ms, {m.source: cal.sigma(m) for m in ms})
+        return cal
+
+    up = Measurement("a", 0.0, 0.0, quality=0.8)
+    known = fed(BORROW_MIN)
+    assert known.samples("a", 0.8) == 0 and known.samples("a", 0.6) == BORROW_MIN
+    below = known.sigma(Measurement("a", 0.0, 0.0, quality=0.6))
+    assert below < 0.5 * prior(up)  # learned well below the prior
+    assert known.sigma(up) <= below  # the empty bin starts from the bin below
+    # fewer residuals below are no evidence: the empty bin keeps its prior
+    early = fed(BORROW_MIN - 1)
+    assert early.sigma(up) == pytest.approx(prior(up))
+    # a less confident bin borrows nothing from a more confident one
+    assert known.sigma(Measurement("a", 0.0, 0.0, quality=0.3)) == pytest.approx(prior(Measurement("a", 0, 0, 0.3)))
+    # nor from a bin below SELF_QUALITY (the biased low-quality blobs of the lit scenes)
+    low = fed(2 * BORROW_MIN, quality=0.4)
+    mid = Measurement("a", 0.0, 0.0, quality=0.6)
+    assert low.sigma(Measurement("a", 0.0, 0.0, quality=0.4)) < 0.5 * prior(mid)
+    assert low.sigma(mid) == pytest.approx(prior(mid))
