@@ -89,6 +89,11 @@ LANDMARK_MODELS = ("full", "full_mixed", "full_int8", "lite")
 PALM_MODELS = ("full", "full_int8", "lite")
 #: Default re-centring threshold (:class:`HandLandmarker` ``recentre``): a fraction of the ROI side.
 RECENTRE = 0.17
+#: Default lead of a tracked ROI (:class:`HandLandmarker` ``lead``): the share of the last frame's ROI motion
+#: it is moved ahead by.
+LEAD = 0.5
+#: Motion of the ROI, as a fraction of its side, that :func:`led_roi` ignores (jitter of a still hand).
+LEAD_DEADBAND = 0.02
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
 #: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
@@ -339,6 +344,23 @@ def landmarks_roi(landmarks: np.ndarray) -> HandRoi:
     return _transform(u, v, w, h, rot, 2.0, -0.1)
 
 
+def led_roi(previous: np.ndarray, before: np.ndarray | None, lead: float) -> HandRoi:
+    """This frame's hand ROI from the last two frames' landmarks ``(21, 2+)`` (``before`` None: no motion known).
+
+    :func:`landmarks_roi` of ``previous`` (MediaPipe's), moved ahead by ``lead`` x the motion of that ROI's
+    centre since ``before``'s beyond :data:`LEAD_DEADBAND` x its side (the landmarks of a hand
+    re-posing in place jitter: moving ahead with that would be noise); size and rotation are ``previous``'s.
+    """
+    roi = landmarks_roi(previous)
+    if before is None or lead == 0.0:
+        return roi
+    last = landmarks_roi(before)
+    du, dv = roi.u - last.u, roi.v - last.v
+    moved = math.hypot(du, dv)
+    k = lead * max(0.0, 1.0 - LEAD_DEADBAND * roi.size / moved) if moved > 0 else 0.0
+    return HandRoi(roi.u + k * du, roi.v + k * dv, roi.size, roi.rotation)
+
+
 def hand_measurement(obs: HandObservation, mode: str) -> Measurement:
     """The palm-centre measurement of an observation (source ``"hand"``, quality = presence score).
 
@@ -548,6 +570,10 @@ class HandLandmarker:
         Re-run the landmark model on the ROI of its own landmarks when that ROI's
         centre is more than ``recentre`` x the ROI side from the ROI it was given
         (> 0); None = never (MediaPipe).
+    lead : float
+        :meth:`track` moves the previous landmarks' ROI ahead by this share of its
+        motion over the last frame (:func:`led_roi`), >= 0; 0 = MediaPipe's ROI.
+        The default :data:`LEAD` halves the re-centring calls on the development frames.
     landmark_model : str
         Hand-landmark model, one of :data:`LANDMARK_MODELS`: ``"full_mixed"``
         (the default: MediaPipe's full model in int8 but its input stage and last two
@@ -577,6 +603,7 @@ class HandLandmarker:
         nms_iou: float = 0.3,
         max_hands: int = 2,
         recentre: float | None = RECENTRE,
+        lead: float = LEAD,
         landmark_model: str = "full_mixed",
         palm_model: str = "full",
         model_dir: str | Path | None = None,
@@ -596,6 +623,9 @@ class HandLandmarker:
         ):
             raise InputError(f"recentre must be a positive number or None, got {recentre!r}")
         self.recentre = None if recentre is None else float(recentre)
+        if isinstance(lead, bool) or not isinstance(lead, (int, float)) or not 0 <= lead < math.inf:
+            raise InputError(f"lead must be a number >= 0, got {lead!r}")
+        self.lead = float(lead)
         for name, variant, known in (
             ("landmark_model", landmark_model, LANDMARK_MODELS),
             ("palm_model", palm_model, PALM_MODELS),
@@ -666,7 +696,11 @@ class HandLandmarker:
         return [o for o in found if o is not None]
 
     def track(
-        self, rgb: np.ndarray, previous: HandObservation | None, roi_hint: tuple[float, float, float] | None = None
+        self,
+        rgb: np.ndarray,
+        previous: HandObservation | None,
+        roi_hint: tuple[float, float, float] | None = None,
+        before: HandObservation | None = None,
     ) -> tuple[HandObservation | None, str]:
         """One hand, MediaPipe's video mode: follow the previous landmarks, detect only without a track.
 
@@ -676,6 +710,10 @@ class HandLandmarker:
             The frame.
         previous : HandObservation or None
             Last frame's observation; its landmarks give this frame's ROI.
+        before : HandObservation or None
+            The observation of the frame before ``previous`` (None: unknown or no
+            hand there); the ROI is moved ahead by ``lead`` x the motion between
+            the two (:func:`led_roi`).
         roi_hint : (u, v, size) or None
             A prior (e.g. the particle filter's prediction): palm centre and a
             hand-sized square side in pixels. Tried when the landmark ROI finds
@@ -689,11 +727,14 @@ class HandLandmarker:
             ``"track"`` (previous landmarks' ROI), ``"hint"`` (the hint's ROI) or
             ``"detect"`` (whole-frame palm detection, also when nothing was found).
         """
-        if previous is not None and not isinstance(previous, HandObservation):
-            raise InputError(f"previous must be a HandObservation or None, got {type(previous).__name__}")
+        for name, given in (("previous", previous), ("before", before)):
+            if given is not None and not isinstance(given, HandObservation):
+                raise InputError(f"{name} must be a HandObservation or None, got {type(given).__name__}")
         hint_uvs = self._check_hint(roi_hint)
         if previous is not None:
-            obs = self.landmarks(rgb, landmarks_roi(previous.landmarks))
+            obs = self.landmarks(
+                rgb, led_roi(previous.landmarks, None if before is None else before.landmarks, self.lead)
+            )
             if obs is not None:
                 return obs, "track"
         hint = None
@@ -840,6 +881,8 @@ class HandCue:
         self.flow = flow
         self.hint = Backoff()
         self.previous: HandObservation | None = None
+        #: The observation of the frame before :attr:`previous` when :attr:`previous` followed it (else None).
+        self.before: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
 
     @property
@@ -851,7 +894,7 @@ class HandCue:
 
     def reset(self) -> None:
         """Forget the tracked hands."""
-        self.previous = None
+        self.previous = self.before = None
         self.hands = []
         self.hint.reset()
         if self.flow is not None:
@@ -883,13 +926,15 @@ class HandCue:
         obs = None if self.flow is None else self.flow.follow(frame.color, self.previous)
         mode = "flow"
         if obs is None:
-            obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint)
+            obs, mode = self.landmarker.track(frame.color, self.previous, roi_hint=hint, before=self.before)
             if obs is not None:
                 self.hint.reset()  # a hand: the prior's window is worth a try as soon as it is lost
             elif hint is not None:  # the prior's window was tried and held no hand
                 self.hint.failed()
         if self.flow is not None:
             self.flow.remember(frame.color, obs, carried=mode == "flow")
+        # the motion is known only when this hand was followed from the last frame's
+        self.before = self.previous if mode in ("track", "flow") else None
         self.previous = obs
         m = None if obs is None else hand_measurement(obs, mode)
         return CueResult(m, {}, time.perf_counter_ns() - t0)
