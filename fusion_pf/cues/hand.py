@@ -21,9 +21,9 @@ MediaPipe's graphs:
    only when there is no track.
 
 Two additions to MediaPipe. **Lead**: the tracked ROI is moved ahead by ``lead``
-x the motion of the landmark ROI over the last frame (:func:`led_roi`; motion
-below :data:`LEAD_DEADBAND` of the ROI side, the jitter of a hand re-posing in
-place, is ignored), so a hand moving steadily stays centred in its first crop.
+x the motion of the landmark ROI over the last frame when the hand moved more than
+:data:`LEAD_FROM` of the ROI side (:func:`led_roi`), so a hand moving fast and
+steadily stays centred in its first crop.
 **Re-centring**: when the hand moved fast or changed speed, the ROI taken from
 the previous frames is off-centre and can cut the fingers; when the
 ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
@@ -102,8 +102,10 @@ RECENTRE = 0.17
 #: Default lead of a tracked ROI (:class:`HandLandmarker` ``lead``): the share of the last frame's ROI motion
 #: it is moved ahead by.
 LEAD = 0.5
-#: Motion of the ROI, as a fraction of its side, that :func:`led_roi` ignores (jitter of a still hand).
-LEAD_DEADBAND = 0.02
+#: Least motion of the ROI over the last frame, as a fraction of its side, that :func:`led_roi` leads by: a
+#: slower hand stays well inside MediaPipe's ROI, and leading the jitter of a hand re-posing in place moved
+#: every crop (0.4 px on the fused palm's median on the development canvas, 4 PF seeds).
+LEAD_FROM = 0.1
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
 #: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
@@ -358,17 +360,17 @@ def led_roi(previous: np.ndarray, before: np.ndarray | None, lead: float) -> Han
     """This frame's hand ROI from the last two frames' landmarks ``(21, 2+)`` (``before`` None: no motion known).
 
     :func:`landmarks_roi` of ``previous`` (MediaPipe's), moved ahead by ``lead`` x the motion of that ROI's
-    centre since ``before``'s beyond :data:`LEAD_DEADBAND` x its side (the landmarks of a hand
-    re-posing in place jitter: moving ahead with that would be noise); size and rotation are ``previous``'s.
+    centre since ``before``'s when that motion is more than :data:`LEAD_FROM` x its side (else not
+    moved); size and rotation are ``previous``'s.
     """
     roi = landmarks_roi(previous)
     if before is None or lead == 0.0:
         return roi
     last = landmarks_roi(before)
     du, dv = roi.u - last.u, roi.v - last.v
-    moved = math.hypot(du, dv)
-    k = lead * max(0.0, 1.0 - LEAD_DEADBAND * roi.size / moved) if moved > 0 else 0.0
-    return HandRoi(roi.u + k * du, roi.v + k * dv, roi.size, roi.rotation)
+    if math.hypot(du, dv) <= LEAD_FROM * roi.size:
+        return roi
+    return HandRoi(roi.u + lead * du, roi.v + lead * dv, roi.size, roi.rotation)
 
 
 def hand_measurement(obs: HandObservation, mode: str) -> Measurement:

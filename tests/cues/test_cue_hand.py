@@ -404,17 +404,17 @@ def test_led_roi_keeps_a_steadily_moving_hand_to_one_call(lead):
     assert abs(m.u - true_u) < 10.0  # and the palm is where the hand is
 
 
-def test_led_roi_moves_ahead_by_the_lead_share_of_the_last_motion():
+def test_led_roi_moves_ahead_by_the_lead_share_of_a_fast_motion():
     refs, _ = expected("asl_hand_001.jpg")
-    now = refs[0][:, :2] + [30.0, -10.0]
-    roi, last = landmarks_roi(now), landmarks_roi(refs[0])
-    led = hand.led_roi(now, refs[0], 0.5)
-    beyond = 1.0 - hand.LEAD_DEADBAND * roi.size / math.hypot(30.0, 10.0)  # the motion past the deadband
-    assert (led.u, led.v) == pytest.approx((roi.u + 15.0 * beyond, roi.v - 5.0 * beyond))
+    last = landmarks_roi(refs[0])
+    fast = refs[0][:, :2] + [0.3 * last.size, -0.1 * last.size]
+    roi = landmarks_roi(fast)
+    led = hand.led_roi(fast, refs[0], 0.5)
+    assert (led.u, led.v) == pytest.approx((roi.u + 0.15 * last.size, roi.v - 0.05 * last.size))
     assert (led.size, led.rotation) == pytest.approx((roi.size, roi.rotation)) and last.size == pytest.approx(roi.size)
-    assert hand.led_roi(now, None, 0.5) == roi == hand.led_roi(now, refs[0], 0.0)
-    jitter = refs[0][:, :2] + [0.5 * hand.LEAD_DEADBAND * roi.size, 0.0]
-    assert hand.led_roi(jitter, refs[0], 0.5) == landmarks_roi(jitter)  # within the deadband: not moved
+    assert hand.led_roi(fast, None, 0.5) == roi == hand.led_roi(fast, refs[0], 0.0)
+    slow = refs[0][:, :2] + [0.9 * hand.LEAD_FROM * last.size, 0.0]
+    assert hand.led_roi(slow, refs[0], 0.5) == landmarks_roi(slow)  # a slow hand: MediaPipe's ROI
 
 
 def test_hand_threads_option_reaches_the_landmarker():
