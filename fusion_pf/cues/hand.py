@@ -29,12 +29,14 @@ the previous frames is off-centre and can cut the fingers; when the
 ROI from the new landmarks lies more than ``recentre`` x the ROI side away from
 the ROI the model saw, the landmark model runs once more on the new ROI. Every
 other tracked frame costs exactly one landmark call (:attr:`HandLandmarker.calls`
-counts them). With the default :data:`LEAD` 0.5 a second call is made on 3 of the
-105 tracked development frames below (the jumps of 107-158 px) instead of 6, the
-hand cue's palm RMSE / median / p95 10.08 / 8.87 / 16.31 px instead of
-10.10 / 8.85 / 17.06 px (crops: 5.92 / 4.65 / 10.34 and 5.91 / 4.62 / 10.34 px;
-without the deadband 6.03 px); ``lead`` 0.7 or 1.0 save one more call and lose
-0.4-0.7 px RMSE. The figures that follow are without lead (``lead=0``).
+counts them). With the default :data:`LEAD` 0.5 a second call is made on 4 of the
+105 tracked development frames below (jumps of 107-158 px) instead of 6, the
+hand cue's palm RMSE / median / p95 10.03 / 8.37 / 16.89 px instead of
+10.10 / 8.85 / 17.06 px (crops: 5.91 / 4.70 / 10.39 and 5.91 / 4.62 / 10.34 px, no
+second call); ``lead`` 0.7 or 1.0 save no call. Leading every motion (also below
+:data:`LEAD_FROM`) saves one more call but moves the crops of a hand re-posing in
+place: the fused palm's median on the canvas rose 0.4 px.
+The figures that follow are without lead (``lead=0``).
 On the hand-graph-cnn development frames (1280 x 720, hand moving
 up to 158 px per frame) the palm RMSE is 12.9 px without re-centring (p95 17.7,
 max 60 px), 9.9 px with ``recentre`` = 0.1 (a second call on a quarter of the
