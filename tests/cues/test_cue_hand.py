@@ -334,14 +334,17 @@ def test_recentring_recovers_an_off_centre_roi(hl, angle):
     assert once_err > 2 * twice_err  # the hand cut by the stale ROI is placed much worse
 
 
-def _moving_hand(step: float, frames: int) -> list[np.ndarray]:
-    """``asl_hand_001.jpg`` with the hand moving ``step`` x its tracking-ROI side to the right per frame."""
+def _moving_hand(step: float, frames: int, *, widen: bool = False) -> list[np.ndarray]:
+    """``asl_hand_001.jpg`` with the hand moving ``step`` x its tracking-ROI side to the right per frame
+    (from 2 steps left of its place; ``widen``: from its place, the frame widened to keep the hand in it)."""
     rgb = load("asl_hand_001.jpg")
     refs, _ = expected("asl_hand_001.jpg")
     dx = step * landmarks_roi(refs[0]).size
     h, w = rgb.shape[:2]
-    shifts = [np.array([[1.0, 0.0, (k - 2) * dx], [0.0, 1.0, 0.0]]) for k in range(frames)]
-    return [cv2.warpAffine(rgb, m, (w, h), borderMode=cv2.BORDER_REPLICATE) for m in shifts]
+    first = 0 if widen else 2
+    size = (w + round((frames - 1) * dx), h) if widen else (w, h)
+    shifts = [np.array([[1.0, 0.0, (k - first) * dx], [0.0, 1.0, 0.0]]) for k in range(frames)]
+    return [cv2.warpAffine(rgb, m, size, borderMode=cv2.BORDER_REPLICATE) for m in shifts]
 
 
 @pytest.mark.parametrize("step", [0.0, 0.15])
@@ -376,6 +379,42 @@ def test_only_a_large_jump_is_recentred():
         n = lm.calls["landmark"]
         obs, mode = lm.track(video[1], prev)
         assert mode == "track" and lm.calls["landmark"] - n == calls
+
+
+@pytest.mark.parametrize("lead", [hand.LEAD, 0.0])
+def test_led_roi_keeps_a_steadily_moving_hand_to_one_call(lead):
+    """Issue 25: a hand moving 0.25 ROI per frame (past ``recentre``) costs two landmark calls on the first
+    tracked frame only: from then on the ROI is moved ahead with the last frame's motion and the model runs
+    once per frame. MediaPipe's ROI (``lead`` 0) re-centres on every frame."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import HandCue
+
+    cue = HandCue(HandLandmarker(lead=lead))
+    video = _moving_hand(0.25, 6, widen=True)
+    assert cue.measure(_frame(video[0]), CueContext()).measurement.extras["mode"] == "detect"
+    calls = []
+    for i, rgb in enumerate(video[1:], 1):
+        n = cue.landmarker.calls["landmark"]
+        m = cue.measure(_frame(rgb, i), CueContext()).measurement
+        assert m is not None and m.extras["mode"] == "track"
+        calls.append(cue.landmarker.calls["landmark"] - n)
+    assert calls == ([2, 1, 1, 1, 1] if lead else [2] * 5)
+    refs, _ = expected("asl_hand_001.jpg")
+    true_u = refs[0][list(hand.PALM_JOINTS), 0].mean() + 5 * 0.25 * landmarks_roi(refs[0]).size
+    assert abs(m.u - true_u) < 10.0  # and the palm is where the hand is
+
+
+def test_led_roi_moves_ahead_by_the_lead_share_of_a_fast_motion():
+    refs, _ = expected("asl_hand_001.jpg")
+    last = landmarks_roi(refs[0])
+    fast = refs[0][:, :2] + [0.3 * last.size, -0.1 * last.size]
+    roi = landmarks_roi(fast)
+    led = hand.led_roi(fast, refs[0], 0.5)
+    assert (led.u, led.v) == pytest.approx((roi.u + 0.15 * last.size, roi.v - 0.05 * last.size))
+    assert (led.size, led.rotation) == pytest.approx((roi.size, roi.rotation)) and last.size == pytest.approx(roi.size)
+    assert hand.led_roi(fast, None, 0.5) == roi == hand.led_roi(fast, refs[0], 0.0)
+    slow = refs[0][:, :2] + [0.9 * hand.LEAD_FROM * last.size, 0.0]
+    assert hand.led_roi(slow, refs[0], 0.5) == landmarks_roi(slow)  # a slow hand: MediaPipe's ROI
 
 
 def test_hand_threads_option_reaches_the_landmarker():
@@ -498,6 +537,8 @@ def test_bad_roi_hint(hl, hint):
         ({"nms_iou": 0.0}, "nms_iou"),
         ({"recentre": 0.0}, "recentre"),
         ({"recentre": "yes"}, "recentre"),
+        ({"lead": -0.5}, "lead"),
+        ({"lead": True}, "lead"),
         ({"min_detection": "high"}, "min_detection"),
     ],
 )
@@ -514,6 +555,8 @@ def test_missing_model_is_an_input_error(tmp_path):
 def test_previous_must_be_an_observation(hl):
     with pytest.raises(InputError, match="HandObservation"):
         hl.track(np.zeros((50, 50, 3), np.uint8), np.zeros((21, 3)))
+    with pytest.raises(InputError, match="before must be a HandObservation"):
+        hl.track(np.zeros((50, 50, 3), np.uint8), None, before=np.zeros((21, 3)))
 
 
 def test_observation_needs_21_landmarks():
