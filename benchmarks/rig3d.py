@@ -7,10 +7,13 @@ last K cameras without depth) is rendered and tracked by
 left_hand)`` and default options; printed per scene, seed and hand: the 3-D
 RMSE (mm) against ``/ground_truth/world``, its median, the RMSE over the
 instants at which one camera cannot see the hand (``--occlude auto``: a card
-in front of one camera hides each hand once; ``/ground_truth/visibility``), at the instants one
+in front of one camera hides each hand once; ``/ground_truth/visibility``), the RMSE while the hands are joined
+(true centres closer than the world tracker's combine distance, :data:`fusion_pf.pipeline.world.COMBINE_MM`: one
+blob of the two) and while apart, at the instants one
 camera alone sees the hand the error along and across that camera's line of sight (RMS; the depth
 along a single line of sight is what one camera leaves unobserved), coverage and identity
-swaps (:func:`fusion_pf.score.targets.score_world`). Beside it, the
+swaps (:func:`fusion_pf.score.targets.score_world`); pooled per scene, the joined error split into the pair's
+midpoint ``(r + l) / 2`` and half-offset ``(r - l) / 2`` (each hand's error is their sum or difference). Beside it, the
 single-camera depth back-projection on the same scene: cam0's view alone
 (``McapReplay(camera="cam0")``) tracked by the 2-D pipeline
 (:func:`fusion_pf.pipeline.track`, same targets), each hand's ``xyz_mm``
@@ -39,7 +42,7 @@ import numpy as np
 from drivers.mcap_replay import McapReplay
 from drivers.rig import RigReplay
 from fusion_pf.pipeline import TrackConfig, track
-from fusion_pf.pipeline.world import track_world
+from fusion_pf.pipeline.world import COMBINE_MM, track_world
 from fusion_pf.score.targets import score_world
 
 HANDS = ("right_hand", "left_hand")
@@ -99,6 +102,29 @@ def along_across(data: dict, t: str) -> tuple[np.ndarray, np.ndarray]:
     return np.abs(along), np.linalg.norm(e - along[:, None] * d, axis=1)
 
 
+def joined_mask(data: dict) -> np.ndarray:
+    """Instants the two hands' true centres are closer than :data:`COMBINE_MM` (joined: one blob of the two)."""
+    a, b = (data["truths"][t] for t in HANDS)
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(a - b, axis=1) < COMBINE_MM
+
+
+def pair_errors(data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """While joined (:func:`joined_mask`), the error of the pair's midpoint ``(r + l) / 2`` and of its half-offset
+    ``(r - l) / 2`` (mm, instants both hands have an estimate): each hand's error is their sum or difference."""
+    er, el = (data["positions"][t] for t in HANDS)
+    tr, tl = (data["truths"][t] for t in HANDS)
+    ok = joined_mask(data) & np.isfinite(er).all(axis=1) & np.isfinite(el).all(axis=1)
+    mid = np.linalg.norm((er + el)[ok] / 2 - (tr + tl)[ok] / 2, axis=1)
+    half = np.linalg.norm((er - el)[ok] / 2 - (tr - tl)[ok] / 2, axis=1)
+    return mid, half
+
+
+def rms(values: np.ndarray) -> float:
+    """Root mean square, NaN for none."""
+    return float(np.sqrt(np.mean(values**2))) if values.size else math.nan
+
+
 def single_camera(path: Path, config: TrackConfig, truths: dict[str, np.ndarray]) -> dict:
     """cam0 alone through the 2-D pipeline, its depth back-projection moved to the world: per hand positions."""
     with RigReplay(path) as rig:
@@ -130,12 +156,13 @@ def main(argv: list[str] | None = None) -> int:
     config = TrackConfig(targets=HANDS)
     print(
         "| seeds | cameras | colour-only | seed | hand | 3-D RMSE (mm) | median (mm) | RMSE while a camera cannot see it (mm, instants) "
-        "| along / across the one seeing camera's line of sight (RMS mm, instants) "
+        "| along / across the one seeing camera's line of sight (RMS mm, instants) | joined / apart RMSE (mm, instants joined) "
         "| coverage | swaps | ms/instant | cam0 back-projection RMSE (mm) | its median (mm) | its coverage | its swaps |"
     )
-    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     pooled: dict[tuple[str, int, int], list[float]] = {}
     ray_errors: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
+    pairs: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for group, seeds in groups:
             for seed in (int(s) for s in seeds.split(",") if s):
@@ -145,6 +172,10 @@ def main(argv: list[str] | None = None) -> int:
                     data, silent, ms = world(path, config)
                     res = score_world(**{k: v for k, v in data.items() if k != "alone"})
                     base = score_world(**single_camera(path, config, data["truths"]))
+                    joined = joined_mask(data)
+                    mid, half = pair_errors(data)
+                    pairs.setdefault((group, cameras, colour_only), ([], []))[0].extend(mid.tolist())
+                    pairs[(group, cameras, colour_only)][1].extend(half.tolist())
                     for t in HANDS:
                         r, b = res["targets"][t], base["targets"][t]
                         err = res["errors"][t]
@@ -154,11 +185,12 @@ def main(argv: list[str] | None = None) -> int:
                         along, across = along_across(data, t)
                         ray_errors.setdefault((group, cameras, colour_only), ([], []))[0].extend(along.tolist())
                         ray_errors[(group, cameras, colour_only)][1].extend(across.tolist())
-                        rms_along = float(np.sqrt(np.mean(along**2))) if along.size else math.nan
-                        rms_across = float(np.sqrt(np.mean(across**2))) if across.size else math.nan
+                        rms_along, rms_across = rms(along), rms(across)
+                        ok = np.isfinite(err)
                         print(
                             f"| {group} | {cameras} | {colour_only} | {seed} | {t} | {r['rmse_mm']:.1f} | "
-                            f"{r['median_mm']:.1f} | {hidden_rmse:.1f} ({hidden.size}) | {rms_along:.1f} / {rms_across:.1f} ({along.size}) | {100 * r['coverage']:.1f} % | "
+                            f"{r['median_mm']:.1f} | {hidden_rmse:.1f} ({hidden.size}) | {rms_along:.1f} / {rms_across:.1f} ({along.size}) | "
+                            f"{rms(err[ok & joined]):.1f} / {rms(err[ok & ~joined]):.1f} ({int((ok & joined).sum())}) | {100 * r['coverage']:.1f} % | "
                             f"{res['swaps']} | {ms:.0f} | {b['rmse_mm']:.1f} | {b['median_mm']:.1f} | "
                             f"{100 * b['coverage']:.1f} % | {base['swaps']} |",
                             flush=True,
@@ -168,10 +200,12 @@ def main(argv: list[str] | None = None) -> int:
     for (group, cameras, colour_only), errs in pooled.items():
         e = np.array(errs)
         a, c = (np.array(v) for v in ray_errors[(group, cameras, colour_only)])
-        ratio = f"{np.sqrt(np.mean(a**2)):.1f} / {np.sqrt(np.mean(c**2)):.1f} mm" if a.size else "-"
+        ratio = f"{rms(a):.1f} / {rms(c):.1f} mm" if a.size else "-"
+        mid, half = (np.array(v) for v in pairs[(group, cameras, colour_only)])
         print(
-            f"  {group:8s} {cameras} cameras, {colour_only} colour-only: {np.sqrt(np.mean(e**2)):.1f} mm; "
-            f"one camera seeing it ({a.size} instants), along / across its line of sight: {ratio}"
+            f"  {group:8s} {cameras} cameras, {colour_only} colour-only: {rms(e):.1f} mm; "
+            f"one camera seeing it ({a.size} instants), along / across its line of sight: {ratio}; "
+            f"joined ({mid.size} instants), the pair's midpoint / half-offset: {rms(mid):.1f} / {rms(half):.1f} mm"
         )
     return 0
 

@@ -51,7 +51,8 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    from its skeleton joint (:data:`REACH_JOINTS`: a hand from its elbow, the joint in the world
    from the depth cameras' joint depths or two cameras' lines of sight, :func:`_joint_world`; the
    distance's mean and spread learned online at the instants the target was measured in 3-D,
-   :class:`_Reach`), a :class:`~fusion_pf.filter.world.RangeObservation`: the line of sight
+   :class:`_Reach`; before any, the population's, :data:`REACH_PRIOR_MM`), a
+   :class:`~fusion_pf.filter.world.RangeObservation`: the line of sight
    leaves the depth along it unobserved, the range fixes it where the line crosses the shell;
    and at the depth its region's apparent size gives (the colour region's inscribed radius in px,
    the palm's half-width, times the depth over ``fx``: the size in mm learned online per camera at
@@ -137,6 +138,8 @@ __all__ = [
     "REACH_JOINTS",
     "REACH_MIN_SAMPLES",
     "REACH_MIN_SIGMA_MM",
+    "REACH_PRIOR_MM",
+    "REACH_PRIOR_SIGMA_MM",
     "RESEED_AGREE_MM",
     "SIZE_MIN_SAMPLES",
     "SIZE_MIN_SIGMA_MM",
@@ -198,6 +201,12 @@ REACH_JOINTS = {"right_hand": "right_elbow", "left_hand": "left_elbow"}
 #: The kinematic range is used once learned from this many instants with the target measured in 3-D; its noise is the
 #: learned spread, at least :data:`REACH_MIN_SIGMA_MM` (mm). Not tuned.
 REACH_MIN_SAMPLES, REACH_MIN_SIGMA_MM = 10, 10.0
+#: Before that (a hand one camera alone sees from the start of a recording, never measured in 3-D yet) the range is the
+#: population's: an adult's elbow to wrist is about 265 mm (anthropometric surveys, forearm length 250-280 mm), the
+#: wrist to the palm's centre about 50 mm; the noise covers the population's spread and the wrist's bend (mm). Not
+#: tuned. Without it such a hand random-walked along the line of sight with the process noise (held-out seed 41, two
+#: cameras, one colour-only: the right hand hidden from the depth camera for the first 37 instants, 5 -> 71 mm).
+REACH_PRIOR_MM, REACH_PRIOR_SIGMA_MM = 315.0, 30.0
 #: A colour-only camera's apparent size of a target (:class:`_Size`) is used once learned from this many instants with
 #: the target measured in 3-D; its noise is the learned spread, at least :data:`SIZE_MIN_SIGMA_MM` (mm). Not tuned.
 SIZE_MIN_SAMPLES, SIZE_MIN_SIGMA_MM = 10, 1.0
@@ -506,14 +515,16 @@ class _Reach(_Running):
     Learned (running mean and variance, Welford) at the instants the target was measured in 3-D (a depth camera's
     point, or two cameras' lines of sight); used as a :class:`~fusion_pf.filter.world.RangeObservation` while one
     camera alone measures it: a single line of sight leaves the depth along it unobserved, and the filter drifted
-    along it.
+    along it. Before :data:`REACH_MIN_SAMPLES` were learned, the population's range (:data:`REACH_PRIOR_MM`).
     """
 
-    def observation(self, joint_mm: np.ndarray) -> RangeObservation | None:
-        """The range from ``joint_mm``, None before :data:`REACH_MIN_SAMPLES` distances were learned."""
+    def observation(self, joint_mm: np.ndarray) -> RangeObservation:
+        """The range from ``joint_mm``: the learned one, or before :data:`REACH_MIN_SAMPLES` distances were learned the
+        population's (:data:`REACH_PRIOR_MM`)."""
+        centre = np.asarray(joint_mm, dtype=np.float64)
         if self.count < REACH_MIN_SAMPLES:
-            return None
-        return RangeObservation(np.asarray(joint_mm, dtype=np.float64), self.mean, self.sigma(REACH_MIN_SIGMA_MM))
+            return RangeObservation(centre, REACH_PRIOR_MM, REACH_PRIOR_SIGMA_MM)
+        return RangeObservation(centre, self.mean, self.sigma(REACH_MIN_SIGMA_MM))
 
 
 class _Size(_Running):

@@ -312,6 +312,17 @@ def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_nois
         assert target.noise_scale == (MAX_WORLD_NOISE_SCALE if moved else 1.0)
 
 
+def _one_line_setup(rig2):
+    """The colour-only set-up of the one-line-of-sight tests: the config, both cameras' cue stages, cam1's intrinsics,
+    the right hand's true position at the first tracked instant and the unit direction of cam1's line of sight to it."""
+    config = TrackConfig(targets=HANDS, cues=("colour",))
+    frames = rig2.frames(BACKGROUND)
+    cams = {name: _Camera(name, config, frame, rig2.poses[name]) for name, frame in frames.items()}
+    here = rig2.truth_mm(BACKGROUND)["right_hand"]
+    d = here - cams["cam1"].pose.translation_mm
+    return config, cams["cam0"], cams["cam1"], frames["cam1"].intrinsics, here, d / np.linalg.norm(d)
+
+
 def test_a_hand_one_camera_sees_is_held_at_its_learned_distance_from_its_elbow(rig2):
     # measured in 3-D (cam0's point, cam1's pixel) 300 mm from its elbow for 15 instants, the hand then moves 120 mm
     # along cam1's line of sight with its elbow in 30 instants, seen by cam1 alone (the same pixel): held at the
@@ -319,14 +330,7 @@ def test_a_hand_one_camera_sees_is_held_at_its_learned_distance_from_its_elbow(r
     from fusion_pf.filter.world import PixelObservation
     from fusion_pf.pipeline.world import _WorldTarget
 
-    config = TrackConfig(targets=HANDS, cues=("colour",))
-    frames = rig2.frames(BACKGROUND)
-    cams = {name: _Camera(name, config, frame, rig2.poses[name]) for name, frame in frames.items()}
-    cam0, cam1 = cams["cam0"], cams["cam1"]
-    intr = frames["cam1"].intrinsics
-    here = rig2.truth_mm(BACKGROUND)["right_hand"]
-    d = here - cam1.pose.translation_mm
-    d /= np.linalg.norm(d)
+    config, cam0, cam1, intr, here, d = _one_line_setup(rig2)
     there = here + 120.0 * d
     elbow = here + 300.0 * np.array([0.6, 0.0, 0.8])
     (u, v) = project(here[None], cam1.pose, intr)[0][0]
@@ -465,14 +469,7 @@ def test_a_hand_one_colour_only_camera_sees_follows_its_pixel_across_the_line_of
     from fusion_pf.pipeline import world
     from fusion_pf.pipeline.world import _WorldTarget
 
-    config = TrackConfig(targets=HANDS, cues=("colour",))
-    frames = rig2.frames(BACKGROUND)
-    cams = {name: _Camera(name, config, frame, rig2.poses[name]) for name, frame in frames.items()}
-    cam0, cam1 = cams["cam0"], cams["cam1"]
-    intr = frames["cam1"].intrinsics
-    here = rig2.truth_mm(BACKGROUND)["right_hand"]
-    d = here - cam1.pose.translation_mm
-    d /= np.linalg.norm(d)
+    config, cam0, cam1, intr, here, d = _one_line_setup(rig2)
     side = np.cross(d, [0.0, 1.0, 0.0])
     there = here + 150.0 * side / np.linalg.norm(side)
     point = (cam0, intr, Measurement("colour", 0.0, 0.0, 1.0), PointObservation(here, 60.0))
@@ -493,3 +490,31 @@ def test_a_hand_one_colour_only_camera_sees_follows_its_pixel_across_the_line_of
         across[scale] = float(np.linalg.norm(np.cross(est - o, (there - o) / np.linalg.norm(there - o))))
     assert across[1.0] > 15.0  # measured 27 mm
     assert across[scaled] < 8.0  # measured 0.4 mm
+
+
+def test_a_hand_one_camera_sees_before_any_3d_instant_is_held_at_the_populations_reach(rig2):
+    # acquired from cam0's point at the first instant, the (still) hand is then seen by cam1 alone for 40 instants,
+    # never measured in 3-D: nothing is learned of its distance from its elbow (REACH_PRIOR_MM away), so the
+    # population's holds the depth along cam1's line of sight; without the elbow it random-walks along it
+    from fusion_pf.filter.world import PixelObservation
+    from fusion_pf.pipeline.world import REACH_PRIOR_MM, _WorldTarget
+
+    config, cam0, cam1, intr, here, d = _one_line_setup(rig2)
+    side = np.cross(d, [0.0, 1.0, 0.0])
+    elbow = here + REACH_PRIOR_MM * (0.6 * d + 0.8 * side / np.linalg.norm(side))
+    (u, v) = project(here[None], cam1.pose, intr)[0][0]
+    pixel = (cam1, intr, Measurement("colour", u, v, 1.0), PixelObservation(np.array([u, v]), 60.0, cam1.pose, intr))
+    point = (cam0, intr, Measurement("colour", 0.0, 0.0, 1.0), PointObservation(here, 60.0))
+    along = {}
+    for joint in (True, False):
+        runs = []
+        for seed in range(4):
+            target = _WorldTarget("right_hand", config, np.random.default_rng(seed))
+            for k in range(41):
+                if target.filter.initialised:
+                    target.filter.predict(k * 33_333_333)
+                est, _ = target.step(k * 33_333_333, [point, pixel] if k == 0 else [pixel], elbow if joint else None)
+            runs.append(abs(float((est - here) @ d)))
+        along[joint] = float(np.sqrt(np.mean(np.square(runs))))  # RMS over filter seeds 0-3
+    assert along[False] > 18.0  # measured 28 mm (13-46 per seed)
+    assert along[True] < 12.0  # measured 4.5 mm (0.3-6.4 per seed)
