@@ -4,9 +4,6 @@ One :meth:`ParticleFilter.step` per frame runs the paper's phases in order:
 
 1. initialisation (first step only): particles around the first available
    measurements (their precision-weighted mean) or around ``prior``, weights 1/N;
-   with ``proposal="guided"`` the first step draws the positions given the cues
-   from that cloud as prior (:meth:`ParticleFilter._guided_start`), so the first
-   estimate carries no Monte Carlo error of a blind 20 px cloud;
 2. dynamic model: constant-velocity prediction (eq. 4), one frame step per call
    (see :mod:`fusion_pf.filter.motion`), optionally with manoeuvres (a
    heavy-tailed mixture, :mod:`fusion_pf.filter.proposal`); with
@@ -326,8 +323,7 @@ class ParticleFilter(Tracker):
         self.rng.standard_normal(out=self._x)
         # x_i = centre + spread (x) N(0, I)
         self._x *= std[:, None]
-        self._centre = np.asarray(centre, dtype=np.float64)
-        self._x += self._centre[:, None]
+        self._x += np.asarray(centre, dtype=np.float64)[:, None]
         # w_i = 1 / N
         self._logw.fill(-math.log(self.n_particles))
         self._w.fill(1.0 / self.n_particles)
@@ -382,11 +378,7 @@ class ParticleFilter(Tracker):
             if not ms:
                 return None
             self._initialise(self._centre_of(ms))
-        if self._last_ns is None and self.proposal == "guided" and ms:
-            self._last_ns = t
-            self._guided_start(ms)
-            return self._finish(t)
-        if self._last_ns is not None:
+        elif self._last_ns is not None:
             dt = self._clock.steps(t, self._last_ns)
             if self.proposal == "guided" and ms:
                 self._last_ns = t
@@ -441,30 +433,6 @@ class ParticleFilter(Tracker):
         std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
         # velocity: v_k = v_(k-1) + sigma_v N(0, I); positions: mu = p_(k-1) + dt v_(k-1)
         predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
-        self._guided_draw(ms, dt, self.process_noise[0], self.manoeuvre)
-
-    def _guided_start(self, ms: Sequence[Measurement]) -> None:
-        """First guided step of a particle set: its initial positions drawn given the cues.
-
-        The initial cloud ``N(centre, init_spread^2)`` is the prior of the first frame; instead of
-        drawing it blind and weighting it by the cues (100 particles spread 20 px leave the weighted
-        mean ~2 px off a 0.2 px cue), the positions are drawn from the optimal proposal of that
-        prior given the anchor cue (:meth:`_guided_draw` from the centre, position noise
-        ``init_spread_px``, no manoeuvre). With the anchor alone (one cue, or the Gaussian
-        likelihood's product of all) every particle expects the same posterior mean, the estimate;
-        other cues weigh the drawn positions as in a guided step, and the estimate averages those.
-        The velocities keep their initial draw.
-        """
-        self._x[:2] = self._centre[:2, None]
-        self._guided_draw(ms, 1.0, self.init_spread_px, (0.0, 0.0))
-        if self._weighed == 1:
-            # every particle expects the same position given the anchor alone: the other cues' weights
-            # tell apart only the drawn positions, which the estimate therefore averages
-            self._expected = None
-
-    def _guided_draw(self, ms: Sequence[Measurement], dt: float, q: float, manoeuvre: tuple[float, float]) -> None:
-        """Positions from the anchor cue's optimal proposal around ``self._x[:2]`` (position noise ``q`` px per step,
-        ``manoeuvre``), weights from all cues (:meth:`_guided`)."""
         like = self._like
         if like.likelihood == "gaussian":
             prec = np.array([1.0 / like.noise_px[m.source] ** 2 for m in ms])
@@ -472,12 +440,12 @@ class ParticleFilter(Tracker):
             z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
             sigma, rest, outlier = 1.0 / math.sqrt(prec.sum()), [], None
         else:
-            anchor = self._anchor(ms, dt * q * q)
+            anchor = self._anchor(ms, dt)
             z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
             rest = [m for m in ms if m is not anchor]
             outlier = (like.outlier(anchor), like.outlier_area_px2)
         log_ev, self._expected, inlier = guided_positions(
-            self._x[:2], self._x[2:], q, manoeuvre, z, sigma, self.rng, outlier=outlier, dt=dt
+            self._x[:2], self._x[2:], self.process_noise[0], self.manoeuvre, z, sigma, self.rng, outlier=outlier, dt=dt
         )
         if rest:
             inlier = (not self._lost(rest)) or inlier
@@ -491,11 +459,11 @@ class ParticleFilter(Tracker):
         self._logw += log_ev
         self._weighed = 1 if rest else 2
 
-    def _anchor(self, ms: Sequence[Measurement], step_var: float) -> Measurement:
+    def _anchor(self, ms: Sequence[Measurement], dt: float) -> Measurement:
         """The guided proposal's anchor: the most precise of the cues the prediction can explain.
 
         A cue the prediction explains lies within the chi-square 99 % gate of 2 degrees of freedom,
-        ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` (``step_var = dt q^2``) with ``mu, P`` the particles' predicted mean
+        ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` with ``mu, P`` the particles' predicted mean
         and per-axis variance (velocities already applied: ``self._x`` holds ``p + dt v``); without
         such a cue, the most precise of all (the palm moved beyond the motion model). A precise cue
         that jumped to a wrong blob then only weighs the particles (its robust likelihood), instead
@@ -504,7 +472,7 @@ class ParticleFilter(Tracker):
         """
         like = self._like
         mu_u, mu_v, spread = self._moments(self._x[:2])
-        var = spread + step_var
+        var = spread + dt * self.process_noise[0] ** 2
         near = [m for m in ms if (m.u - mu_u) ** 2 + (m.v - mu_v) ** 2 <= GATE * (like.sigma(m) ** 2 + var)]
         return min(near or ms, key=like.expected_variance)
 
