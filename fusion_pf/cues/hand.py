@@ -764,6 +764,11 @@ class Backoff:
         self._next = 1
 
 
+#: Frames in a row without a hand after which the hand cue searches the whole frame on every other frame only
+#: (:class:`HandCue`: an idle palm detector rests on the others).
+IDLE_AFTER = 3
+
+
 #: Weight of one frame in a tracked hand's smoothed handedness (a time constant of 5 frames).
 HANDEDNESS_RATE = 0.2
 #: Most confidence a handedness label gets: the model's handedness is evidence, never certain.
@@ -797,6 +802,17 @@ class HandCue:
     the next 1, 2, 4, ... frames (:class:`Backoff`; palm detection still runs
     on every frame, as MediaPipe's): another cue tracking a hand the model does
     not see cost a landmark call per frame for nothing.
+
+    **Idle search**: once :data:`IDLE_AFTER` frames in a row found no hand
+    (whole-frame palm detection included), an acquisition frame (``ctx.search``:
+    the tracker lost the target and every cue searches the whole frame) with no
+    previous landmarks *rests* on every other frame: no model call, no
+    measurement, ``CueResult.rested`` (``track`` counts these frames per cue).
+    A lost hand so costs the palm detector on half the acquisition frames, and
+    a hand that appears is found at most one frame later by this cue (the depth
+    and colour cues search every frame). Frames with a prior (another cue
+    tracking) never rest. MediaPipe runs the detector on every frame without a
+    hand.
 
     Several hands (``ctx.hands`` >= 2, MediaPipe's ``max_num_hands``): every
     tracked hand is followed with its previous landmarks' ROI; while fewer than
@@ -841,6 +857,8 @@ class HandCue:
         self.hint = Backoff()
         self.previous: HandObservation | None = None
         self.hands: list[tuple[HandObservation, float]] = []
+        self.misses = 0  # frames in a row without a hand
+        self.rested = False  # whether the last frame rested (idle search: never two in a row)
 
     @property
     def landmarker(self) -> HandLandmarker:
@@ -854,6 +872,7 @@ class HandCue:
         self.previous = None
         self.hands = []
         self.hint.reset()
+        self.misses, self.rested = 0, False
         if self.flow is not None:
             self.flow.reset()
 
@@ -880,6 +899,10 @@ class HandCue:
             hint = (float(ctx.prior[0]), float(ctx.prior[1]), float(max(roi.x1 - roi.x0, roi.y1 - roi.y0)))
         if hint is not None and self.previous is None and not self.hint.ready():
             hint = None  # no hand at the prior in the last frames: whole-frame detection only (MediaPipe's)
+        # idle search: after IDLE_AFTER frames without a hand, whole-frame detection on every other frame only
+        self.rested = ctx.search and self.previous is None and self.misses >= IDLE_AFTER and not self.rested
+        if self.rested:
+            return CueResult(None, {}, time.perf_counter_ns() - t0, rested=True)
         obs = None if self.flow is None else self.flow.follow(frame.color, self.previous)
         mode = "flow"
         if obs is None:
@@ -891,6 +914,7 @@ class HandCue:
         if self.flow is not None:
             self.flow.remember(frame.color, obs, carried=mode == "flow")
         self.previous = obs
+        self.misses = 0 if obs is not None else self.misses + 1
         m = None if obs is None else hand_measurement(obs, mode)
         return CueResult(m, {}, time.perf_counter_ns() - t0)
 

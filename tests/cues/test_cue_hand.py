@@ -617,3 +617,41 @@ def test_prior_window_without_a_hand_is_tried_less_and_less_often(hl):
         cue.measure(_frame(empty, i), ctx)
         tried.append(hl.calls["landmark"] - n)
     assert tried == [0, 1, 0, 0]
+
+
+def test_idle_search_runs_palm_detection_on_every_other_acquisition_frame(hl):
+    """Issue 25: a lost hand cost the palm detector on every acquisition frame (the whole frame searched
+    by every cue); after IDLE_AFTER frames without a hand the cue rests on every other one (no model call,
+    counted as rested), a hand that appears is found by the next search, and a prior never rests."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import IDLE_AFTER, HandCue
+    from fusion_pf.cues.roi import Roi, full_roi
+
+    image = load("asl_hand_000.jpg")
+    h, w = image.shape[:2]
+    empty = np.full_like(image, 128)
+    search = CueContext(roi=full_roi(w, h), search=True)
+    cue = HandCue(hl)
+    ran, rested = [], []
+    for i in range(IDLE_AFTER + 6):
+        n = hl.calls["palm"]
+        result = cue.measure(_frame(empty, i), search)
+        ran.append(hl.calls["palm"] - n)
+        rested.append(result.rested)
+        assert result.measurement is None
+    assert IDLE_AFTER == 3
+    assert ran == [1, 1, 1, 0, 1, 0, 1, 0, 1]
+    assert rested == [not r for r in ran]
+    # the hand appears on a resting frame: found on the next one, then followed (never resting while found)
+    assert cue.measure(_frame(image, 9), search).rested
+    m = cue.measure(_frame(image, 10), search).measurement
+    assert m is not None and m.extras["mode"] == "detect"
+    assert cue.measure(_frame(image, 11), search).measurement is not None
+    # lost again: IDLE_AFTER searches before the first rest
+    assert [cue.measure(_frame(empty, 12 + i), search).rested for i in range(5)] == [False] * 3 + [True, False]
+    # with a prior (another cue tracks): no rest, whatever the misses
+    ctx = CueContext(roi=Roi(w // 4, h // 4, 3 * w // 4, 3 * h // 4), prior=(w / 2, h / 2))
+    assert not any(cue.measure(_frame(empty, 17 + i), ctx).rested for i in range(4))
+    # a reset (a new stream) searches at once
+    cue.reset()
+    assert not cue.measure(_frame(empty, 21), search).rested
