@@ -121,6 +121,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
+from typing import cast
 
 import cv2
 import numpy as np
@@ -334,7 +336,7 @@ class DepthCue:
         are kept, their holes filled, and the largest gives the measurement (``extras["refined"]``): the
         centroid of a full-resolution region, not of every ``step``-th pixel of it. ``m`` unchanged when
         nothing is left there."""
-        bx, by, bw, bh = m.extras["bbox"]
+        bx, by, bw, bh = cast("Sequence[int]", m.extras["bbox"])  # the region's [x, y, w, h], full-frame px
         pad = REFINE_PAD * step
         win = Roi(
             max(roi.x0, bx - pad),
