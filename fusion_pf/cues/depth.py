@@ -156,6 +156,8 @@ NOISE_SLAB_SIGMAS = 2.0
 REFINE_PAD = 2
 #: Second differences needed to measure the noise; fewer give sigma 0 (the fixed slab).
 MIN_NOISE_SAMPLES = 50
+#: Most first pixels of triples :func:`depth_noise_mm` reads (every k-th of the mask's, evenly spread).
+MAX_NOISE_PIXELS = 4096
 
 
 def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float) -> float:
@@ -172,11 +174,15 @@ def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float) 
     sigma is ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist.
     Only the mask's valid pixels are read, by flat index (a whole-frame search's coarse region is
     1-2 % of the frame, spread over all of it: 0.3 ms as whole-image differences, 0.09 ms so).
+    A large region's triples start at every k-th of its pixels only, at most :data:`MAX_NOISE_PIXELS`
+    (a 1280 x 720 search or window: 1.0 -> 0.5 ms, sigma within 1.4 % of all pixels' on synthetic
+    frames, the slab's far limit within a millimetre).
     """
     h, w = mask.shape
     m = np.ravel(mask.astype(bool, copy=False) & (depth > 0))
     z = np.ravel(depth)
     first = np.flatnonzero(m)  # the first pixel of each triple
+    first = first[:: -(-first.size // MAX_NOISE_PIXELS)] if first.size > MAX_NOISE_PIXELS else first  # evenly spread
     rows, cols = np.divmod(first, w)
     diffs = []
     for inside, stride in ((cols < w - 2 * lag, lag), (rows < h - 2 * lag, lag * w)):  # along rows, columns
