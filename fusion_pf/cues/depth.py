@@ -156,11 +156,12 @@ NOISE_SLAB_SIGMAS = 2.0
 REFINE_PAD = 2
 #: Second differences needed to measure the noise; fewer give sigma 0 (the fixed slab).
 MIN_NOISE_SAMPLES = 50
-#: Most first pixels of triples :func:`depth_noise_mm` reads (every k-th of the mask's, evenly spread).
+#: Most first pixels of triples :func:`depth_noise_mm` reads in a reduced whole-frame search (every k-th of
+#: the mask's, evenly spread).
 MAX_NOISE_PIXELS = 4096
 
 
-def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float) -> float:
+def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float, max_pixels: int | None = None) -> float:
     """Robust depth noise sigma (mm) at the depth ``at_mm`` of the pixels in ``mask``: MAD of the
     second differences ``w[i - lag] - 2 w[i] + w[i + lag]`` of the inverse depth ``w = 1 / z``
     along rows and columns, all three pixels in ``mask``, times ``at_mm ** 2``.
@@ -174,15 +175,17 @@ def depth_noise_mm(depth: np.ndarray, mask: np.ndarray, lag: int, at_mm: float) 
     sigma is ``sqrt(6) sigma``. 0 when fewer than :data:`MIN_NOISE_SAMPLES` differences exist.
     Only the mask's valid pixels are read, by flat index (a whole-frame search's coarse region is
     1-2 % of the frame, spread over all of it: 0.3 ms as whole-image differences, 0.09 ms so).
-    A large region's triples start at every k-th of its pixels only, at most :data:`MAX_NOISE_PIXELS`
-    (a 1280 x 720 search or window: 1.0 -> 0.5 ms, sigma within 1.4 % of all pixels' on synthetic
-    frames, the slab's far limit within a millimetre).
+    With ``max_pixels`` the triples start at every k-th of the mask's pixels only, at most
+    ``max_pixels`` (a reduced whole-frame search passes :data:`MAX_NOISE_PIXELS`: at 1280 x 720 with a
+    person 1.0 -> 0.5 ms, sigma within 1.4 % of all pixels' on synthetic frames; not in tracking
+    windows, where it moved one synthetic scene's fused RMSE by +21 %).
     """
     h, w = mask.shape
     m = np.ravel(mask.astype(bool, copy=False) & (depth > 0))
     z = np.ravel(depth)
     first = np.flatnonzero(m)  # the first pixel of each triple
-    first = first[:: -(-first.size // MAX_NOISE_PIXELS)] if first.size > MAX_NOISE_PIXELS else first  # evenly spread
+    if max_pixels is not None and first.size > max_pixels:
+        first = first[:: -(-first.size // max_pixels)]  # every k-th, evenly spread
     rows, cols = np.divmod(first, w)
     diffs = []
     for inside, stride in ((cols < w - 2 * lag, lag), (rows < h - 2 * lag, lag * w)):  # along rows, columns
@@ -453,7 +456,8 @@ class DepthCue:
         if self.nearest_mm is not None and d5.any():
             near = d1[d5 > 0]  # valid depths of the coarse region
             z0 = float(np.partition(near, near.size // 50)[near.size // 50])  # nearest surface: 2nd percentile
-            sigma = depth_noise_mm(d1, d5 > 0, max(1, round(NOISE_LAG_PX / step)), z0)  # the noise at z0
+            lag = max(1, round(NOISE_LAG_PX / step))
+            sigma = depth_noise_mm(d1, d5 > 0, lag, z0, MAX_NOISE_PIXELS if step > 1 else None)  # the noise at z0
             slab = float(np.hypot(self.nearest_mm, NOISE_SLAB_SIGMAS * sigma))  # widths add in variance
             # the nearest surface's slab: d1 <= z0 + slab, i.e. <= its floor (integer depths)
             far = math.floor(z0 + slab)
