@@ -441,7 +441,7 @@ def print_summary(
         f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
         f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)\n"
         f"models: fusion-pf hand landmarks {setup[0]}, palm detector {setup[2]} "
-        f"({CueOptions().hand_search_palm_model} on its acquisition frames); "
+        f"({CueOptions().hand_search_palm_model or setup[2]} on its acquisition frames); "
         f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models); "
         f"fusion-pf cues {','.join(cues) if cues else 'auto (as track)'}"
     )

@@ -146,12 +146,13 @@ class CueOptions:
         "full detector quantised to int8, 0.75x its CPU time per call, the same palms on MediaPipe's test photos "
         "but a slightly worse fused p95 on the real development frames)",
     )
-    hand_search_palm_model: str = option(
+    hand_search_palm_model: str | None = option(
         _default(HandLandmarker, "search_palm_model"),
         choices=PALM_MODELS,
-        help="hand cue: palm-detection model of an acquisition frame (the target lost, the whole frame searched); "
-        "full_int8: 0.78x the full detector's CPU time per call and as good a whole-frame search on the real "
-        "development frames; tracked frames keep --hand-palm-model",
+        optional=True,
+        help="hand cue: palm-detection model of an acquisition frame (the target lost, the whole frame searched; "
+        "none: --hand-palm-model's); full_int8: 0.78x the full detector's CPU time per call, as good a whole-frame "
+        "search on the real development frames, but 0.1 px worse tracked from there",
     )
     hand_flow_frames: int = option(
         _default(LandmarkFlow, "max_frames"),

@@ -657,13 +657,15 @@ def test_idle_search_runs_palm_detection_on_every_other_acquisition_frame(hl):
     assert not cue.measure(_frame(empty, 21), search).rested
 
 
-def test_acquisition_frames_detect_palms_with_the_search_model(hl):
-    """Issue 25: an acquisition frame's whole-frame palm detection runs the int8 detector (3.8 instead of
-    4.9 ms CPU at 1280 x 720), loaded on the first such frame; tracked frames keep the float one."""
+def test_acquisition_frames_detect_palms_with_the_search_model():
+    """Issue 25: with --hand-search-palm-model full_int8 an acquisition frame's whole-frame palm detection
+    runs the int8 detector (3.8 instead of 4.9 ms CPU at 1280 x 720), loaded on the first such frame;
+    tracked frames keep the float one. By default both are the palm model."""
     from fusion_pf.cues.base import CueContext
     from fusion_pf.cues.hand import HandCue
     from fusion_pf.cues.roi import Roi, full_roi
 
+    hl = HandLandmarker(landmark_model="full", search_palm_model="full_int8")
     assert hl.palm_model == "full" and hl.search_palm_model == "full_int8"
     image = load("asl_hand_000.jpg")
     h, w = image.shape[:2]
@@ -684,6 +686,7 @@ def test_acquisition_frames_detect_palms_with_the_search_model(hl):
     ctx = CueContext(roi=Roi(w // 4, h // 4, 3 * w // 4, 3 * h // 4), prior=(w / 2, h / 2))
     assert cue.measure(_frame(empty, 1), ctx).measurement is None
     assert hl.calls["palm"] - n["palm"] == 1 and hl.calls["search_palm"] == n["search_palm"]
-    assert HandLandmarker(search_palm_model=None).search_palm_model == "full"
+    assert HandLandmarker().search_palm_model == "full"
+    assert HandLandmarker(palm_model="lite").search_palm_model == "lite"
     with pytest.raises(InputError, match="search_palm_model must be one of"):
         HandLandmarker(search_palm_model="huge")
