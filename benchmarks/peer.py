@@ -28,7 +28,12 @@ Per frame (background frames skipped):
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
 both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
 on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too; wall and CPU), each side and the
-ratio fusion-pf / MediaPipe; then, against ``/ground_truth/palm`` when the recording has it,
+ratio fusion-pf / MediaPipe; the *live* acquisition frames, each side's own in steps 1 and 2 (fusion-pf: the frames
+its tracker searched the whole frame, by its own state; MediaPipe: the frames after one without a hand), median,
+p95 and p99 of their step time, wall and CPU: what a lost hand costs in a live stream, with whatever the cues
+keep from frame to frame (the hand cue's idle search rests on every other frame, ``fusion_pf.cues.hand.HandCue``),
+which step 3's reset cues cannot show; and the p99 wall time of every frame of steps 1 and 2 (a live 30 fps stream
+has 33 ms per frame); then, against ``/ground_truth/palm`` when the recording has it,
 RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
 estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
 ``quiet`` (whatever else runs on the machine: the load average is printed) and ``busy`` (this
@@ -40,6 +45,11 @@ script keeps one core busy with a spinning process for the whole pass).
 (its full models, MediaPipe Hands' default), and optionally ``:PALM``, fusion-pf's palm detector
 (``--hand-palm-model``: ``full`` when not given, ``full_int8`` or ``lite``); e.g.
 ``full_mixed:1,full:1,lite:0,full_mixed:1:full_int8``. Every printed block names both sides' models.
+
+``--cues`` (default: ``track``'s automatic choice) sets fusion-pf's cues, as ``track --cues``: e.g.
+``hand,depth`` on a synthetic recording (which has a skeleton, so ``track`` would run the paper's colour, depth and
+skeleton) is what an RGB-D camera without body tracking runs. A recording where acquisition frames dominate:
+``fusion-pf synth OUT.mcap --size 1280x720 --away 70`` (the person away for 70 of every 100 frames).
 """
 
 from __future__ import annotations
@@ -221,7 +231,9 @@ def _acquisition_cues(rec: Path, config):
     return cues, context
 
 
-def fusion_worker(conn, rec: str, landmark_model: str = "full", palm_model: str = "full") -> None:
+def fusion_worker(
+    conn, rec: str, landmark_model: str = "full", palm_model: str = "full", cues: tuple[str, ...] | None = None
+) -> None:
     """fusion-pf side, in its own process like MediaPipe's: ``track`` on the frames ``conn`` sends.
 
     Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
@@ -236,7 +248,9 @@ def fusion_worker(conn, rec: str, landmark_model: str = "full", palm_model: str 
     from fusion_pf.cues.registry import CueOptions
     from fusion_pf.pipeline import TrackConfig, track
 
-    config = TrackConfig(cue_options=CueOptions(hand_landmark_model=landmark_model, hand_palm_model=palm_model))
+    config = TrackConfig(
+        cues=cues, cue_options=CueOptions(hand_landmark_model=landmark_model, hand_palm_model=palm_model)
+    )
     acq_cues, acq_context = _acquisition_cues(Path(rec), config)
     wait_cpu = [0.0]
 
@@ -279,7 +293,13 @@ def fusion_worker(conn, rec: str, landmark_model: str = "full", palm_model: str 
         conn.send(("result", result.frame, step, cpu, tracking, acq, acq_cpu, u, v))
 
 
-def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full", palm_model: str = "full") -> dict:
+def race(
+    rec: Path,
+    peer: MediaPipePeer,
+    landmark_model: str = "full",
+    palm_model: str = "full",
+    cues: tuple[str, ...] | None = None,
+) -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
     mode, then static-image mode), each in its own process, one after the other (the order alternating
     frame by frame)."""
@@ -295,7 +315,9 @@ def race(rec: Path, peer: MediaPipePeer, landmark_model: str = "full", palm_mode
     size = None
     ctx = mp.get_context("spawn")
     here, there = ctx.Pipe()
-    worker_proc = ctx.Process(target=fusion_worker, args=(there, str(rec), landmark_model, palm_model), daemon=True)
+    worker_proc = ctx.Process(
+        target=fusion_worker, args=(there, str(rec), landmark_model, palm_model, cues), daemon=True
+    )
     worker_proc.start()
     there.close()
 
@@ -366,10 +388,17 @@ def summarise(r: dict) -> dict:
             "acq_cpu_p99_ms": _pct(a_cpu, 99),
             "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
             "tracking_frames": int(sel.sum()),
+            "all_p99_ms": _pct(r[f"{side}_ms"], 99),
         }
+        own = r[f"{side}_track"] == 0  # the side's own acquisition frames, live (steps 1 and 2)
+        for q in (50, 95, 99):
+            name = "median" if q == 50 else f"p{q}"
+            out[side][f"live_acq_{name}_ms"] = _pct(r[f"{side}_ms"][own], q)
+            out[side][f"live_acq_cpu_{name}_ms"] = _pct(r[f"{side}_cpu"][own], q)
     keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
     acq = ("acq_median_ms", "acq_p95_ms", "acq_p99_ms", "acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")
-    for key in (*keys, *acq):
+    live = tuple(f"live_{k}" for k in acq) + ("all_p99_ms",)
+    for key in (*keys, *acq, *live):
         out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
     has_gt = np.isfinite(r["gt_u"])
     if has_gt.any():
@@ -396,14 +425,25 @@ class _Busy:
         self.proc.wait()
 
 
-def print_summary(rec: Path, condition: str, setup: tuple[str, int, str], load: tuple[float, float], s: dict) -> None:
+def print_summary(
+    rec: Path,
+    condition: str,
+    setup: tuple[str, int, str],
+    load: tuple[float, float],
+    s: dict,
+    cues: tuple[str, ...] | None = None,
+) -> None:
+    from fusion_pf.cues.registry import CueOptions
+
     w, h = s["size"]
     fp, mp = s["fp"], s["mp"]
     print(
         f"\n{rec.name}: {w}x{h}, {s['frames']} frames, condition {condition} "
         f"(load average {load[0]:.2f} -> {load[1]:.2f} on {os.cpu_count()} CPUs)\n"
-        f"models: fusion-pf hand landmarks {setup[0]}, palm detector {setup[2]}; "
-        f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models)"
+        f"models: fusion-pf hand landmarks {setup[0]}, palm detector {setup[2]} "
+        f"({CueOptions().hand_search_palm_model or setup[2]} on its acquisition frames); "
+        f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models); "
+        f"fusion-pf cues {','.join(cues) if cues else 'auto (as track)'}"
     )
     print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
     lines = [
@@ -422,6 +462,16 @@ def print_summary(rec: Path, condition: str, setup: tuple[str, int, str], load: 
         ("acquisition, CPU ms (all threads), median", "acq_cpu_median_ms"),
         ("acquisition, CPU ms, p95", "acq_cpu_p95_ms"),
         ("acquisition, CPU ms, p99", "acq_cpu_p99_ms"),
+        (
+            f"live acquisition, median (n={fp['own_acquisition_frames']}/{mp['own_acquisition_frames']}: own)",
+            "live_acq_median_ms",
+        ),
+        ("live acquisition, p95", "live_acq_p95_ms"),
+        ("live acquisition, p99", "live_acq_p99_ms"),
+        ("live acquisition, CPU ms, median", "live_acq_cpu_median_ms"),
+        ("live acquisition, CPU ms, p95", "live_acq_cpu_p95_ms"),
+        ("live acquisition, CPU ms, p99", "live_acq_cpu_p99_ms"),
+        ("every frame (live), p99", "all_p99_ms"),
     ]
     for label, key in lines:
         print(f"{label:<48} {fp[key]:10.2f} {mp[key]:10.2f} {s['ratio_' + key]:6.2f}x")
@@ -466,6 +516,10 @@ def main(argv: list[str] | None = None) -> int:
         "full, full_int8, lite) against MediaPipe's model_complexity (1 full, 0 lite); PALM: fusion-pf's palm detector "
         "(full, full_int8, lite; default full)",
     )
+    ap.add_argument(
+        "--cues",
+        help="fusion-pf's cues, comma-separated, as track --cues (default: track's automatic choice), e.g. hand,depth",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -481,6 +535,13 @@ def main(argv: list[str] | None = None) -> int:
             f"--setups must be LANDMARK:COMPLEXITY[:PALM] (full_mixed, full, full_int8 or lite; 0 or 1; full, full_int8 "
             f"or lite), got {args.setups!r}"
         )
+    cues = None
+    if args.cues is not None:
+        from fusion_pf.cues.registry import CUES
+
+        cues = tuple(c.strip() for c in args.cues.split(",") if c.strip())
+        if not cues or set(cues) - set(CUES):
+            ap.error(f"--cues must be names among {', '.join(CUES)}, comma-separated, got {args.cues!r}")
     for rec in args.recordings:
         if not rec.is_file():
             ap.error(f"recording {rec} not found")
@@ -500,11 +561,11 @@ def main(argv: list[str] | None = None) -> int:
                     before = os.getloadavg()[0]
                     if condition == "busy":
                         with _Busy():
-                            s = summarise(race(rec, peers[complexity], landmark, palm))
+                            s = summarise(race(rec, peers[complexity], landmark, palm, cues))
                     else:
-                        s = summarise(race(rec, peers[complexity], landmark, palm))
+                        s = summarise(race(rec, peers[complexity], landmark, palm, cues))
                     load = (before, os.getloadavg()[0])
-                    print_summary(rec, condition, (landmark, complexity, palm), load, s)
+                    print_summary(rec, condition, (landmark, complexity, palm), load, s, cues)
                     results[f"{rec}:{condition}:{landmark}:{complexity}:{palm}"] = {"load": load, **s}
     except FusionPFError as exc:
         print(f"peer: error: {exc}", file=sys.stderr)

@@ -242,14 +242,21 @@ values are written to the metadata.
   are part of the empty scene, so a background model learns them, but the
   colour and depth cues see them in every frame. ``clutter = N + k`` keeps the
   first ``N`` objects of ``clutter = N``. An object at hand depth may hide
-  part of an arm that passes behind it (never a palm).
+  part of an arm that passes behind it (never a palm);
+* ``away``: the person leaves the view for ``away`` frames of every
+  :data:`AWAY_CYCLE` person frames (0-95; the cycle's phase from the seed):
+  those frames show the empty room but are not background frames (no
+  skeleton, no ground truth), so a tracker loses the hand there and must find
+  it again when the person is back, mid-motion (re-acquisition; a recording
+  where acquisition frames dominate). One palm, no script.
 
 Determinism
 -----------
 The scene (background textures, motion parameters) comes from
 ``SeedSequence(seed, spawn_key=(0,))``, the sleeve and the illumination drift
 from ``spawn_key=(3,)``, the two-hand motion from ``spawn_key=(4,)``, the clutter
-from ``spawn_key=(5,)``; frame ``i``'s image noise, flicker and depth artefacts from
+from ``spawn_key=(5,)``, the phase of ``away`` from ``spawn_key=(7,)``; frame ``i``'s image noise,
+flicker and depth artefacts from
 ``spawn_key=(1, i)`` and its skeleton noise from ``spawn_key=(2, i)``. So frame
 ``i`` depends only on ``(seed, i, size, background_frames)`` and random access
 equals iteration. The motion (and so the motion blur) is a function of the
@@ -353,6 +360,7 @@ VARIATIONS = {
     "skeleton_bias": (1.0, 0.0, 5.0),
     "clothing": (0.0, 0.0, float(len(sc.CLOTHING_PALETTE) - 1)),
     "clutter": (0, 0, 30),
+    "away": (0, 0, 95),
     "hand_distance": (sc.WASH_LAYOUT[2], 0.14, 0.5),
     "joins": (sc.WASH_LAYOUT[0], 0, 4),
     "crossings": (sc.WASH_LAYOUT[1], 0, 3),
@@ -373,6 +381,8 @@ _OPTIONS = (
     "script",
     *VARIATIONS,
 )
+#: Person frames per cycle of the ``away`` variation (the person is away for ``away`` of them).
+AWAY_CYCLE = 100
 #: Scripted scenes (``script``): ``none`` (the motion of ``hands``) or ``events`` (two hands that
 #: join twice, a hand at the head, a ball picked up and passed; see "Scripted events").
 SCRIPTS = ("none", "events")
@@ -494,6 +504,7 @@ class SynthSource(ReplaySource):
         skeleton_bias: float = VARIATIONS["skeleton_bias"][0],
         clothing: float = VARIATIONS["clothing"][0],
         clutter: int = int(VARIATIONS["clutter"][0]),
+        away: int = int(VARIATIONS["away"][0]),
         hand_distance: float = VARIATIONS["hand_distance"][0],
         joins: int = int(VARIATIONS["joins"][0]),
         crossings: int = int(VARIATIONS["crossings"][0]),
@@ -510,6 +521,7 @@ class SynthSource(ReplaySource):
         self.hand_distance = _variation("hand_distance", hand_distance)
         self.cross_height = _variation("cross_height", cross_height)
         self.clutter = _int_variation("clutter", clutter)
+        self.away = _int_variation("away", away)
         self.joins = _int_variation("joins", joins)
         self.crossings = _int_variation("crossings", crossings)
         self.timing = _int_variation("timing", timing)
@@ -521,6 +533,8 @@ class SynthSource(ReplaySource):
         if script != "none" and self.hands != 2:
             raise InputError(f"synth option script {script!r} needs hands 2 (both hands act in it), got {self.hands}")
         self.script = script
+        if self.away and (self.hands != 1 or script != "none"):
+            raise InputError(f"synth option away={self.away} needs the one-palm scene (hands 1, no script)")
         self._n = _int_option("synth option frames", frames, 1, MAX_FRAMES)
         layout = [k for k in LAYOUT if getattr(self, k) != VARIATIONS[k][0]]
         if layout and self.hands != 2:
@@ -550,6 +564,7 @@ class SynthSource(ReplaySource):
         )
         self._wash = self._wash_motion() if self.hands == 2 else None
         self._script = sc.script_parameters(self._rng(6)) if script == "events" else None
+        self._away_phase = int(self._rng(7).integers(AWAY_CYCLE)) if self.away else 0
         k = self.intrinsics
         self._xn = ((np.arange(k.width, dtype=np.float32) - k.cx) / k.fx)[None, :]
 
@@ -674,10 +689,15 @@ class SynthSource(ReplaySource):
     def _check_index(self, index: int) -> int:
         return _int_option("frame index", index, 0, self._n - 1)
 
+    def away_at(self, index: int) -> bool:
+        """Whether the person is away (the empty room, not a background frame) at frame ``index``."""
+        t = self._check_index(index) - self.background_frames
+        return t >= 0 and (t + self._away_phase) % AWAY_CYCLE < self.away
+
     def pose(self, index: int) -> sc.Pose | None:
-        """True 3-D pose (metres) at frame ``index``; None for a background frame."""
+        """True 3-D pose (metres) at frame ``index``; None for a background frame or while the person is away."""
         index = self._check_index(index)
-        if index < self.background_frames:
+        if index < self.background_frames or self.away_at(index):
             return None
         if self._script is not None:
             return sc.script_pose_at(self._motion, self._script, float(index - self.background_frames))[0]
@@ -989,7 +1009,7 @@ class SynthSource(ReplaySource):
             intrinsics=self.intrinsics,
             joints=self.joints(index),
             ground_truth=self.ground_truth(index),
-            background=pose is None,
+            background=index < self.background_frames,
             ground_truths=self.ground_truths(index),
         )
         masks = {

@@ -399,6 +399,8 @@ class SynthRig:
             raise InputError(
                 f"synth option clutter must be 0 with cameras >= 2 (the rig renders its own room), got {probe.clutter}"
             )
+        if probe.away:
+            raise InputError(f"synth option away must be 0 with cameras >= 2, got {probe.away}")
         self.poses = rig_poses(self.cameras, probe._rng(11))
         tex = _Textures(probe._rng(10))
         pyramid = None

@@ -157,6 +157,16 @@ class SynthOptions:
         help="static objects in the room (boxes and round shapes; every third skin-coloured, every second "
         "at hand depth beside the person), placed from the seed",
     )
+    away: int = option(
+        _SCENE["away"],
+        kind="int",
+        lo=int(VARIATIONS["away"][1]),
+        hi=int(VARIATIONS["away"][2]),
+        metavar="N",
+        help="the person leaves the view for N of every 100 frames (the empty room, not background frames: no "
+        "skeleton, no ground truth; phase from the seed): re-acquisition, acquisition-dominated recordings; "
+        "one palm only",
+    )
     hand_distance: float = option(
         _SCENE["hand_distance"],
         kind="float",

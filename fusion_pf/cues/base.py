@@ -63,12 +63,17 @@ class CueResult:
         Every candidate the cue saw, for several targets (the hand cue's hands
         with their handedness); empty: the measurement is the only one
         (:attr:`detections`).
+    rested : bool
+        The cue did not search this frame (an idle cue resting, e.g. the hand
+        cue's palm detection every other frame after several frames without a
+        hand): no measurement, and none expected; counted by ``track``.
     """
 
     measurement: Measurement | None
     stages: Mapping[str, np.ndarray] = field(default_factory=dict)
     latency_ns: int = 0
     candidates: tuple[Detection, ...] = ()
+    rested: bool = False
 
     @property
     def detections(self) -> tuple[Detection, ...]:

@@ -146,6 +146,14 @@ class CueOptions:
         "full detector quantised to int8, 0.75x its CPU time per call, the same palms on MediaPipe's test photos "
         "but a slightly worse fused p95 on the real development frames)",
     )
+    hand_search_palm_model: str | None = option(
+        _default(HandLandmarker, "search_palm_model"),
+        choices=PALM_MODELS,
+        optional=True,
+        help="hand cue: palm-detection model of an acquisition frame (the target lost, the whole frame searched; "
+        "none: --hand-palm-model's); full_int8: 0.78x the full detector's CPU time per call, as good a whole-frame "
+        "search on the real development frames, but 0.1 px worse tracked from there",
+    )
     hand_flow_frames: int = option(
         _default(LandmarkFlow, "max_frames"),
         kind="int",
@@ -240,6 +248,7 @@ def _hand(o: CueOptions) -> Cue:
         num_threads=o.hand_threads,
         landmark_model=o.hand_landmark_model,
         palm_model=o.hand_palm_model,
+        search_palm_model=o.hand_search_palm_model,
         flow=LandmarkFlow(o.hand_flow_frames) if o.hand_flow_frames else None,
     )
 

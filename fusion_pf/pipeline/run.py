@@ -500,6 +500,7 @@ class _CueStage:
         self.cues: dict[str, dict[str, Cue]] | None = None if config.cues is None else self._build()
         self.last_joint: dict[str, tuple[float, float]] = {}
         self.missing: dict[str, int] = {}
+        self.rested: dict[str, int] = {}
         self.failed: dict[str, int] = {}
         self.first_error: dict[str, str] = {}
         self.noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1,)))
@@ -532,9 +533,12 @@ class _CueStage:
         return cue_window(frame, prior, self.config, palm_px)
 
     def detect(self, name: str, cue: Cue, index: int, frame: Frame, ctx: CueContext) -> tuple[Detection, ...]:
-        """``cue``'s detections in ``frame``; none (the failure counted) when it fails on this frame."""
+        """``cue``'s detections in ``frame``; none (the failure counted) when it fails on this frame; a rest counted."""
         try:
-            found = cue.measure(frame, ctx).detections
+            result = cue.measure(frame, ctx)
+            if result.rested:
+                self.rested[name] = self.rested.get(name, 0) + 1
+            found = result.detections
             for d in found:
                 if not (math.isfinite(d.u) and math.isfinite(d.v)):
                     raise ValueError(f"non-finite position ({d.u}, {d.v})")
@@ -1376,6 +1380,8 @@ class TrackStats:
         Per failed cue, the first failure: ``"frame K: message"``.
     bursts : dict of str to int
         Per cue, the frames (summed over targets) it was set aside as a burst (``--burst-gate``).
+    rested : dict of str to int
+        Per cue, the frames it did not search (``CueResult.rested``: the hand cue's idle search).
     """
 
     losses: int = 0
@@ -1384,9 +1390,10 @@ class TrackStats:
     failed: dict[str, int] = field(default_factory=dict)
     first_error: dict[str, str] = field(default_factory=dict)
     bursts: dict[str, int] = field(default_factory=dict)
+    rested: dict[str, int] = field(default_factory=dict)
 
     def cue_summary(self, tracked: int) -> str:
-        """One line: per cue the frames it measured of ``tracked``, its failures (first message) and bursts set aside."""
+        """One line: per cue the frames it measured of ``tracked``, its failures (first message), bursts set aside and rests."""
         parts = []
         for name, missing in self.missing.items():
             part = f"{name} {tracked - missing}/{tracked}"
@@ -1394,6 +1401,8 @@ class TrackStats:
                 part += f" (failed on {self.failed[name]}, first {self.first_error[name]})"
             if self.bursts.get(name):
                 part += f" ({self.bursts[name]} set aside as bursts)"
+            if self.rested.get(name):
+                part += f" (rested on {self.rested[name]}: idle search)"
             parts.append(part)
         return "cues measured in: " + ", ".join(parts)
 
@@ -1451,6 +1460,7 @@ def track(
                 stats.losses = sum(f.losses for f in targets.stages.values())
                 stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
                 stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
+                stats.rested = cues.rested
                 stats.bursts = {}
                 for f in targets.stages.values():
                     for name, n in ({} if f.bursts is None else f.bursts.bursts).items():

@@ -41,6 +41,11 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
     assert s["ratio_acq_median_ms"] == pytest.approx(0.5) == s["ratio_track_cpu_median_ms"]
     assert s["ratio_acq_cpu_median_ms"] == pytest.approx(0.75) == s["ratio_acq_cpu_p99_ms"]
     assert s["fp"]["own_acquisition_frames"] == 1 and s["mp"]["own_acquisition_frames"] == 2
+    # live acquisition: each side's own acquisition frames of the tracking run (frame 0; frames 0 and 1)
+    assert s["fp"]["live_acq_median_ms"] == 50.0 == s["fp"]["live_acq_p99_ms"]
+    assert s["mp"]["live_acq_median_ms"] == 35.0 and s["mp"]["live_acq_p99_ms"] == pytest.approx(39.9)
+    assert s["ratio_live_acq_median_ms"] == pytest.approx(50 / 35) and s["ratio_live_acq_cpu_p95_ms"] == 0.5
+    assert s["fp"]["all_p99_ms"] == pytest.approx(np.percentile(r["fp_ms"], 99))
     # errors 5 (frame 0) and 4 (frames 1-6), frame 7 has no estimate
     assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt((25 + 6 * 16) / 7))
     assert s["fp"]["coverage"] == pytest.approx(7 / 8)
@@ -84,10 +89,12 @@ def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys)
     stats = {k: 1.0 for k in ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")}
     stats |= {k: 1.0 for k in ("acq_median_ms", "acq_p95_ms", "acq_p99_ms")}
     stats |= {k: 1.0 for k in ("acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")}
+    stats |= {f"live_{k}": 1.0 for k in stats if k.startswith("acq")} | {"all_p99_ms": 1.0}
     side = {**stats, "own_acquisition_frames": 0, "tracking_frames": 3}
     s = {"size": (64, 48), "frames": 3, "tracking_frames": 3, "fp": side, "mp": side}
     s |= {f"ratio_{k}": 1.0 for k in stats}
-    peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0, "full_int8"), (1.0, 1.0), s)
+    peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0, "full_int8"), (1.0, 1.0), s, ("hand", "depth"))
     out = capsys.readouterr().out
+    assert "fusion-pf cues hand,depth" in out and "live acquisition, p99" in out
     assert "fusion-pf hand landmarks full_int8, palm detector full_int8" in out
     assert "MediaPipe model_complexity 0 (lite" in out

@@ -297,3 +297,62 @@ def test_noise_equals_whole_image_second_differences(seed):
     at = float(rng.uniform(300, 4000))
     want = 0.0 if d.size < depth_module.MIN_NOISE_SAMPLES else 1.4826 * np.median(np.abs(d)) / np.sqrt(6.0) * at * at
     assert depth_noise_mm(depth, mask, lag, at) == pytest.approx(want, rel=1e-6)
+
+
+def test_reduced_whole_frame_search_is_refined_to_the_full_resolution_region(monkeypatch):
+    """Issue 25: a whole-frame search at 1280 x 720 reads every 3rd pixel (cheap acquisition), and its
+    centroid was that of the subsampled region, 1.6 / 2.2 px from the full-resolution search's on these
+    frames; measured again at full resolution in a window around the region only, it is the same."""
+    from drivers.synth import SynthSource
+    from fusion_pf.cues.background import BackgroundModel
+    from fusion_pf.cues.roi import full_roi, search_step
+
+    src = SynthSource(frames=31, seed=6201, size=(1280, 720), background_frames=3)
+    background = BackgroundModel.from_frames(src.frames(0, 3)).depth
+    for i in (5, 30):
+        frame = src.render(i)[0]
+        reduced = DepthCue()(frame.depth, background, keep_border=True).measurement
+        with monkeypatch.context() as mp:
+            mp.setattr(depth_module, "search_step", lambda roi: 1)  # the same search at full resolution
+            full = DepthCue()(frame.depth, background, keep_border=True).measurement
+        assert reduced.extras["search_step"] == 3 and full.extras["search_step"] == 1
+        assert reduced.extras["refined"] and "refined" not in full.extras
+        assert math.hypot(reduced.u - full.u, reduced.v - full.v) < 0.05
+        assert reduced.extras["area"] == full.extras["area"] and reduced.extras["bbox"] == full.extras["bbox"]
+        # the subsampled region's own centroid, as before the refinement: over a pixel off
+        with monkeypatch.context() as mp:
+            mp.setattr(DepthCue, "_refine", lambda self, depth, background, m, *rest: m)
+            coarse = DepthCue()(frame.depth, background, keep_border=True).measurement
+        assert math.hypot(coarse.u - full.u, coarse.v - full.v) > 1.0
+        gt = frame.ground_truth
+        assert math.hypot(reduced.u - gt.u, reduced.v - gt.v) < math.hypot(coarse.u - gt.u, coarse.v - gt.v)
+    assert search_step(full_roi(1280, 720)) == 3
+
+
+def test_noise_reads_an_even_spread_of_at_most_max_pixels_triples():
+    """Issue 25: in a reduced whole-frame search (1280 x 720) the noise of a large region is the MAD of
+    the second differences starting at every k-th of its pixels (at most MAX_NOISE_PIXELS): 1.0 -> 0.5 ms
+    of the search's 2.5 ms; within a few per cent of all pixels' value, which it is without the cap."""
+    rng = np.random.default_rng(7)
+    h, w, lag, at = 300, 400, 2, 1500.0
+    depth = (1500 + rng.normal(0, 4, size=(h, w))).astype(np.uint16)
+    mask = rng.random((h, w)) < 0.9
+    valid = mask & (depth > 0)
+    first = np.flatnonzero(valid)
+    k = -(-first.size // depth_module.MAX_NOISE_PIXELS)
+    assert first.size > depth_module.MAX_NOISE_PIXELS and k > 1
+    starts = np.zeros(h * w, bool)
+    starts[first[::k]] = True
+    starts = starts.reshape(h, w)
+    z = np.where(valid, 1.0 / np.maximum(depth, 1).astype(np.float64), 0.0)
+    sampled, every = [], []
+    for a, m, s in ((z, valid, starts), (z.T, valid.T, starts.T)):  # whole-image shifts, rows then columns
+        both = m[:, : -2 * lag] & m[:, lag:-lag] & m[:, 2 * lag :]
+        d = a[:, : -2 * lag] - 2 * a[:, lag:-lag] + a[:, 2 * lag :]
+        sampled.append(d[both & s[:, : -2 * lag]])
+        every.append(d[both])
+    mad = [1.4826 * np.median(np.abs(np.concatenate(x))) / np.sqrt(6.0) * at * at for x in (sampled, every)]
+    got = depth_noise_mm(depth, mask, lag, at, depth_module.MAX_NOISE_PIXELS)
+    assert got == pytest.approx(mad[0], rel=1e-9) and got != mad[1]
+    assert got == pytest.approx(mad[1], rel=0.03)
+    assert depth_noise_mm(depth, mask, lag, at) == pytest.approx(mad[1], rel=1e-9)  # tracking windows: every pixel

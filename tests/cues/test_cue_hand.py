@@ -660,3 +660,76 @@ def test_prior_window_without_a_hand_is_tried_less_and_less_often(hl):
         cue.measure(_frame(empty, i), ctx)
         tried.append(hl.calls["landmark"] - n)
     assert tried == [0, 1, 0, 0]
+
+
+def test_idle_search_runs_palm_detection_on_every_other_acquisition_frame(hl):
+    """Issue 25: a lost hand cost the palm detector on every acquisition frame (the whole frame searched
+    by every cue); after IDLE_AFTER frames without a hand the cue rests on every other one (no model call,
+    counted as rested), a hand that appears is found by the next search, and a prior never rests."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import IDLE_AFTER, HandCue
+    from fusion_pf.cues.roi import Roi, full_roi
+
+    image = load("asl_hand_000.jpg")
+    h, w = image.shape[:2]
+    empty = np.full_like(image, 128)
+    search = CueContext(roi=full_roi(w, h), search=True)
+    cue = HandCue(hl)
+    ran, rested = [], []
+    for i in range(IDLE_AFTER + 6):
+        n = hl.calls["palm"]
+        result = cue.measure(_frame(empty, i), search)
+        ran.append(hl.calls["palm"] - n)
+        rested.append(result.rested)
+        assert result.measurement is None
+    assert IDLE_AFTER == 3
+    assert ran == [1, 1, 1, 0, 1, 0, 1, 0, 1]
+    assert rested == [not r for r in ran]
+    # the hand appears on a resting frame: found on the next one, then followed (never resting while found)
+    assert cue.measure(_frame(image, 9), search).rested
+    m = cue.measure(_frame(image, 10), search).measurement
+    assert m is not None and m.extras["mode"] == "detect"
+    assert cue.measure(_frame(image, 11), search).measurement is not None
+    # lost again: IDLE_AFTER searches before the first rest
+    assert [cue.measure(_frame(empty, 12 + i), search).rested for i in range(5)] == [False] * 3 + [True, False]
+    # with a prior (another cue tracks): no rest, whatever the misses
+    ctx = CueContext(roi=Roi(w // 4, h // 4, 3 * w // 4, 3 * h // 4), prior=(w / 2, h / 2))
+    assert not any(cue.measure(_frame(empty, 17 + i), ctx).rested for i in range(4))
+    # a reset (a new stream) searches at once
+    cue.reset()
+    assert not cue.measure(_frame(empty, 21), search).rested
+
+
+def test_acquisition_frames_detect_palms_with_the_search_model():
+    """Issue 25: with --hand-search-palm-model full_int8 an acquisition frame's whole-frame palm detection
+    runs the int8 detector (3.8 instead of 4.9 ms CPU at 1280 x 720), loaded on the first such frame;
+    tracked frames keep the float one. By default both are the palm model."""
+    from fusion_pf.cues.base import CueContext
+    from fusion_pf.cues.hand import HandCue
+    from fusion_pf.cues.roi import Roi, full_roi
+
+    hl = HandLandmarker(landmark_model="full", search_palm_model="full_int8")
+    assert hl.palm_model == "full" and hl.search_palm_model == "full_int8"
+    image = load("asl_hand_000.jpg")
+    h, w = image.shape[:2]
+    n = dict(hl.calls)
+    tracked, searched = hl.palms(image), hl.palms(image, search=True)
+    assert hl.calls["palm"] - n["palm"] == 2 and hl.calls["search_palm"] - n["search_palm"] == 1
+    assert len(tracked) and len(searched)  # the same palm, by a different model
+    assert np.abs(tracked.boxes[0] - searched.boxes[0]).max() < 0.05 * max(w, h)
+    assert not np.array_equal(tracked.scores, searched.scores)
+    # through the cue: a search frame uses it, a frame with a prior (whole-frame detection after the window) not
+    cue = HandCue(hl)
+    n = dict(hl.calls)
+    assert cue.measure(_frame(image, 0), CueContext(roi=full_roi(w, h), search=True)).measurement is not None
+    assert hl.calls["search_palm"] - n["search_palm"] == 1
+    cue.reset()
+    empty = np.full_like(image, 128)
+    n = dict(hl.calls)
+    ctx = CueContext(roi=Roi(w // 4, h // 4, 3 * w // 4, 3 * h // 4), prior=(w / 2, h / 2))
+    assert cue.measure(_frame(empty, 1), ctx).measurement is None
+    assert hl.calls["palm"] - n["palm"] == 1 and hl.calls["search_palm"] == n["search_palm"]
+    assert HandLandmarker().search_palm_model == "full"
+    assert HandLandmarker(palm_model="lite").search_palm_model == "lite"
+    with pytest.raises(InputError, match="search_palm_model must be one of"):
+        HandLandmarker(search_palm_model="huge")

@@ -594,3 +594,26 @@ def test_shipped_sample_has_calibration_in_every_chunk(tmp_path):
         assert rec.stats.dropped == len(lost) > 0
     assert [f.timestamp_ns for f in out] == [t for t in times if t not in lost]
     assert all(f.intrinsics == intrinsics for f in out)
+
+
+def test_away_empties_the_room_for_that_share_of_every_cycle_without_background_frames():
+    """away=N: the person is away for N of every AWAY_CYCLE person frames (phase from the seed): the empty
+    room, no skeleton, no ground truth, yet not a background frame; the other frames are the scene unchanged."""
+    from drivers.synth import AWAY_CYCLE
+
+    kw = dict(frames=2 * AWAY_CYCLE + 5, seed=6201, size=(64, 40), background_frames=5)
+    plain, away = SynthSource(**kw), SynthSource(**kw, away=70)
+    gone = [away.away_at(i) for i in range(len(away))]
+    assert not any(gone[:5])  # background frames are not away frames
+    assert sum(gone[5 : 5 + AWAY_CYCLE]) == 70 == sum(gone[5 + AWAY_CYCLE :])
+    assert 0 < sum(a != b for a, b in zip(gone, gone[1:])) <= 5  # whole stretches: the person leaves and comes back
+    i, j = gone.index(True), gone.index(False, 5)
+    frame, masks = away.render(i)
+    assert not frame.background and frame.ground_truth is None and frame.joints == {} and not masks["person"].any()
+    assert not ((frame.depth > 0) & (frame.depth < 2000)).any()  # the room only (2.3 m and beyond), no person
+    assert ((plain.render(i)[0].depth > 0) & (plain.render(i)[0].depth < 2000)).any()
+    assert np.array_equal(away.render(j)[0].color, plain.render(j)[0].color)  # present: the same scene
+    assert away.ground_truth(j) == plain.ground_truth(j)
+    assert [SynthSource(**kw, away=70).away_at(k) for k in range(len(gone))] == gone  # from the seed
+    with pytest.raises(InputError, match="away=5 needs the one-palm scene"):
+        SynthSource(frames=2, size=(64, 40), hands=2, away=5)
