@@ -214,6 +214,16 @@ class DepthCue:
         foreground; False: the paper's reading, invalid is never foreground.
     source : str
         Measurement source name.
+    learnt_lower : int
+        ``lower`` against a background learnt from the stream itself
+        (:attr:`~fusion_pf.cues.background.BackgroundModel.learnt`: no empty
+        scene, the person in view from the first frame), 0-254, the smaller of
+        the two applies. That background's depth is the torso, not the wall,
+        and 150 mm (``lower`` 15) cut a palm 12-22 cm in front of the body
+        down to forearm remnants; 5 (50 mm, the nearest-surface slab then
+        keeps the palm, not the torso) took two hands without background
+        frames from 17.1 / 20.2 px to 5.0 / 5.3 (tuning scene: seed 7002,
+        848x480, ``hand_front`` 0.12, dark skin).
     """
 
     def __init__(
@@ -230,6 +240,7 @@ class DepthCue:
         clear_border: bool = True,
         invalid_far: bool = True,
         source: str = "depth",
+        learnt_lower: int = 5,
     ) -> None:
         try:
             lo, hi = range_mm
@@ -240,6 +251,7 @@ class DepthCue:
         self.range_mm = (lo, hi)
         self.lower = check_int("depth lower threshold", lower, 0, 254)
         self.upper = check_int("depth upper threshold", upper, self.lower, 255)
+        self.learnt_lower = check_int("depth learnt_lower threshold", learnt_lower, 0, 254)
         self.min_area = check_int("depth min_area", min_area, 0, 100_000)
         self.dilate = check_int("depth dilate radius", dilate, 0, 50)
         self.nearest_mm = None if nearest_mm is None else check_int("depth nearest_mm", nearest_mm, 1, 65535)
@@ -311,6 +323,7 @@ class DepthCue:
             keep_border=ctx.search,
             candidates=ctx.candidates,
             parts=ctx.parts,
+            learnt=ctx.background is not None and ctx.background.learnt,
         )
 
     def __call__(
@@ -323,6 +336,7 @@ class DepthCue:
         keep_border: bool = False,
         candidates: bool = False,
         parts: tuple[tuple[float, float], ...] = (),
+        learnt: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -337,6 +351,9 @@ class DepthCue:
             the arm enters from the image border). The search of a window larger
             than :data:`~fusion_pf.cues.roi.SEARCH_PIXELS` reads every k-th row and
             column (:func:`~fusion_pf.cues.roi.search_step`).
+        learnt : bool
+            ``background`` was learnt from the stream: threshold I_d4A with
+            ``min(lower, learnt_lower)``.
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
@@ -376,7 +393,8 @@ class DepthCue:
         d2 = cv2.subtract(b1, d1, mask=valid.view(np.uint8))  # I_d2 = max(B - D, 0) (saturating), 0 where invalid
         lo, hi = self.range_mm
         d3 = np.clip((d2.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)  # I_d3: 8-bit
-        d4a = cv2.threshold(d3, self.lower, 255, cv2.THRESH_BINARY)[1]  # I_d4A = I_d3 > lower
+        lower = min(self.lower, self.learnt_lower) if learnt else self.lower
+        d4a = cv2.threshold(d3, lower, 255, cv2.THRESH_BINARY)[1]  # I_d4A = I_d3 > lower
         d4b = cv2.threshold(d3, self.upper, 255, cv2.THRESH_BINARY_INV)[1]  # I_d4B = I_d3 <= upper
         d5 = cv2.bitwise_and(d4a, d4b)  # I_d5 = I_d4A AND I_d4B
         if self.nearest_mm is not None and d5.any():

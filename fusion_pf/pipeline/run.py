@@ -397,7 +397,7 @@ def _with_background(
                         break
                 warm = [f for _, f, _ in ahead]
                 if config.background_mode == "median":
-                    model = BackgroundModel.from_frames(warm)
+                    model = BackgroundModel.from_frames(warm, learnt=True)
                 else:
                     model = AdaptiveBackground(warm, history=10 * config.background_k)
                 _check_size(model, index, frame)

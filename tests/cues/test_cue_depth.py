@@ -297,3 +297,15 @@ def test_noise_equals_whole_image_second_differences(seed):
     at = float(rng.uniform(300, 4000))
     want = 0.0 if d.size < depth_module.MIN_NOISE_SAMPLES else 1.4826 * np.median(np.abs(d)) / np.sqrt(6.0) * at * at
     assert depth_noise_mm(depth, mask, lag, at) == pytest.approx(want, rel=1e-6)
+
+
+def test_a_background_learnt_with_the_person_in_view_keeps_a_palm_near_the_torso():
+    # no empty scene: the learnt depth background is the torso (1000 mm); the palm is 130 mm in front of it
+    bg = np.full((120, 160), 1000, np.uint16)
+    depth = bg.copy()
+    yy, xx = np.mgrid[:120, :160]
+    depth[(xx - 80) ** 2 + (yy - 60) ** 2 <= 14**2] = 870
+    assert DepthCue()(depth, bg).measurement is None  # 130 mm < the empty-scene band's 150 mm
+    m = DepthCue()(depth, bg, learnt=True).measurement
+    assert m is not None and _err(m, (80.0, 60.0)) < 1.0
+    assert DepthCue(learnt_lower=15)(depth, bg, learnt=True).measurement is None
