@@ -64,9 +64,14 @@ class BackgroundModel:
         before its first frame.
     depth : ndarray, shape (H, W), uint16, or None
         Background depth in millimetres (0 = unknown), None without depth.
+    learnt : bool
+        True when the model was learnt from the tracked stream itself (no
+        empty-scene frame): the person is then part of it (the torso is its
+        depth), and the depth cue measures the palm against the torso
+        (:attr:`~fusion_pf.cues.depth.DepthCue.learnt_lower`).
     """
 
-    def __init__(self, color: np.ndarray | None, depth: np.ndarray | None = None) -> None:
+    def __init__(self, color: np.ndarray | None, depth: np.ndarray | None = None, *, learnt: bool = False) -> None:
         if color is not None:
             if not isinstance(color, np.ndarray) or color.ndim != 3 or color.shape[2] != 3 or color.dtype != np.uint8:
                 raise InputError(
@@ -81,13 +86,15 @@ class BackgroundModel:
                 raise InputError(f"background depth shape {depth.shape} does not match colour {color.shape[:2]}")
         self.color = color
         self.depth = depth
+        self.learnt = bool(learnt)
         self._target = 0
         self._colors: list[np.ndarray] = []
         self._depths: list[np.ndarray] = []
 
     @classmethod
-    def from_frames(cls, frames: Iterable[Frame]) -> "BackgroundModel":
-        """The per-pixel median of empty-scene ``frames`` (at least one)."""
+    def from_frames(cls, frames: Iterable[Frame], *, learnt: bool = False) -> "BackgroundModel":
+        """The per-pixel median of ``frames`` (at least one): empty-scene frames, or with ``learnt`` the
+        stream's own first frames."""
         colors, depths = [], []
         for f in frames:
             colors.append(f.color)
@@ -100,12 +107,12 @@ class BackgroundModel:
             raise InputError(f"background frames must share one size, got {sorted(shapes)}")
         color = median_color(np.stack(colors))
         depth = median_valid_depth(np.stack(depths)) if depths else None
-        return cls(color, depth)
+        return cls(color, depth, learnt=learnt)
 
     @classmethod
     def running(cls, frames: int = 10) -> "BackgroundModel":
         """An empty model that becomes the median of the first ``frames`` frames fed to :meth:`update`."""
-        model = cls(None, None)
+        model = cls(None, None, learnt=True)
         model._target = check_int("background frames", frames, 1, 10_000)
         return model
 
@@ -172,7 +179,7 @@ class AdaptiveBackground(BackgroundModel):
             color = f.color
         if color is None:
             raise InputError("an adaptive background needs at least one frame, got none")
-        super().__init__(np.concatenate([mog.getBackgroundImage() for mog in self._mogs]), depth)
+        super().__init__(np.concatenate([mog.getBackgroundImage() for mog in self._mogs]), depth, learnt=True)
 
     def adapt(self, frame: Frame) -> None:
         """Learn from tracked frames: every ``every``-th one, one band of rows per call in turn (its

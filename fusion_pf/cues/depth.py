@@ -238,6 +238,16 @@ class DepthCue:
         foreground; False: the paper's reading, invalid is never foreground.
     source : str
         Measurement source name.
+    learnt_lower : int
+        ``lower`` against a background learnt from the stream itself
+        (:attr:`~fusion_pf.cues.background.BackgroundModel.learnt`: no empty
+        scene, the person in view from the first frame), 0-254, the smaller of
+        the two applies. That background's depth is the torso, not the wall,
+        and 150 mm (``lower`` 15) cut a palm 12-22 cm in front of the body
+        down to forearm remnants; 5 (50 mm, the nearest-surface slab then
+        keeps the palm, not the torso) took two hands without background
+        frames from 17.1 / 20.2 px to 5.0 / 5.3 (tuning scene: seed 7002,
+        848x480, ``hand_front`` 0.12, dark skin).
     """
 
     def __init__(
@@ -254,6 +264,7 @@ class DepthCue:
         clear_border: bool = True,
         invalid_far: bool = True,
         source: str = "depth",
+        learnt_lower: int = 5,
     ) -> None:
         try:
             lo, hi = range_mm
@@ -264,6 +275,7 @@ class DepthCue:
         self.range_mm = (lo, hi)
         self.lower = check_int("depth lower threshold", lower, 0, 254)
         self.upper = check_int("depth upper threshold", upper, self.lower, 255)
+        self.learnt_lower = check_int("depth learnt_lower threshold", learnt_lower, 0, 254)
         self.min_area = check_int("depth min_area", min_area, 0, 100_000)
         self.dilate = check_int("depth dilate radius", dilate, 0, 50)
         self.nearest_mm = None if nearest_mm is None else check_int("depth nearest_mm", nearest_mm, 1, 65535)
@@ -314,16 +326,16 @@ class DepthCue:
             ]
         return out if step == 1 else np.ascontiguousarray(out[::step, ::step])
 
-    def _band(self, d1: np.ndarray, b1: np.ndarray) -> tuple[np.ndarray, ...]:
-        """I_d2, I_d3, I_d4A, I_d4B and I_d5 of depth ``d1`` against the background ``b1`` (invalid as
-        infinitely far with ``invalid_far``)."""
+    def _band(self, d1: np.ndarray, b1: np.ndarray, lower: int) -> tuple[np.ndarray, ...]:
+        """I_d2, I_d3, I_d4A (threshold ``lower``), I_d4B and I_d5 of depth ``d1`` against the background
+        ``b1`` (invalid as infinitely far with ``invalid_far``)."""
         valid = d1 != 0  # invalid current depth never counts as foreground
         if not self.invalid_far:
             valid &= b1 != 0  # nor does unknown background
         d2 = cv2.subtract(b1, d1, mask=valid.view(np.uint8))  # I_d2 = max(B - D, 0) (saturating), 0 where invalid
         lo, hi = self.range_mm
         d3 = np.clip((d2.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)  # I_d3: 8-bit
-        d4a = cv2.threshold(d3, self.lower, 255, cv2.THRESH_BINARY)[1]  # I_d4A = I_d3 > lower
+        d4a = cv2.threshold(d3, lower, 255, cv2.THRESH_BINARY)[1]  # I_d4A = I_d3 > lower
         d4b = cv2.threshold(d3, self.upper, 255, cv2.THRESH_BINARY_INV)[1]  # I_d4B = I_d3 <= upper
         return d2, d3, d4a, d4b, cv2.bitwise_and(d4a, d4b)  # I_d5 = I_d4A AND I_d4B
 
@@ -336,10 +348,11 @@ class DepthCue:
         roi: Roi,
         step: int,
         far: int | None,
+        lower: int,
     ) -> Measurement:
         """A reduced whole-frame search's measurement ``m`` measured again at full resolution, in a window
         around its region only: the region's box (``m.extras["bbox"]``) grown by :data:`REFINE_PAD` search
-        steps. There the band and slab (the search's nearest surface, ``far``) are taken at full resolution
+        steps. There the band (threshold ``lower``) and slab (the search's nearest surface, ``far``) are taken at full resolution
         and opened by ``open_radius`` full-resolution pixels (as a tracking window's), the regions meeting
         the search's final mask ``coarse`` (each of its pixels the ``step`` x ``step`` block it stands for)
         are kept, their holes filled, and the largest gives the measurement (``extras["refined"]``): the
@@ -358,7 +371,7 @@ class DepthCue:
         b1 = win.crop(background)
         if self.invalid_far:
             b1 = np.where(b1 > 0, b1, np.uint16(65535))
-        d5 = self._band(d1, b1)[4]
+        d5 = self._band(d1, b1, lower)[4]
         if far is not None:
             d5 = open_thin(cv2.bitwise_and(d5, d5, mask=(d1 <= far).view(np.uint8)), self.open_radius)
         rows = (np.arange(win.y0, win.y1) - roi.y0) // step  # the coarse pixel each full-resolution pixel is in
@@ -392,6 +405,7 @@ class DepthCue:
             keep_border=ctx.search,
             candidates=ctx.candidates,
             parts=ctx.parts,
+            learnt=ctx.background is not None and ctx.background.learnt,
         )
 
     def __call__(
@@ -404,6 +418,7 @@ class DepthCue:
         keep_border: bool = False,
         candidates: bool = False,
         parts: tuple[tuple[float, float], ...] = (),
+        learnt: bool = False,
     ) -> CueResult:
         """Extract the palm centroid from ``depth`` against the ``background`` depth.
 
@@ -418,6 +433,9 @@ class DepthCue:
             the arm enters from the image border). The search of a window larger
             than :data:`~fusion_pf.cues.roi.SEARCH_PIXELS` reads every k-th row and
             column (:func:`~fusion_pf.cues.roi.search_step`).
+        learnt : bool
+            ``background`` was learnt from the stream: threshold I_d4A with
+            ``min(lower, learnt_lower)``.
         candidates : bool
             Also return every region as a candidate (``CueResult.candidates``,
             several targets: the association picks).
@@ -451,7 +469,8 @@ class DepthCue:
         step = search_step(roi) if keep_border else 1
         d1 = np.ascontiguousarray(roi.crop(depth)[::step, ::step])  # contiguous once, not at every OpenCV call
         b1 = self._search_background(background, roi, step)
-        d2, d3, d4a, d4b, d5 = self._band(d1, b1)
+        lower = min(self.lower, self.learnt_lower) if learnt else self.lower
+        d2, d3, d4a, d4b, d5 = self._band(d1, b1, lower)
         far = None  # the slab's far limit (mm), with nearest_mm
         if self.nearest_mm is not None and d5.any():
             near = d1[d5 > 0]  # valid depths of the coarse region
@@ -488,7 +507,7 @@ class DepthCue:
             parts=parts,
         )
         if m is not None and step > 1 and not candidates:
-            m = self._refine(depth, background, m, d10, roi, step, far)
+            m = self._refine(depth, background, m, d10, roi, step, far, lower)
         if stages:
             out = {
                 "I_d1": d1 if step > 1 else d1.copy(),

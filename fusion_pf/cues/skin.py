@@ -381,6 +381,10 @@ class SkinCue:
     clear_border : bool
         Remove regions touching the window border (off by default: a bare
         forearm entering the window would otherwise take the hand with it).
+    core : bool
+        Measure a region's core centre (:func:`~fusion_pf.cues.regions.core_centre`,
+        as the colour cue does: on the palm, not toward the elbow of a bare
+        forearm) instead of its centroid.
     source : str, optional
         Measurement source name; the model's ``name`` by default.
     """
@@ -392,6 +396,7 @@ class SkinCue:
         min_area: int = MIN_AREA_PX,
         dilate: int = 1,
         clear_border: bool = False,
+        core: bool = True,
         source: str | None = None,
     ) -> None:
         if not (hasattr(model, "mask") and hasattr(model, "score")):
@@ -400,6 +405,7 @@ class SkinCue:
         self.min_area = check_int("skin min_area", min_area, 0, 100_000)
         self.dilate = check_int("skin dilate radius", dilate, 0, 50)
         self.clear_border = bool(clear_border)
+        self.core = bool(core)
         self.source = str(source) if source is not None else model.name
 
     #: Frame parts the cue reads (:data:`~fusion_pf.cues.base.NEEDS`).
@@ -415,7 +421,9 @@ class SkinCue:
 
     def measure(self, frame: Frame, ctx: CueContext) -> CueResult:
         """The :class:`~fusion_pf.cues.base.Cue` form: skin in ``frame``'s colour image."""
-        return self(frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior, candidates=ctx.candidates)
+        return self(
+            frame.color, roi=ctx.roi, stages=ctx.stages, near=ctx.prior, candidates=ctx.candidates, parts=ctx.parts
+        )
 
     def __call__(
         self,
@@ -425,11 +433,13 @@ class SkinCue:
         stages: bool = False,
         near: tuple[float, float] | None = None,
         candidates: bool = False,
+        parts: tuple[tuple[float, float], ...] = (),
     ) -> CueResult:
         """Segment skin in ``color`` (inside ``roi``) and measure the skin region nearest ``near`` (else the largest).
 
         With ``candidates`` every region is also returned (``CueResult.candidates``,
-        several targets: the association picks).
+        several targets: the association picks; joined hands' ``parts`` as in
+        :func:`~fusion_pf.cues.regions.region_detections`).
         """
         t0 = time.perf_counter_ns()
         _check_rgb("colour", color)
@@ -452,6 +462,7 @@ class SkinCue:
             min_area=self.min_area,
             extras={"roi": roi.as_list()},
             near=near,
+            core=self.core,
         )
         found = (
             region_detections(
@@ -461,6 +472,8 @@ class SkinCue:
                 palm_area=roi.palm_area,
                 min_area=self.min_area,
                 extras={"roi": roi.as_list()},
+                parts=parts,
+                core=self.core,
             )
             if candidates
             else ()

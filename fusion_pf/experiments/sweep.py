@@ -123,13 +123,17 @@ def _run_job(
     """Track ``frames`` with ``config``; the points of the tracked frames and the wall time."""
     t0 = time.perf_counter()
     results = [r for r in track(frames, config, background=background) if not r.background]
-    return result_points(results, sweep_sources(frames, config)), time.perf_counter() - t0
+    return result_points(results, sweep_sources(frames, config, background)), time.perf_counter() - t0
 
 
-def sweep_sources(frames: Sequence[Frame], config: TrackConfig) -> tuple[str, ...]:
-    """The cues every job computes (those of the first tracked frame)."""
+def sweep_sources(
+    frames: Sequence[Frame], config: TrackConfig, background: BackgroundModel | None = None
+) -> tuple[str, ...]:
+    """The cues every job computes (those of the first tracked frame; the background is learnt from the
+    stream without ``background`` and empty-scene frames)."""
     first = next((f for f in frames if not f.background), None)
-    return cue_names(config, first)
+    learnt = background is None and not any(f.background for f in frames)
+    return cue_names(config, first, learnt=learnt)
 
 
 @dataclass(frozen=True)
@@ -256,7 +260,7 @@ def run_sweep(
         raise InputError(f"reference must have shape ({n}, 2) (one row per tracked frame), got {reference.shape}")
     for c in counts:
         job_config(config, seed, c, 0)
-    sources = (*sweep_sources(frames, config), "fused")
+    sources = (*sweep_sources(frames, config, background), "fused")
     jobs = [(c, r) for c in range(len(counts)) for r in range(runs)]
     points = np.full((len(counts), runs, len(sources), n, 2), np.nan)
     seconds = np.zeros((len(counts), runs))

@@ -182,7 +182,8 @@ class TrackConfig:
         metavar="CUE,...",
         show=lambda v: (
             "auto: colour,depth,skeleton (paper 003) on a recording with a skeleton and no camera "
-            "hands; else hand plus depth and skeleton where the recording has them"
+            "hands (skin_rgb in place of colour without an empty scene); else hand plus depth and "
+            "skeleton where the recording has them"
         ),
         help=f"cues to compute, among {', '.join(CUES)}",
     )

@@ -197,6 +197,11 @@ SPLIT_PALMS = 0.85
 JUMP_MIN_QUALITY = 0.8
 
 
+#: Without an empty scene (:attr:`BackgroundModel.learnt`), the auto cue that
+#: replaces a background-subtraction cue of the paper's setting (:func:`cue_names`).
+NO_SCENE_CUES = {"colour": "skin_rgb"}
+
+
 def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
     """Image diagonal over the :data:`REFERENCE_SIZE` diagonal (1 with ``config.scale_noise`` off)."""
     if not config.scale_noise:
@@ -204,7 +209,7 @@ def pixel_scale(size: tuple[int, int], config: TrackConfig) -> float:
     return math.hypot(*size) / math.hypot(*REFERENCE_SIZE)
 
 
-def cue_names(config: TrackConfig, frame: Frame | None = None) -> tuple[str, ...]:
+def cue_names(config: TrackConfig, frame: Frame | None = None, *, learnt: bool = False) -> tuple[str, ...]:
     """The cues ``config`` computes on a recording whose first tracked frame is ``frame``.
 
     ``config.cues`` when given. Otherwise (auto): on a recording with a
@@ -212,11 +217,19 @@ def cue_names(config: TrackConfig, frame: Frame | None = None) -> tuple[str, ...
     003's setting, a body-tracking camera); else the learned ``hand`` cue plus
     ``depth`` and ``skeleton`` where the recording has them. Without a frame
     (nothing seen yet) the auto choice is the paper's.
+
+    ``learnt``: the background is learnt from the recording itself (no
+    empty-scene frame, :attr:`BackgroundModel.learnt`). The person is then part
+    of it, so the colour cue's difference image shows motion since the warm-up
+    rather than the hands (a palm in front of the learnt shirt differs from it
+    by more than the colour band's upper bound; 30-50 px off on two-hand scenes
+    with the hands near the body); the paper's setting then takes the skin rule
+    ``skin_rgb`` (paper 002, no background) in its place.
     """
     if config.cues is not None:
         return config.cues
     if frame is None or (frame.joints is not None and frame.hands is None):
-        return SOURCES
+        return tuple(NO_SCENE_CUES.get(n, n) for n in SOURCES) if learnt else SOURCES
     return (
         "hand",
         *(("depth",) if frame.depth is not None else ()),
@@ -397,7 +410,7 @@ def _with_background(
                         break
                 warm = [f for _, f, _ in ahead]
                 if config.background_mode == "median":
-                    model = BackgroundModel.from_frames(warm)
+                    model = BackgroundModel.from_frames(warm, learnt=True)
                 else:
                     model = AdaptiveBackground(warm, history=10 * config.background_k)
                 _check_size(model, index, frame)
@@ -594,7 +607,7 @@ class _CueStage:
         ``offsets`` (:meth:`_Targets.offsets`).
         """
         if self.cues is None:
-            self.names = cue_names(self.config, frame)
+            self.names = cue_names(self.config, frame, learnt=model is not None and model.learnt)
             self.cues = self._build()
         lat = {"decode": decode_ns}
         targets = tuple(priors)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from fusion_pf.cues import BackgroundModel, skeleton_cue
-from fusion_pf.cues.background import median_valid_depth
+from fusion_pf.cues.background import AdaptiveBackground, median_valid_depth
 from fusion_pf.errors import InputError
 from fusion_pf.frame import Frame, Intrinsics, Joint
 
@@ -95,3 +95,11 @@ def test_adaptive_background_teaches_one_band_per_frame_like_a_whole_frame_mog2(
         np.testing.assert_array_equal(model.color[edges[b] : edges[b + 1]], ref.getBackgroundImage())
         far = np.max([f.depth[edges[b] : edges[b + 1]] for f in learnt], axis=0)
         np.testing.assert_array_equal(model.depth[edges[b] : edges[b + 1]], far)
+
+
+def test_only_models_learnt_from_the_stream_are_flagged_learnt():
+    frame = _frame(20, [[900] * 4] * 3)
+    assert not BackgroundModel.from_frames([frame]).learnt  # empty-scene frames
+    assert BackgroundModel.from_frames([frame], learnt=True).learnt
+    assert BackgroundModel.running(2).learnt
+    assert AdaptiveBackground([frame]).learnt

@@ -356,3 +356,15 @@ def test_noise_reads_an_even_spread_of_at_most_max_pixels_triples():
     assert got == pytest.approx(mad[0], rel=1e-9) and got != mad[1]
     assert got == pytest.approx(mad[1], rel=0.03)
     assert depth_noise_mm(depth, mask, lag, at) == pytest.approx(mad[1], rel=1e-9)  # tracking windows: every pixel
+
+
+def test_a_background_learnt_with_the_person_in_view_keeps_a_palm_near_the_torso():
+    # no empty scene: the learnt depth background is the torso (1000 mm); the palm is 130 mm in front of it
+    bg = np.full((120, 160), 1000, np.uint16)
+    depth = bg.copy()
+    yy, xx = np.mgrid[:120, :160]
+    depth[(xx - 80) ** 2 + (yy - 60) ** 2 <= 14**2] = 870
+    assert DepthCue()(depth, bg).measurement is None  # 130 mm < the empty-scene band's 150 mm
+    m = DepthCue()(depth, bg, learnt=True).measurement
+    assert m is not None and _err(m, (80.0, 60.0)) < 1.0
+    assert DepthCue(learnt_lower=15)(depth, bg, learnt=True).measurement is None

@@ -163,3 +163,20 @@ def test_bad_options(factory, needle):
     with pytest.raises(InputError, match=needle) as e:
         factory()
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("candidates", [False, True])
+def test_the_palm_centre_not_the_centroid_of_palm_and_forearm(candidates):
+    # as the colour cue: a skin palm disc (radius 25 at (80, 100)) with a bare forearm running 110 px to its
+    # right; the cue's position is the palm's centre (the centroid lies ~25 px along the forearm), core=False
+    # keeps the centroid
+    color = np.full((200, 240, 3), (60, 80, 120), np.uint8)
+    yy, xx = np.mgrid[:200, :240]
+    skin = ((xx - 80) ** 2 + (yy - 100) ** 2 <= 25**2) | ((yy >= 92) & (yy <= 108) & (xx >= 80) & (xx < 215))
+    color[skin] = (200, 140, 110)
+    for core, near in ((True, 1.0), (False, None)):
+        res = SkinCue(RgbRuleSkin(), core=core)(color, candidates=candidates)
+        m = res.candidates[0].measurement if candidates else res.measurement
+        assert m is not None
+        d = math.hypot(m.u - 80.0, m.v - 100.0)
+        assert d < near if near else d > 15.0, (core, d)
