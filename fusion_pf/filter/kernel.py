@@ -159,6 +159,18 @@ def _build() -> SimpleNamespace:
         state[0], state[1], state[2], state[3], state[4], state[5] = a, b, c, w, has, buf
 
     @jit
+    def stacked(x, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
+        # log Lh = -P |p - z_bar|^2 / 2 (eqs. 5-7 stacked) into joint; returns its maximum
+        peak = -np.inf
+        for i in range(x.shape[1]):
+            du = x[0, i] - zu
+            dv = x[1, i] - zv
+            ll = (du * du + dv * dv) * half_prec
+            joint[i] = ll
+            peak = max(peak, ll)
+        return peak
+
+    @jit
     def move(x, state, noise, std, dt, lo, hi, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
         # x_k = M x_(k-1) + gamma (x) sigma_x   (eq. 4), the normals of rows lo..hi-1 drawn into noise first;
         # then log Lh = -P |p - z_bar|^2 / 2 (eqs. 5-7 stacked, unnormalised) into joint; returns its maximum
@@ -171,27 +183,13 @@ def _build() -> SimpleNamespace:
             s = std[r]
             for i in range(n):
                 x[r, i] += noise[r, i] * s
-        peak = -np.inf
-        for i in range(n):
-            du = x[0, i] - zu
-            dv = x[1, i] - zv
-            ll = (du * du + dv * dv) * half_prec
-            joint[i] = ll
-            peak = max(peak, ll)
-        return peak
+        return stacked(x, zu, zv, half_prec, joint)
 
     @jit
     def gaussian(x, zu, zv, half_prec, joint):  # pragma: no cover - runs compiled
         # log Lh = -P |p - z_bar|^2 / 2 (eqs. 5-7 stacked); returns its maximum
         n = x.shape[1]
-        peak = -np.inf
-        for i in range(n):
-            du = x[0, i] - zu
-            dv = x[1, i] - zv
-            ll = (du * du + dv * dv) * half_prec
-            joint[i] = ll
-            if ll > peak:
-                peak = ll
+        peak = stacked(x, zu, zv, half_prec, joint)
         # Lh~ = Lh / max Lh   (step 3)
         for i in range(n):
             joint[i] -= peak
