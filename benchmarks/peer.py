@@ -33,7 +33,8 @@ its tracker searched the whole frame, by its own state; MediaPipe: the frames af
 p95 and p99 of their step time, wall and CPU: what a lost hand costs in a live stream, with whatever the cues
 keep from frame to frame (the hand cue's idle search rests on every other frame, ``fusion_pf.cues.hand.HandCue``),
 which step 3's reset cues cannot show; and the p99 wall time of every frame of steps 1 and 2 (a live 30 fps stream
-has 33 ms per frame); then, against ``/ground_truth/palm`` when the recording has it,
+has 33 ms per frame); both live figures leave out the first frame of each side's run, its start-up (fusion-pf's
+``track`` loads its cues' models and compiles its kernels there); then, against ``/ground_truth/palm`` when the recording has it,
 RMSE / p95 error (px) and coverage (frames with an output / frames) of fusion-pf's fused
 estimate and of MediaPipe's palm (mean of the wrist and the four finger bases). Conditions:
 ``quiet`` (whatever else runs on the machine: the load average is printed) and ``busy`` (this
@@ -367,6 +368,9 @@ def _pct(x: np.ndarray, q: float) -> float:
 def summarise(r: dict) -> dict:
     """Timing and accuracy figures of one :func:`race` pass."""
     both = (r["fp_track"] > 0) & (r["mp_track"] > 0)
+    # the live figures leave out each run's first frame: its start-up (fusion-pf's track loads its cues' models
+    # and compiles its kernels there: seconds of CPU), which a live stream pays once
+    live = np.arange(r["fp_ms"].size) > 0
     out: dict = {"frames": int(r["fp_ms"].size), "size": r["size"], "tracking_frames": int(both.sum())}
     for side in ("fp", "mp"):
         # the frames both tracked; when there are none (one side never finds the hand), each side's own
@@ -386,11 +390,11 @@ def summarise(r: dict) -> dict:
             "acq_cpu_median_ms": _pct(a_cpu, 50),
             "acq_cpu_p95_ms": _pct(a_cpu, 95),
             "acq_cpu_p99_ms": _pct(a_cpu, 99),
-            "own_acquisition_frames": int((r[f"{side}_track"] == 0).sum()),
+            "own_acquisition_frames": int(((r[f"{side}_track"] == 0) & live).sum()),
             "tracking_frames": int(sel.sum()),
-            "all_p99_ms": _pct(r[f"{side}_ms"], 99),
+            "all_p99_ms": _pct(r[f"{side}_ms"][live], 99),
         }
-        own = r[f"{side}_track"] == 0  # the side's own acquisition frames, live (steps 1 and 2)
+        own = (r[f"{side}_track"] == 0) & live  # the side's own acquisition frames, live (steps 1 and 2)
         for q in (50, 95, 99):
             name = "median" if q == 50 else f"p{q}"
             out[side][f"live_acq_{name}_ms"] = _pct(r[f"{side}_ms"][own], q)
