@@ -5,13 +5,18 @@
   arguments are converted with ``str``.
 * ``stream_normals`` fixture: ``stream_normals(state, shape) -> float32 array``, the next
   normals of a particle-filter kernel stream, drawn by numpy itself from the same state.
+* ``rerun_process(*args)``: the rerun-sdk wheel's ``rerun`` command as a context manager.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,6 +50,25 @@ CLI = (sys.executable, "-m", "fusion_pf")
 def run_cli(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
     """``fusion-pf ARGS`` in a subprocess; stdout and stderr captured as text."""
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+@contextlib.contextmanager
+def rerun_process(*args: object) -> Iterator[subprocess.Popen]:
+    """``rerun ARGS`` (the rerun-sdk wheel's command, beside the interpreter) in its own process group, ended
+    with SIGTERM to the whole group: the command is a launcher whose viewer binary is its child, which
+    terminating the launcher alone left running after the suite."""
+    proc = subprocess.Popen(
+        [Path(sys.executable).with_name("rerun"), *map(str, args)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        yield proc
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,5 @@
 """``fusion-pf track --rerun``: the tracking in Rerun's web viewer (shipped in the rerun-sdk wheel), in headless Chromium."""
 
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -9,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ..conftest import CHROMIUM_ARGS, run_cli
+from ..conftest import CHROMIUM_ARGS, rerun_process, run_cli
 from .test_live import live_serve
 
 pytestmark = pytest.mark.browser
@@ -41,14 +39,8 @@ def test_the_live_tracking_shows_in_rerun_s_web_viewer(tmp_path):
     from playwright.sync_api import sync_playwright
 
     grpc, web = live_serve.free_port(), live_serve.free_port()
-    rerun = Path(sys.executable).with_name("rerun")
-    viewer = subprocess.Popen(
-        [rerun, "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc), "--web-viewer-port", str(web)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
     url = f"rerun+http://127.0.0.1:{grpc}/proxy"
-    try:
+    with rerun_process("--serve-web", "--bind", "127.0.0.1", "--port", grpc, "--web-viewer-port", web):
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 800})
@@ -70,9 +62,6 @@ def test_the_live_tracking_shows_in_rerun_s_web_viewer(tmp_path):
                 if (_changed(after, before) > 0.15 and after.std() > 30) or time.monotonic() > end:
                     break
             browser.close()
-    finally:
-        viewer.terminate()
-        viewer.wait(timeout=30)
     print(f"screenshot: {tmp_path / 'rerun_live.png'}")
     # the empty viewer turned into image views: a large part of the page changed and is far from uniform
     changed = _changed(after, before)

@@ -17,7 +17,7 @@ from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 
 from drivers.tracker_topics import read_json_topic
 
-from ..conftest import CLI
+from ..conftest import CLI, rerun_process
 from .test_live import live_serve
 
 TARGETS = "right_hand,left_hand,head"
@@ -67,11 +67,8 @@ def test_rerun_receives_every_camera_in_3d_and_the_targets(rig, tmp_path):
     port = live_serve.free_port()
     rerun = Path(sys.executable).with_name("rerun")
     saved = tmp_path / "live.rrd"
-    server = subprocess.Popen(
-        [rerun, "--port", str(port), "--save", saved], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
     url = f"rerun+http://127.0.0.1:{port}/proxy"
-    try:
+    with rerun_process("--port", port, "--save", saved):
         for _ in range(100):  # the server starts listening
             r = subprocess.run(
                 [str(c) for c in [*CLI, "track", rig, "-o", tmp_path / "o.mcap", "--targets", TARGETS, "--force"]]
@@ -86,9 +83,6 @@ def test_rerun_receives_every_camera_in_3d_and_the_targets(rig, tmp_path):
         assert r.returncode == 0, r.stderr
         assert f"live view for Rerun at {url}" in r.stderr and "24 frames published" in r.stderr
         time.sleep(1.0)
-    finally:
-        server.terminate()
-        server.wait(timeout=30)
     printed = subprocess.run([rerun, "rrd", "print", saved], capture_output=True, text=True, timeout=60)
     assert printed.returncode == 0, printed.stderr
     columns: dict[str, set[str]] = {}
