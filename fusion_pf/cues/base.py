@@ -37,7 +37,9 @@ def opencv_threads(n: int) -> Iterator[None]:
     two threads they gain little on an idle machine, and when another process holds a core each
     call waits for that core's time slice (a 0.3 ms warp took 7-11 ms at the 95th percentile
     with one core kept busy, 0.6 ms single-threaded). Setting the count costs well under a
-    microsecond.
+    microsecond, except lowering it while OpenCV's pool has threads (a parallel call since the
+    count was raised): that stops them and waits for each, milliseconds on a loaded machine, so a
+    caller keeps one block around all of a frame's OpenCV work (:func:`fusion_pf.pipeline.track`).
     """
     old = cv2.getNumThreads()
     cv2.setNumThreads(n)

@@ -171,8 +171,8 @@ class CueOptions:
         lo=1,
         hi=64,
         unit="threads",
-        help="OpenCV threads while the cues run; 1 never waits for a core another process holds "
-        "(the caller's setting is restored after each frame's cues)",
+        help="OpenCV threads while a frame is decoded and its cues run; 1 never waits for a core another process "
+        "holds (the caller's setting is restored after each frame)",
     )
     skin_model: Path | None = option(
         None,

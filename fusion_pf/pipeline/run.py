@@ -1453,33 +1453,42 @@ def track(
     cues = _CueStage(config)
     targets = _Targets(config, rng)
     events = EventDetector(targets.names)
-    for index, frame, dec, model in _with_background(source, config, background):
-        t0 = time.perf_counter_ns() - dec
-        if model is None:
-            result = _background_result(_background_row(index, frame, dec, cues.names))
-            result.target = cues.targets[0]
-        else:
-            priors, palms = {}, {}
-            for t, f in targets.stages.items():
-                priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
-                palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
-            gates = {t: f.source_gates() for t, f in targets.stages.items()}
-            rows = cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates, targets.offsets())
-            result = targets(rows, frame.size)
-            result.latency_ns["total"] = time.perf_counter_ns() - t0
-            for r in result.targets.values():
-                r.latency_ns["total"] = result.latency_ns["total"]
-            if stats is not None:
-                stats.losses = sum(f.losses for f in targets.stages.values())
-                stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
-                stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
-                stats.rested = cues.rested
-                stats.bursts = {}
-                for f in targets.stages.values():
-                    for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
-                        stats.bursts[name] = stats.bursts.get(name, 0) + n
-        result.source_frame = frame
-        result.events = events.feed(result)
+    frames = _with_background(source, config, background)
+    while True:
+        # the whole frame on the cues' OpenCV threads, its decoding too: lowering the count while OpenCV's
+        # pool has threads (the decode's colour conversion starts them) stops them, ~3 ms of waiting a frame
+        # on a loaded machine; the caller's count is back for its own code between frames
+        with opencv_threads(config.cue_options.cv_threads):
+            item = next(frames, None)
+            if item is None:
+                return
+            index, frame, dec, model = item
+            t0 = time.perf_counter_ns() - dec
+            if model is None:
+                result = _background_result(_background_row(index, frame, dec, cues.names))
+                result.target = cues.targets[0]
+            else:
+                priors, palms = {}, {}
+                for t, f in targets.stages.items():
+                    priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
+                    palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
+                gates = {t: f.source_gates() for t, f in targets.stages.items()}
+                rows = cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates, targets.offsets())
+                result = targets(rows, frame.size)
+                result.latency_ns["total"] = time.perf_counter_ns() - t0
+                for r in result.targets.values():
+                    r.latency_ns["total"] = result.latency_ns["total"]
+                if stats is not None:
+                    stats.losses = sum(f.losses for f in targets.stages.values())
+                    stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
+                    stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
+                    stats.rested = cues.rested
+                    stats.bursts = {}
+                    for f in targets.stages.values():
+                        for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
+                            stats.bursts[name] = stats.bursts.get(name, 0) + n
+            result.source_frame = frame
+            result.events = events.feed(result)
         yield result
 
 

@@ -179,7 +179,9 @@ def test_uncertainty_covers_the_error_in_about_95_percent_of_frames(scene_frames
 
 def test_cues_run_with_the_configured_opencv_threads(monkeypatch):
     """Issue 25: the cues run single-threaded in OpenCV by default (a split call waits for a core another
-    process holds); the caller's setting is restored after every frame."""
+    process holds), and so does the frame's decoding (lowering the count after a decode had started OpenCV's
+    pool stopped its threads on every frame: a wait of milliseconds on a loaded machine); the caller's
+    setting is restored after every frame."""
     from drivers.synth import SynthSource
     from fusion_pf.cues.colour import ColourCue
     from fusion_pf.cues.registry import CueOptions
@@ -194,13 +196,22 @@ def test_cues_run_with_the_configured_opencv_threads(monkeypatch):
     monkeypatch.setattr(ColourCue, "measure", spy)
     with SynthSource(frames=5, seed=1, size=(160, 100), background_frames=2) as src:
         frames = list(src)
+    decoded: list[int] = []
+
+    def source():
+        for f in frames:
+            decoded.append(cv2.getNumThreads())  # a source decodes the frame when it is asked for it
+            yield f
+
     caller = cv2.getNumThreads()
     try:
         cv2.setNumThreads(2)
         for options, threads in ((CueOptions(), 1), (CueOptions(cv_threads=2), 2)):
             seen.clear()
-            for _ in track(iter(frames), TrackConfig(cues=("colour",), cue_options=options)):
+            decoded.clear()
+            for _ in track(source(), TrackConfig(cues=("colour",), cue_options=options)):
                 assert cv2.getNumThreads() == 2  # restored between frames
             assert seen == [threads] * 3
+            assert decoded == [threads] * 5
     finally:
         cv2.setNumThreads(caller)
