@@ -27,7 +27,9 @@ Per frame (background frames skipped):
 
 Printed per recording and condition: ms/frame median and p95 of tracking frames (the frames
 both sides tracked, or each side's own when one never tracks; wall time, and the CPU time of all the side's threads, which other processes
-on the machine inflate far less than wall time) and of acquisition frames (step 3: every frame; p99 too; wall and CPU), each side and the
+on the machine inflate far less than wall time; the time the side's threads spent runnable but waiting for a core,
+from Linux's schedstat: where wall time goes under contention; and the wall p95 split into the frames the side ran
+first and those it ran right after the other side) and of acquisition frames (step 3: every frame; p99 too; wall and CPU), each side and the
 ratio fusion-pf / MediaPipe; the *live* acquisition frames, each side's own in steps 1 and 2 (fusion-pf: the frames
 its tracker searched the whole frame, by its own state; MediaPipe: the frames after one without a hand), median,
 p95 and p99 of their step time, wall and CPU: what a lost hand costs in a live stream, with whatever the cues
@@ -92,6 +94,24 @@ def ensure_venv(venv: Path) -> Path:
     return python
 
 
+def run_queue_ns() -> float:
+    """Time every thread of this process has spent runnable but waiting for a core, ns, so far (Linux's
+    ``/proc/self/task/*/schedstat``; NaN where there is none): what other processes (and the process's own
+    threads) took from its wall time."""
+    total = 0
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return math.nan
+    for t in tasks:
+        try:
+            with open(f"/proc/self/task/{t}/schedstat") as f:
+                total += int(f.read().split()[1])
+        except (OSError, ValueError, IndexError):
+            continue  # a thread that ended meanwhile
+    return float(total)
+
+
 # ---------------------------------------------------------------------- worker (MediaPipe's venv)
 
 
@@ -100,7 +120,8 @@ def worker() -> None:
 
     ``open NAME H W C``: attach the shared frame buffer and start fresh Hands (video and
     static-image mode, ``model_complexity`` C); ``video`` / ``static``: process the buffer's frame, answer
-    its wall and CPU ms (all the worker's threads), then ``U V`` of the palm when a hand was found.
+    its wall and CPU ms and run-queue wait ms (all the worker's threads, :func:`run_queue_ns`), then ``U V``
+    of the palm when a hand was found.
     """
     from multiprocessing import resource_tracker, shared_memory
 
@@ -128,10 +149,11 @@ def worker() -> None:
             print("ok", flush=True)
             continue
         assert hands is not None, "open before processing"
+        q0 = run_queue_ns()
         c0, t0 = time.process_time(), time.perf_counter()
         res = hands[cmd[0]].process(frame)
         ms, cpu = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
-        out = [ms, cpu]
+        out = [ms, cpu, (run_queue_ns() - q0) / 1e6]
         if res.multi_hand_landmarks:
             lm = res.multi_hand_landmarks[0].landmark
             h, w = frame.shape[:2]
@@ -177,14 +199,15 @@ class MediaPipePeer:
         self.frame = np.ndarray((h, w, 3), np.uint8, self.shm.buf)
         self._ask(f"open {self.shm.name} {h} {w} {self.complexity}")
 
-    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, float, tuple[float, float] | None]:
-        """Wall and CPU ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the palm (None: no hand)."""
+    def __call__(self, rgb: np.ndarray, mode: str) -> tuple[float, float, float, tuple[float, float] | None]:
+        """Wall, CPU and run-queue wait ms of ``process`` on ``rgb`` in ``mode`` (``video``/``static``) and the
+        palm (None: no hand)."""
         if self.frame is None or self.frame.shape != rgb.shape:
             self.open(*rgb.shape[:2])
         assert self.frame is not None
         self.frame[...] = rgb
         vals = [float(x) for x in self._ask(mode)]
-        return vals[0], vals[1], (vals[2], vals[3]) if len(vals) == 4 else None
+        return vals[0], vals[1], vals[2], (vals[3], vals[4]) if len(vals) == 5 else None
 
     def _release(self) -> None:
         if self.shm is not None:
@@ -240,7 +263,7 @@ def fusion_worker(
     Sends ``("want",)`` whenever ``track`` asks for the next frame (it may read a
     few ahead, e.g. for a running background model), then waits for it; per
     result ``("result", frame index, ...)``: the step's time ``total - decode``
-    (the decode being the wait for the frame), its CPU time without that wait,
+    (the decode being the wait for the frame), its CPU time and run-queue wait without that wait,
     whether the cues tracked in a window, the acquisition cost on that frame (the
     cues reset and run on the whole frame) and the estimate. ``None`` from the
     script ends the stream.
@@ -253,27 +276,31 @@ def fusion_worker(
         cues=cues, cue_options=CueOptions(hand_landmark_model=landmark_model, hand_palm_model=palm_model)
     )
     acq_cues, acq_context = _acquisition_cues(Path(rec), config)
-    wait_cpu = [0.0]
+    wait_cpu = [0.0, 0.0]  # CPU s, run-queue ns while waiting for a frame
 
     def received():
         while True:
+            # from before the request: the script, woken by it, may take this core for its own work meanwhile
+            q0, c0 = run_queue_ns(), time.process_time()
             conn.send(("want",))
-            c0 = time.process_time()
             frame = conn.recv()
             wait_cpu[0] += time.process_time() - c0
+            wait_cpu[1] += run_queue_ns() - q0
             if frame is None:
                 return
             yield frame
 
     results = track(received(), config)
     while True:
-        wait_cpu[0] = 0.0
+        wait_cpu[0] = wait_cpu[1] = 0.0
+        q0 = run_queue_ns()
         c0 = time.process_time()
         result = next(results, None)
         if result is None:
             conn.send(("done",))
             return
         cpu = (time.process_time() - c0 - wait_cpu[0]) * 1e3
+        rq = (run_queue_ns() - q0 - wait_cpu[1]) / 1e6
         frame = result.source_frame
         assert frame is not None  # track() sets it
         if result.background:
@@ -291,7 +318,7 @@ def fusion_worker(
         est = result.estimate
         u, v = (math.nan, math.nan) if est is None else (est.u, est.v)
         step = (lat["total"] - lat["decode"]) / 1e6
-        conn.send(("result", result.frame, step, cpu, tracking, acq, acq_cpu, u, v))
+        conn.send(("result", result.frame, step, cpu, rq, tracking, acq, acq_cpu, u, v))
 
 
 def race(
@@ -303,13 +330,14 @@ def race(
 ) -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
     mode, then static-image mode), each in its own process, one after the other (the order alternating
-    frame by frame)."""
+    frame by frame: ``fp_first`` 1 where fusion-pf ran first)."""
     import multiprocessing as mp
 
     from drivers import open_source
 
-    cols = ("fp_ms", "fp_cpu", "fp_track", "fp_acq_ms", "fp_acq_cpu", "fp_u", "fp_v")
-    cols += ("mp_ms", "mp_cpu", "mp_track", "mp_acq_ms", "mp_acq_cpu", "mp_u", "mp_v", "gt_u", "gt_v")
+    cols = ("fp_ms", "fp_cpu", "fp_rq", "fp_track", "fp_acq_ms", "fp_acq_cpu", "fp_u", "fp_v")
+    cols += ("mp_ms", "mp_cpu", "mp_rq", "mp_track", "mp_acq_ms", "mp_acq_cpu", "mp_u", "mp_v", "gt_u", "gt_v")
+    cols += ("fp_first",)
     fusion: dict[int, tuple] = {}
     mediapipe: dict[int, list[float]] = {}
     mp_had_hand = False
@@ -344,6 +372,7 @@ def race(
                 if run_mediapipe:
                     gt = frame.ground_truth
                     mediapipe[k] += [math.nan, math.nan] if gt is None else [gt.u, gt.v]
+                    mediapipe[k].append(0.0 if k % 2 else 1.0)
                     size = frame.size
         here.send(None)
         until_wanted()
@@ -353,9 +382,11 @@ def race(
             worker_proc.kill()
     rows = []
     for k in sorted(set(fusion) & set(mediapipe)):
-        mp_ms, mp_cpu, mp_palm, mp_acq, mp_acq_cpu, gt_u, gt_v = mediapipe[k]
+        mp_ms, mp_cpu, mp_rq, mp_palm, mp_acq, mp_acq_cpu, gt_u, gt_v, fp_first = mediapipe[k]
         mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
-        rows.append([*fusion[k], mp_ms, mp_cpu, mp_had_hand, mp_acq, mp_acq_cpu, mp_u, mp_v, gt_u, gt_v])
+        rows.append(
+            [*fusion[k], mp_ms, mp_cpu, mp_rq, mp_had_hand, mp_acq, mp_acq_cpu, mp_u, mp_v, gt_u, gt_v, fp_first]
+        )
         mp_had_hand = mp_palm is not None
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
     return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
@@ -363,6 +394,11 @@ def race(
 
 def _pct(x: np.ndarray, q: float) -> float:
     return float(np.percentile(x, q)) if x.size else math.nan
+
+
+def _ratio(a: float, b: float) -> float:
+    """``a / b``; NaN when ``b`` is 0 (e.g. no run-queue wait at all) or either is NaN."""
+    return a / b if b and not (math.isnan(a) or math.isnan(b)) else math.nan
 
 
 def summarise(r: dict) -> dict:
@@ -379,11 +415,18 @@ def summarise(r: dict) -> dict:
         a = r[f"{side}_acq_ms"]
         a_cpu = r[f"{side}_acq_cpu"]
         cpu = r[f"{side}_cpu"][sel]
+        rq = r[f"{side}_rq"][sel]
+        # the frames this side ran first in, and those it ran right after the other side
+        first = (r["fp_first"][sel] > 0) == (side == "fp")
         out[side] = {
             "track_median_ms": _pct(t, 50),
             "track_p95_ms": _pct(t, 95),
             "track_cpu_median_ms": _pct(cpu, 50),
             "track_cpu_p95_ms": _pct(cpu, 95),
+            "track_rq_median_ms": _pct(rq, 50),
+            "track_rq_p95_ms": _pct(rq, 95),
+            "track_p95_first_ms": _pct(t[first], 95),
+            "track_p95_second_ms": _pct(t[~first], 95),
             "acq_median_ms": _pct(a, 50),
             "acq_p95_ms": _pct(a, 95),
             "acq_p99_ms": _pct(a, 99),
@@ -399,11 +442,12 @@ def summarise(r: dict) -> dict:
             name = "median" if q == 50 else f"p{q}"
             out[side][f"live_acq_{name}_ms"] = _pct(r[f"{side}_ms"][own], q)
             out[side][f"live_acq_cpu_{name}_ms"] = _pct(r[f"{side}_cpu"][own], q)
-    keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")
+    keys = ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms", "track_rq_median_ms")
+    keys += ("track_rq_p95_ms", "track_p95_first_ms", "track_p95_second_ms")
     acq = ("acq_median_ms", "acq_p95_ms", "acq_p99_ms", "acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")
     live = tuple(f"live_{k}" for k in acq) + ("all_p99_ms",)
     for key in (*keys, *acq, *live):
-        out[f"ratio_{key}"] = out["fp"][key] / out["mp"][key]
+        out[f"ratio_{key}"] = _ratio(out["fp"][key], out["mp"][key])
     has_gt = np.isfinite(r["gt_u"])
     if has_gt.any():
         for side in ("fp", "mp"):
@@ -460,6 +504,10 @@ def print_summary(
         ("tracking frames, p95", "track_p95_ms"),
         ("tracking frames, CPU ms (all threads), median", "track_cpu_median_ms"),
         ("tracking frames, CPU ms, p95", "track_cpu_p95_ms"),
+        ("tracking frames, run-queue wait (all threads), median", "track_rq_median_ms"),
+        ("tracking frames, run-queue wait, p95", "track_rq_p95_ms"),
+        ("tracking frames, p95 where this side ran first", "track_p95_first_ms"),
+        ("tracking frames, p95 right after the other side", "track_p95_second_ms"),
         ("acquisition (whole-frame search), median", "acq_median_ms"),
         ("acquisition, p95", "acq_p95_ms"),
         ("acquisition, p99", "acq_p99_ms"),

@@ -33,6 +33,9 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
         "mp_v": np.full(n, math.nan),
         "fp_cpu": np.full(n, 3.0),
         "mp_cpu": np.full(n, 6.0),
+        "fp_rq": np.array([0.0, 0, 0, 1, 0, 1, 7, 0]),
+        "mp_rq": np.zeros(n),
+        "fp_first": np.array([1.0, 0, 1, 0, 1, 0, 1, 0]),
     }
     s = peer.summarise(r)
     assert s["tracking_frames"] == 6  # frames 2-7: both sides tracked
@@ -40,6 +43,16 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
     assert s["ratio_track_median_ms"] == pytest.approx(0.5)
     assert s["ratio_acq_median_ms"] == pytest.approx(0.5) == s["ratio_track_cpu_median_ms"]
     assert s["ratio_acq_cpu_median_ms"] == pytest.approx(0.75) == s["ratio_acq_cpu_p99_ms"]
+    # run-queue wait of the tracked frames 2-7 (MediaPipe's none: no ratio); the 9 ms frame 6 ran first
+    assert s["fp"]["track_rq_median_ms"] == 0.5 and s["fp"]["track_rq_p95_ms"] == pytest.approx(
+        np.percentile([0, 1, 0, 1, 7, 0], 95)
+    )
+    assert math.isnan(s["ratio_track_rq_median_ms"])
+    assert (
+        s["fp"]["track_p95_first_ms"] == pytest.approx(np.percentile([2, 2, 9], 95))
+        and s["fp"]["track_p95_second_ms"] == 2.0
+    )
+    assert s["mp"]["track_p95_first_ms"] == 4.0 == s["mp"]["track_p95_second_ms"]
     # live acquisition: each side's own acquisition frames of the tracking run but its first (start-up): frame 1
     assert s["fp"]["own_acquisition_frames"] == 1 and s["mp"]["own_acquisition_frames"] == 1
     assert s["fp"]["live_acq_median_ms"] == 2.0 == s["fp"]["live_acq_p99_ms"]
@@ -75,6 +88,30 @@ def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
     assert any(m is not None for m in found)
 
 
+def test_run_queue_wait_grows_while_this_process_waits_for_a_core():
+    """Linux schedstat: spinning while more spinning processes than cores run, this process waits for a core."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    if math.isnan(peer.run_queue_ns()):
+        pytest.skip("no /proc schedstat here")
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2 * (os.cpu_count() or 1))]
+    try:
+        time.sleep(0.1)
+        before = peer.run_queue_ns()
+        end = time.perf_counter() + 0.3
+        while time.perf_counter() < end:
+            pass
+        waited = peer.run_queue_ns() - before
+    finally:
+        for p in spinners:
+            p.kill()
+            p.wait()
+    assert waited > 10e6  # of 300 ms runnable with 3 runnable tasks per core, far more than 10 ms waiting
+
+
 def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys):
     assert peer.parse_setups("full:1,full_int8:1, lite:0,full:1:full_int8") == [
         ("full", 1, "full"),
@@ -88,6 +125,7 @@ def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys)
         peer.main(["x.mcap", "--setups", "full:2"])
     assert "--setups must be LANDMARK:COMPLEXITY[:PALM]" in capsys.readouterr().err
     stats = {k: 1.0 for k in ("track_median_ms", "track_p95_ms", "track_cpu_median_ms", "track_cpu_p95_ms")}
+    stats |= {k: 1.0 for k in ("track_rq_median_ms", "track_rq_p95_ms", "track_p95_first_ms", "track_p95_second_ms")}
     stats |= {k: 1.0 for k in ("acq_median_ms", "acq_p95_ms", "acq_p99_ms")}
     stats |= {k: 1.0 for k in ("acq_cpu_median_ms", "acq_cpu_p95_ms", "acq_cpu_p99_ms")}
     stats |= {f"live_{k}": 1.0 for k in stats if k.startswith("acq")} | {"all_p99_ms": 1.0}
@@ -97,5 +135,6 @@ def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys)
     peer.print_summary(Path("r.mcap"), "quiet", ("full_int8", 0, "full_int8"), (1.0, 1.0), s, ("hand", "depth"))
     out = capsys.readouterr().out
     assert "fusion-pf cues hand,depth" in out and "live acquisition, p99" in out
+    assert "run-queue wait, p95" in out and "p95 right after the other side" in out
     assert "fusion-pf hand landmarks full_int8, palm detector full_int8" in out
     assert "MediaPipe model_complexity 0 (lite" in out
