@@ -31,9 +31,15 @@ the ROI the model saw, the landmark model runs once more on the new ROI. Every
 other tracked frame costs exactly one landmark call (:attr:`HandLandmarker.calls`
 counts them). With the default :data:`LEAD` 0.5 a second call is made on 4 of the
 105 tracked development frames below (jumps of 107-158 px) instead of 6, the
-hand cue's palm RMSE / median / p95 10.03 / 8.37 / 16.89 px instead of
-10.10 / 8.85 / 17.06 px (crops: 5.91 / 4.70 / 10.39 and 5.91 / 4.62 / 10.34 px, no
-second call); ``lead`` 0.7 or 1.0 save no call. Leading every motion (also below
+hand cue's palm RMSE / median / p95 10.04 / 8.30 / 16.46 px instead of
+10.10 / 8.85 / 17.06 px (crops: 5.97 / 4.61 / 10.31 and 5.91 / 4.62 / 10.34 px, no
+second call); ``lead`` 0.7 or 1.0 save no call. The landmark model's answer moves
+with the crop: shifting every ROI by 0.05 px moves the fused median on the canvas by
+up to 0.25 px, so lead settings were compared over ROI shifts of -0.1 to 0.1 px and PF
+seeds 0-3 (20 runs each): fused RMSE / median / p95 10.21 / 8.48 / 16.97 px without lead,
+10.2 / 8.69 / 16.85 leading from 0.1 of the side, 10.19 / 8.49 / 16.61 from 0.12 (the
+default :data:`LEAD_FROM`; 4 second calls at every shift), 10.18 / 8.42 / 16.77 from
+0.15 (5 calls). Leading every motion (also below
 :data:`LEAD_FROM`) saves one more call but moves the crops of a hand re-posing in
 place: the fused palm's median on the canvas rose 0.4 px.
 The figures that follow are without lead (``lead=0``).
@@ -106,8 +112,9 @@ RECENTRE = 0.17
 LEAD = 0.5
 #: Least motion of the ROI over the last frame, as a fraction of its side, that :func:`led_roi` leads by: a
 #: slower hand stays well inside MediaPipe's ROI, and leading the jitter of a hand re-posing in place moved
-#: every crop (0.4 px on the fused palm's median on the development canvas, 4 PF seeds).
-LEAD_FROM = 0.1
+#: every crop (0.4 px on the fused palm's median on the development canvas, 4 PF seeds; from 0.1, 0.2 px
+#: over ROI shifts and seeds, module docstring).
+LEAD_FROM = 0.12
 #: A multi-threaded model re-times its single-threaded twin every this many calls (:class:`_Model`).
 _EXPLORE = 16
 #: ... and runs multi-threaded only while that takes less than this fraction of the twin's time
