@@ -49,6 +49,11 @@ script keeps one core busy with a spinning process for the whole pass).
 (``--hand-palm-model``: ``full`` when not given, ``full_int8`` or ``lite``); e.g.
 ``full_mixed:1,full:1,lite:0,full_mixed:1:full_int8``. Every printed block names both sides' models.
 
+``--gap-ms`` (default 0): a pause before each side's turn. Without it a side starts the moment the other
+is done, and on a loaded machine fusion-pf's wall p95 right after MediaPipe's 7-thread call was about twice
+that of the frames it ran first (the ``p95 right after the other side`` row); with a pause the sides no longer
+meet, but on a loaded machine every frame then waits behind the other load after its sleep.
+
 ``--cues`` (default: ``track``'s automatic choice) sets fusion-pf's cues, as ``track --cues``: e.g.
 ``hand,depth`` on a synthetic recording (which has a skeleton, so ``track`` would run the paper's colour, depth and
 skeleton) is what an RGB-D camera without body tracking runs. A recording where acquisition frames dominate:
@@ -327,10 +332,12 @@ def race(
     landmark_model: str = "full",
     palm_model: str = "full",
     cues: tuple[str, ...] | None = None,
+    gap_s: float = 0.0,
 ) -> dict:
     """One pass over ``rec``: per frame fusion-pf (``track``, then its acquisition cost) and MediaPipe (video
     mode, then static-image mode), each in its own process, one after the other (the order alternating
-    frame by frame: ``fp_first`` 1 where fusion-pf ran first)."""
+    frame by frame: ``fp_first`` 1 where fusion-pf ran first), each side's turn ``gap_s`` seconds after
+    whatever ran before it."""
     import multiprocessing as mp
 
     from drivers import open_source
@@ -364,10 +371,13 @@ def race(
             for k, frame in enumerate(src):
                 run_mediapipe = not frame.background
                 if run_mediapipe and k % 2:
+                    time.sleep(gap_s)
                     mediapipe[k] = [*peer(frame.color, "video"), *peer(frame.color, "static")[:2]]
+                time.sleep(gap_s)
                 here.send(frame)
                 until_wanted()
                 if run_mediapipe and not k % 2:
+                    time.sleep(gap_s)
                     mediapipe[k] = [*peer(frame.color, "video"), *peer(frame.color, "static")[:2]]
                 if run_mediapipe:
                     gt = frame.ground_truth
@@ -480,6 +490,7 @@ def print_summary(
     load: tuple[float, float],
     s: dict,
     cues: tuple[str, ...] | None = None,
+    gap_ms: float = 0.0,
 ) -> None:
     from fusion_pf.cues.registry import CueOptions
 
@@ -491,7 +502,7 @@ def print_summary(
         f"models: fusion-pf hand landmarks {setup[0]}, palm detector {setup[2]} "
         f"({CueOptions().hand_search_palm_model or setup[2]} on its acquisition frames); "
         f"MediaPipe model_complexity {setup[1]} ({MP_MODELS[setup[1]]} palm and landmark models); "
-        f"fusion-pf cues {','.join(cues) if cues else 'auto (as track)'}"
+        f"fusion-pf cues {','.join(cues) if cues else 'auto (as track)'}; {gap_ms:g} ms before each side's turn"
     )
     print(f"{'ms per frame (wall unless CPU)':<48} {'fusion-pf':>10} {'MediaPipe':>10} {'ratio':>7}")
     lines = [
@@ -572,12 +583,21 @@ def main(argv: list[str] | None = None) -> int:
         "--cues",
         help="fusion-pf's cues, comma-separated, as track --cues (default: track's automatic choice), e.g. hand,depth",
     )
+    ap.add_argument(
+        "--gap-ms",
+        type=float,
+        default=0.0,
+        help="pause before each side's turn, ms (>= 0; default 0: each side starts as soon as the other is done): "
+        "lets the machine settle after the other side's threads",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
         worker()
         return 0
+    if not (args.gap_ms >= 0 and math.isfinite(args.gap_ms)):
+        ap.error(f"--gap-ms must be a number of ms >= 0, got {args.gap_ms}")
     conditions = [c for c in args.conditions.split(",") if c]
     if not args.recordings or not conditions or set(conditions) - {"quiet", "busy"}:
         ap.error("give at least one REC.mcap and --conditions among quiet,busy")
@@ -613,11 +633,11 @@ def main(argv: list[str] | None = None) -> int:
                     before = os.getloadavg()[0]
                     if condition == "busy":
                         with _Busy():
-                            s = summarise(race(rec, peers[complexity], landmark, palm, cues))
+                            s = summarise(race(rec, peers[complexity], landmark, palm, cues, args.gap_ms / 1e3))
                     else:
-                        s = summarise(race(rec, peers[complexity], landmark, palm, cues))
+                        s = summarise(race(rec, peers[complexity], landmark, palm, cues, args.gap_ms / 1e3))
                     load = (before, os.getloadavg()[0])
-                    print_summary(rec, condition, (landmark, complexity, palm), load, s, cues)
+                    print_summary(rec, condition, (landmark, complexity, palm), load, s, cues, args.gap_ms)
                     results[f"{rec}:{condition}:{landmark}:{complexity}:{palm}"] = {"load": load, **s}
     except FusionPFError as exc:
         print(f"peer: error: {exc}", file=sys.stderr)

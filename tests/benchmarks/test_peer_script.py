@@ -136,5 +136,9 @@ def test_setups_pair_fusion_pf_landmark_models_with_mediapipe_complexity(capsys)
     out = capsys.readouterr().out
     assert "fusion-pf cues hand,depth" in out and "live acquisition, p99" in out
     assert "run-queue wait, p95" in out and "p95 right after the other side" in out
+    assert "0 ms before each side's turn" in out
+    with pytest.raises(SystemExit):
+        peer.main(["x.mcap", "--gap-ms", "-1"])
+    assert "--gap-ms must be a number of ms >= 0, got -1.0" in capsys.readouterr().err
     assert "fusion-pf hand landmarks full_int8, palm detector full_int8" in out
     assert "MediaPipe model_complexity 0 (lite" in out
