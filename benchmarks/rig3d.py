@@ -21,7 +21,10 @@ moved to the world with cam0's pose.
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/rig3d.py [--tuned 1,2] [--held-out 11,12] [--frames 160] [--size 640x400]
+    PYTHONPATH=. python benchmarks/rig3d.py [--tuned 1,2] [--held-out 11,12] [--frames 160] [--size 640x400] [--recordings DIR]
+
+``--recordings DIR`` keeps the rendered scenes there (``rig_CAMERAS_COLOUR-ONLY_SEED_SIZE_FRAMES.mcap``) and renders only those
+missing, so that a second run (another version of the tracker) tracks the same recordings.
 
 The seeds of ``--tuned`` are those the world tracker's constants were chosen on;
 ``--held-out`` seeds are reported separately.
@@ -149,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--held-out", default="11,12", help="seeds not tuned on, reported separately (default 11,12)")
     p.add_argument("--frames", type=int, default=160, help="instants per scene, 10 background ones included")
     p.add_argument("--size", default="640x400", help="image size WxH of every camera")
+    p.add_argument(
+        "--recordings", type=Path, default=None, help="keep the rendered scenes in this folder and reuse them"
+    )
     p.add_argument("--scenes", default=",".join(f"{c}:{k}" for c, k in SCENES), help="CAMERAS:COLOUR_ONLY,...")
     args = p.parse_args(argv)
     scenes = [tuple(int(v) for v in s.split(":")) for s in args.scenes.split(",")]
@@ -164,11 +170,14 @@ def main(argv: list[str] | None = None) -> int:
     ray_errors: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
     pairs: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
+        folder = args.recordings or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
         for group, seeds in groups:
             for seed in (int(s) for s in seeds.split(",") if s):
                 for cameras, colour_only in scenes:
-                    path = Path(tmp) / f"rig_{cameras}_{colour_only}_{seed}.mcap"
-                    render(path, cameras, colour_only, seed, args.frames, args.size)
+                    path = folder / f"rig_{cameras}_{colour_only}_{seed}_{args.size}_{args.frames}.mcap"
+                    if args.recordings is None or not path.exists():
+                        render(path, cameras, colour_only, seed, args.frames, args.size)
                     data, silent, ms = world(path, config)
                     res = score_world(**{k: v for k, v in data.items() if k != "alone"})
                     base = score_world(**single_camera(path, config, data["truths"]))
@@ -195,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
                             f"{100 * b['coverage']:.1f} % | {base['swaps']} |",
                             flush=True,
                         )
-                    path.unlink()
+                    if args.recordings is None:
+                        path.unlink()
     print("\nPooled 3-D RMSE per seed group and scene (both hands):")
     for (group, cameras, colour_only), errs in pooled.items():
         e = np.array(errs)

@@ -317,17 +317,14 @@ def measure(
 SPLIT_ITERATIONS = 10
 
 
-def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> list[Region] | None:
-    """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000).
+def two_means(points: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
+    """Split ``points`` (N x D) between two means started at ``seeds`` (2 x D): 2-means (paper 000).
 
-    ``seeds`` (2 x 2, mask pixels) start the two means; every pixel goes to the
-    nearer mean, each mean moves to its pixels' centroid, :data:`SPLIT_ITERATIONS`
-    times (two joined palms seen as one region give one part each). Returns
-    the two parts in seed order, None when one is empty. With ``core`` a part's
-    position is its :func:`core_centre` (a part holds its hand's forearm too).
+    Every point goes to the nearer mean, each mean moves to its points' centroid,
+    :data:`SPLIT_ITERATIONS` times or until no point changes side. Returns which
+    points are the first mean's (N booleans), None when one side is empty.
     """
-    ys, xs = np.nonzero(mask)
-    pts = np.stack([xs, ys], axis=1).astype(np.float64)
+    pts = np.asarray(points, dtype=np.float64)
     total = pts.sum(axis=0)
     means = np.asarray(seeds, dtype=np.float64).copy()
     near = np.zeros(len(pts), dtype=bool)
@@ -342,6 +339,21 @@ def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> 
         count = int(near.sum())
         first = near.astype(np.float64) @ pts
         means = np.array([first / count, (total - first) / (len(pts) - count)])
+    return near
+
+
+def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> list[Region] | None:
+    """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000, :func:`two_means`).
+
+    ``seeds`` (2 x 2, mask pixels) start the two means (two joined palms seen as one region give one part each). Returns
+    the two parts in seed order, None when one is empty. With ``core`` a part's
+    position is its :func:`core_centre` (a part holds its hand's forearm too).
+    """
+    ys, xs = np.nonzero(mask)
+    pts = np.stack([xs, ys], axis=1).astype(np.float64)
+    near = two_means(pts, seeds)
+    if near is None:
+        return None
     out = []
     for part in (near, ~near):
         p = pts[part]

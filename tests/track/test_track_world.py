@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import cv2
@@ -10,11 +11,11 @@ import numpy as np
 import pytest
 
 from drivers.synth_rig import SynthRig
-from fusion_pf.filter.world import PointObservation, project
-from fusion_pf.frame import Measurement
+from fusion_pf.filter.world import SURFACE_DEPTH_MM, PixelObservation, PointObservation, project
+from fusion_pf.frame import Frame, Intrinsics, Measurement
 from fusion_pf.pipeline import TrackConfig
 from fusion_pf.pipeline.world import _Camera, track_world
-from fusion_pf.rig import CameraView, FrameSet
+from fusion_pf.rig import CameraPose, CameraView, FrameSet
 
 HANDS = ("right_hand", "left_hand")
 SIZE = (160, 100)
@@ -202,9 +203,10 @@ def test_score_gives_the_3d_rmse_per_target_of_the_csv_and_of_the_mcap(tracked_r
 
 
 def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_holds_both(rig2):
-    # one detection both combined hands got in cam0: with its region around both projected predictions it measures
-    # the pair's midpoint; around one of them it is that hand's alone (the other drops it), not a midpoint
-    frame, pose = rig2.frames(BACKGROUND)["cam0"], rig2.poses["cam0"]
+    # one detection both combined hands got in cam0 without depth (a colour-only camera: nothing to split it by):
+    # with its region around both projected predictions it measures the pair's midpoint; around one of them it is
+    # that hand's alone (the other drops it), not a midpoint
+    frame, pose = dataclasses.replace(rig2.frames(BACKGROUND)["cam0"], depth=None), rig2.poses["cam0"]
     cam = _Camera("cam0", TrackConfig(targets=HANDS, cues=("colour",)), frame, pose)
     right, left = rig2.truth_mm(BACKGROUND)["right_hand"], rig2.truth_mm(BACKGROUND)["left_hand"]
     (ur, vr), (ul, vl) = project(np.stack([right, left]), pose, frame.intrinsics)[0]
@@ -214,7 +216,7 @@ def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_h
         out = {}
         for t, own, mate in (("right_hand", right, left), ("left_hand", left, right)):
             obs = cam.observations(frame, t, {"colour": m}, ({"colour": m}, mate), own)
-            assert all(isinstance(ob, PointObservation) for _, ob in obs)
+            assert all(isinstance(ob, PixelObservation) for _, ob in obs)
             out[t] = [ob.partner_mm for _, ob in obs]
         return out
 
@@ -224,6 +226,36 @@ def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_h
     assert shared["right_hand"][0] == pytest.approx(left) and shared["left_hand"][0] == pytest.approx(right)
     alone = seen([ur - pad, vr - pad, 2 * pad, 2 * pad])  # the right hand's blob only
     assert alone["right_hand"] == [None] and alone["left_hand"] == []
+
+
+def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
+    # two palms touching side by side (one region in the image), the right one 40 mm nearer the camera: each hand's
+    # observation is its own part's centre (k-means in 3-D from the predictions, 15 mm off each hand toward the other),
+    # not the pair's midpoint; predictions farther than a palm from the region: no split, the midpoint
+    intr = Intrinsics(160, 100, 200.0, 200.0, 80.0, 50.0)
+    depth = np.zeros((100, 160), np.uint16)
+    depth[44:56, 68:80], depth[44:56, 80:92] = 960, 1000
+    frame = Frame(0, 0, np.zeros((100, 160, 3), np.uint8), depth, intr)
+    cam = _Camera("cam0", TrackConfig(targets=HANDS, cues=("depth",)), frame, CameraPose(np.eye(3), np.zeros(3)))
+
+    def centre(u0, z):  # the slab's surface centre (pixels u0..u0+11, rows 44..55: 58 mm a side) and the palm's behind
+        surface = np.array([(u0 + 5.5 - 80.0) * z / 200.0, (49.5 - 50.0) * z / 200.0, float(z)])
+        return surface * (1.0 + SURFACE_DEPTH_MM / np.linalg.norm(surface))
+
+    right, left = centre(68, 960), centre(80, 1000)
+    toward = (left - right) / np.linalg.norm(left - right)
+    m = Measurement("depth", 80.0, 50.0, 1.0, {"bbox": [68, 44, 24, 12]})
+    for t, own, mate, guess, mate_guess in (
+        ("right_hand", right, left, right + 15 * toward, left - 15 * toward),
+        ("left_hand", left, right, left - 15 * toward, right + 15 * toward),
+    ):
+        ((_, ob),) = cam.observations(frame, t, {"depth": m}, ({"depth": m}, mate_guess), guess)
+        assert isinstance(ob, PointObservation) and ob.partner_mm is None
+        assert np.linalg.norm(ob.xyz_mm - own) < 3.0, (t, ob.xyz_mm, own)
+        assert np.linalg.norm(ob.xyz_mm - own) < 0.1 * np.linalg.norm(ob.xyz_mm - mate)
+    far = np.array([0.0, 0.0, 2000.0])
+    ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, far + 50.0), far)
+    assert ob.partner_mm is not None
 
 
 def test_a_joined_pair_moves_with_less_process_noise():
