@@ -76,3 +76,28 @@ def test_noise_split_finds_a_cues_white_noise_under_its_bias(tmp_path):
     # offset (2 px^2 per axis): half each, 1 px per axis
     assert abs(split["colour"][2] - 1.71) < 0.15 and split["depth"][2] < 0.5
     assert abs(split["colour"][3] - 1.0) < 0.2 and abs(split["depth"][3] - 1.0) < 0.2
+
+
+def test_startup_split_separates_the_first_tracked_frames(tmp_path):
+    # reference: offsets written into the table. fused 3 px off over the first STARTUP_FRAMES tracked rows,
+    # 0.5 px after; the best cue 1 px off throughout but missing every 5th row; an untracked row counts nowhere
+    import csv
+
+    from drivers.synth import SynthSource
+
+    scene = next(s for s in fusion_matrix.SCENES if s.name == "default-320")
+    frames = 60
+    src = SynthSource(frames=frames, seed=scene.seed, size=(320, 200), background_frames=10, **scene.options)
+    table = tmp_path / "t.csv"
+    first = fusion_matrix.STARTUP_FRAMES
+    with open(table, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["frame", "u", "v", "depth_u", "depth_v"])
+        out.writerow([10, "", "", 0.0, 0.0])
+        for i, k in enumerate(range(11, frames)):
+            g = src.ground_truth(k)
+            off = 3.0 if i < first else 0.5
+            out.writerow([k, g.u + off, g.v, *((g.u, g.v + 1.0) if i % 5 else ("", ""))])
+    ff, bf, fr, br = fusion_matrix.startup_split(table, scene, frames, "depth")
+    assert abs(ff - 3.0) < 1e-6 and abs(fr - 0.5) < 1e-6
+    assert abs(bf - 1.0) < 1e-6 and abs(br - 1.0) < 1e-6
