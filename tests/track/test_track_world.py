@@ -14,7 +14,7 @@ from drivers.synth_rig import SynthRig
 from fusion_pf.filter.world import SURFACE_DEPTH_MM, PixelObservation, PointObservation, project
 from fusion_pf.frame import Frame, Intrinsics, Measurement
 from fusion_pf.pipeline import TrackConfig
-from fusion_pf.pipeline.world import _Camera, track_world
+from fusion_pf.pipeline.world import SPLIT_APART_MM, _Camera, track_world
 from fusion_pf.rig import CameraPose, CameraView, FrameSet
 
 HANDS = ("right_hand", "left_hand")
@@ -255,6 +255,15 @@ def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
         assert np.linalg.norm(ob.xyz_mm - own) < 0.1 * np.linalg.norm(ob.xyz_mm - mate)
     far = np.array([0.0, 0.0, 2000.0])
     ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, far + 50.0), far)
+    assert ob.partner_mm is not None
+    # a region whose two parts' centres are closer than SPLIT_APART_MM (one palm over the other, not side by side):
+    # which part is whose would be the predictions' guess, so the pair's midpoint
+    depth[:] = 0
+    depth[44:56, 72:80], depth[44:56, 80:88] = 980, 1000
+    m = Measurement("depth", 80.0, 50.0, 1.0, {"bbox": [72, 44, 16, 12]})
+    right, left = centre(70, 980), centre(78, 1000)
+    assert np.linalg.norm(right - left) < SPLIT_APART_MM
+    ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, left), right)
     assert ob.partner_mm is not None
 
 
