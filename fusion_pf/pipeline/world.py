@@ -90,7 +90,7 @@ from typing import cast
 import numpy as np
 
 from ..cues.background import AdaptiveBackground, BackgroundModel
-from ..cues.regions import two_means
+from ..cues.regions import separation, two_means
 from ..cues.registry import CUES
 from ..cues.roi import PALM_LENGTH_MM
 from ..errors import InputError
@@ -171,13 +171,12 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 #: reach (seeds 1, 12), 12.8 / 13.4 at 0.5 and 60 mm, 12.4 / 12.8 at 0.4 and 60 mm, 12.8 / 13.4 at 0.4 and 50 mm;
 #: one RGB-D and one colour-only camera 14.2 / 15.0, 12.9 / 13.9, 13.1 / 13.9, 13.1 / 14.0. 0.3: worse on seeds 1, 12.
 SPLIT_PIXELS, SPLIT_REACH_MM, SPLIT_MIN_POINTS, SPLIT_NOISE_SCALE = 4000, 60.0, 20, 0.4
-#: Parts of a split whose centres are closer than this are not two palms side by side (centres about a palm's width,
-#: 85 mm, apart) but one palm over the other or a palm and the other's fingers: which part is whose is then the
-#: predictions' guess, and a wrong guess measured at 0.4 x the noise confirmed itself frame after frame (a lead-only
-#: 2-camera seed: joined RMSE 32 / 41 mm, 14 without the split). Such a region measures the pair's midpoint instead.
-#: 60 mm: that seed 13.1 / 12.3 mm and another 13.9 / 14.4 (unguarded 12.1 / 12.5, no split 17.1 / 16.7); 35-45 mm
-#: never acted, 70 mm and 85 mm lost most of the split's gain (chosen on those two lead seeds, reported as tuned).
-SPLIT_APART_MM = 60.0
+#: A split is used only when its parts are two palms in the data, not the predictions' guess: their separation
+#: (:func:`~fusion_pf.cues.regions.separation`, Ashman's D of the points along the line through the parts' means) at
+#: least this. A 2-means split of one blob (a palm over the other, two palms pressed together: the visible surface is
+#: one hand's) is separated too (a disc's halves 3.21, a uniform bar's 3.46), two palms side by side (abutting discs)
+#: 4.0; below it the region measures the pair's midpoint.
+SPLIT_SEPARATION = 3.3
 #: Combined targets whose estimates were closer than :data:`JOINED_MM` (both palms in one blob: the shared region
 #: measures their midpoint only, their offset only each one's skeleton joint, 40-60 mm off while the hands touch) move
 #: with :data:`JOINED_NOISE` of the process noise: the pair's offset, measured that noisily, diffused with the full
@@ -424,7 +423,8 @@ class _Camera:
         2-means started at those surfaces (paper 000's k-means, :func:`~fusion_pf.cues.regions.two_means`); the
         target's part's centroid moved :data:`~fusion_pf.filter.world.SURFACE_DEPTH_MM` away from the camera is its
         centre. None without a box, with fewer than :data:`SPLIT_MIN_POINTS` points on either side, or with the parts'
-        centres closer than :data:`SPLIT_APART_MM` (the target's observation then measures the pair's midpoint).
+        separation below :data:`SPLIT_SEPARATION` (one blob split by the predictions; the target's observation then
+        measures the pair's midpoint).
         """
         box = m.extras.get("bbox")
         if box is None or frame.depth is None:
@@ -450,10 +450,9 @@ class _Camera:
         first = two_means(pts, seeds)
         if first is None or min(int(first.sum()), int((~first).sum())) < SPLIT_MIN_POINTS:
             return None
-        own, other = pts[first].mean(axis=0), pts[~first].mean(axis=0)
-        if np.linalg.norm(own - other) < SPLIT_APART_MM:
+        if separation(pts, first) < SPLIT_SEPARATION:
             return None
-        return beyond(own, centre, SURFACE_DEPTH_MM)
+        return beyond(pts[first].mean(axis=0), centre, SURFACE_DEPTH_MM)
 
     def line_of_sight(self, m: Measurement, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """The world line of sight through ``m``'s pixel: (optical centre, direction)."""

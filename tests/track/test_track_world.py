@@ -14,7 +14,7 @@ from drivers.synth_rig import SynthRig
 from fusion_pf.filter.world import SURFACE_DEPTH_MM, PixelObservation, PointObservation, project
 from fusion_pf.frame import Frame, Intrinsics, Measurement
 from fusion_pf.pipeline import TrackConfig
-from fusion_pf.pipeline.world import SPLIT_APART_MM, _Camera, track_world
+from fusion_pf.pipeline.world import _Camera, track_world
 from fusion_pf.rig import CameraPose, CameraView, FrameSet
 
 HANDS = ("right_hand", "left_hand")
@@ -256,13 +256,23 @@ def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
     far = np.array([0.0, 0.0, 2000.0])
     ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, far + 50.0), far)
     assert ob.partner_mm is not None
-    # a region whose two parts' centres are closer than SPLIT_APART_MM (one palm over the other, not side by side):
-    # which part is whose would be the predictions' guess, so the pair's midpoint
+    # two surfaces whose parts' centres are closer than 60 mm (two palms at different depths, side by side): still two
+    # palms in the data (separated parts), each hand's own part
     depth[:] = 0
     depth[44:56, 72:80], depth[44:56, 80:88] = 980, 1000
     m = Measurement("depth", 80.0, 50.0, 1.0, {"bbox": [72, 44, 16, 12]})
     right, left = centre(70, 980), centre(78, 1000)
-    assert np.linalg.norm(right - left) < SPLIT_APART_MM
+    assert np.linalg.norm(right - left) < 60.0
+    ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, left), right)
+    assert ob.partner_mm is None and np.linalg.norm(ob.xyz_mm - right) < 3.0
+    # one surface (a palm over the other: one hand's 160 x 100 mm ellipse seen) with the predictions on either side of
+    # its centre: 2-means halves it (parts 67 mm apart) but the halves are not separated (an ellipse's: Ashman's D
+    # 3.21), so which half is whose would be the predictions' guess: the pair's midpoint
+    depth[:] = 0
+    vv, uu = np.mgrid[0:100, 0:160]
+    depth[((uu - 79.5) / 16.0) ** 2 + ((vv - 49.5) / 10.0) ** 2 <= 1.0] = 1000
+    m = Measurement("depth", 80.0, 50.0, 1.0, {"bbox": [63, 39, 34, 22]})
+    right, left = centre(74.0 - 6.8, 1000), centre(74.0 + 6.8, 1000)  # 34 mm (6.8 px) either side of its centre
     ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, left), right)
     assert ob.partner_mm is not None
 
