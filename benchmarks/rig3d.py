@@ -13,7 +13,8 @@ blob of the two) and while apart, at the instants one
 camera alone sees the hand the error along and across that camera's line of sight (RMS; the depth
 along a single line of sight is what one camera leaves unobserved), coverage and identity
 swaps (:func:`fusion_pf.score.targets.score_world`); pooled per scene, the joined error split into the pair's
-midpoint ``(r + l) / 2`` and half-offset ``(r - l) / 2`` (each hand's error is their sum or difference). Beside it, the
+midpoint ``(r + l) / 2`` and half-offset ``(r - l) / 2`` (each hand's error is their sum or difference), and the
+joined pair's estimated gap between the hands against the true one. Beside it, the
 single-camera depth back-projection on the same scene: cam0's view alone
 (``McapReplay(camera="cam0")``) tracked by the 2-D pipeline
 (:func:`fusion_pf.pipeline.track`, same targets), each hand's ``xyz_mm``
@@ -123,6 +124,15 @@ def pair_errors(data: dict) -> tuple[np.ndarray, np.ndarray]:
     return mid, half
 
 
+def gap_errors(data: dict) -> np.ndarray:
+    """While joined (:func:`joined_mask`), the estimated distance between the two hands minus the true one (mm, instants
+    both hands have an estimate): whether the tracker holds the joined pair's gap, too wide (> 0) or too narrow."""
+    er, el = (data["positions"][t] for t in HANDS)
+    tr, tl = (data["truths"][t] for t in HANDS)
+    ok = joined_mask(data) & np.isfinite(er).all(axis=1) & np.isfinite(el).all(axis=1)
+    return np.linalg.norm((er - el)[ok], axis=1) - np.linalg.norm((tr - tl)[ok], axis=1)
+
+
 def rms(values: np.ndarray) -> float:
     """Root mean square, NaN for none."""
     return float(np.sqrt(np.mean(values**2))) if values.size else math.nan
@@ -169,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     pooled: dict[tuple[str, int, int], list[float]] = {}
     ray_errors: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
     pairs: dict[tuple[str, int, int], tuple[list[float], list[float]]] = {}
+    gaps: dict[tuple[str, int, int], list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.recordings or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
@@ -185,6 +196,7 @@ def main(argv: list[str] | None = None) -> int:
                     mid, half = pair_errors(data)
                     pairs.setdefault((group, cameras, colour_only), ([], []))[0].extend(mid.tolist())
                     pairs[(group, cameras, colour_only)][1].extend(half.tolist())
+                    gaps.setdefault((group, cameras, colour_only), []).extend(gap_errors(data).tolist())
                     for t in HANDS:
                         r, b = res["targets"][t], base["targets"][t]
                         err = res["errors"][t]
@@ -212,10 +224,13 @@ def main(argv: list[str] | None = None) -> int:
         a, c = (np.array(v) for v in ray_errors[(group, cameras, colour_only)])
         ratio = f"{rms(a):.1f} / {rms(c):.1f} mm" if a.size else "-"
         mid, half = (np.array(v) for v in pairs[(group, cameras, colour_only)])
+        gap = np.array(gaps[(group, cameras, colour_only)])
+        bias = f"{gap.mean():+.1f}" if gap.size else "-"
         print(
             f"  {group:8s} {cameras} cameras, {colour_only} colour-only: {rms(e):.1f} mm; "
             f"one camera seeing it ({a.size} instants), along / across its line of sight: {ratio}; "
-            f"joined ({mid.size} instants), the pair's midpoint / half-offset: {rms(mid):.1f} / {rms(half):.1f} mm"
+            f"joined ({mid.size} instants), the pair's midpoint / half-offset: {rms(mid):.1f} / {rms(half):.1f} mm, "
+            f"estimated minus true gap between the hands RMS / mean: {rms(gap):.1f} / {bias} mm"
         )
     return 0
 

@@ -1,4 +1,4 @@
-"""benchmarks/rig3d.py: the joined / apart split and the joined pair's midpoint / half-offset errors."""
+"""benchmarks/rig3d.py: the joined / apart split, the joined pair's midpoint / half-offset errors and its gap."""
 
 import importlib.util
 import math
@@ -38,6 +38,7 @@ def test_joined_pair_error_splits_into_midpoint_and_half_offset():
     mid, half = bench.pair_errors(data)
     np.testing.assert_allclose(mid, [0.0, 4.0])
     np.testing.assert_allclose(half, [2.0, 0.0])
+    np.testing.assert_allclose(bench.gap_errors(data), [-4.0, 0.0])  # 26 mm estimated where 30; 30 where 30
     assert math.isclose(bench.rms(np.array([3.0, 4.0])), math.sqrt(12.5))
     assert math.isnan(bench.rms(np.array([])))
 
