@@ -1569,13 +1569,19 @@ def track(
         # the whole frame on the cues' OpenCV threads, its decoding too: lowering the count while OpenCV's
         # pool has threads (the decode's colour conversion starts them) stops them, ~3 ms of waiting a frame
         # on a loaded machine; the caller's count is back for its own code between frames
+        stop: BaseException | None = None
         with opencv_threads(config.cue_options.cv_threads):
-            item = next(frames, None)
+            try:
+                item = next(frames, None)
+                if item is not None:
+                    _track_frame(item, cues, targets, order, config, stats)
+            except BaseException as exc:  # a stop (signal, source fault): the held frames go out first, then it
+                item, stop = None, exc
             if item is None:
                 order.fill(targets.flush())
-            else:
-                _track_frame(item, cues, targets, order, config, stats)
         yield from _finish(order.ready(), events)  # outside: the caller's own OpenCV threads
+        if stop is not None:
+            raise stop
         if item is None:
             return
 

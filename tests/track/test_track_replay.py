@@ -100,3 +100,19 @@ def test_several_targets_replay_in_one_path():
     tracked = [r for r in results if not r.background]
     assert all(set(r.targets) == {"right_hand", "left_hand"} for r in tracked)
     assert sum(r.targets["left_hand"].estimate is not None for r in tracked) > 30
+
+
+def test_a_stop_while_frames_are_held_gives_them_out_first(sharp_frames):
+    """A source that fails (or a signal) while the first frames are held: their rows come out, then the error."""
+    from fusion_pf.errors import RecordingError
+
+    def source():
+        yield from sharp_frames[:30]
+        raise RecordingError("damaged chunk")
+
+    results = []
+    with pytest.raises(RecordingError, match="damaged chunk"):
+        for r in track(source(), TrackConfig(replay_frames=K, particles=60)):
+            results.append(r)
+    assert [r.frame for r in results] == list(range(30))
+    assert sum(r.estimate is not None for r in results) == 20  # the 20 held tracked frames, replayed
