@@ -73,7 +73,8 @@ Warm-start replay (``TrackConfig.replay_frames``, K)
     come from the replay, in frame order, one per frame, K frames late, once
     (a live view receives them at once; a queue shorter than K drops the
     oldest, counted). A stream that ends before K tracked frames replays
-    what it has. Only the first start of the stream is replayed: after a
+    what it has; so does one stopped by a signal or a source's fault, whose
+    held rows come out before the error. Only the first start of the stream is replayed: after a
     loss the learned noise persists, so a re-acquisition does not start
     from the configured noise, and is not delayed. Several targets are held
     and replayed together (from the first frame any of them holds a track),
