@@ -20,7 +20,7 @@ from ..filter.world import DEFAULT_WORLD_NOISE_MM, DEFAULT_WORLD_PROCESS_NOISE
 from ..geometry import DEFAULT_DEPTH_RADIUS
 from ..options import option, parse_pairs, parse_tuple, validate
 
-__all__ = ["DEFAULT_BACKGROUND_K", "FILTERS", "ROI_PRIORS", "TARGETS", "TrackConfig"]
+__all__ = ["DEFAULT_BACKGROUND_K", "DEFAULT_REPLAY_FRAMES", "FILTERS", "ROI_PRIORS", "TARGETS", "TrackConfig"]
 
 #: ``--filter`` values: the particle filter, the Kalman baseline and the scatter-search PF (paper 002).
 FILTERS = ("pf", "kf", "sspf")
@@ -30,6 +30,8 @@ ROI_PRIORS = ("auto", "filter", "skeleton")
 DEFAULT_MANOEUVRE = (0.1, 20.0)
 #: Frames of the running-median background when the source has no empty-scene frame.
 DEFAULT_BACKGROUND_K = 30
+#: Frames of the warm-start replay (``replay_frames``, :class:`fusion_pf.pipeline.run` "Warm-start replay").
+DEFAULT_REPLAY_FRAMES = 25
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -368,6 +370,17 @@ class TrackConfig:
         help="particle filter: learn the process noise from the filter's corrections (estimate minus "
         "prediction) in frames with two cues or more, between 0.3 and 1 x --process-noise "
         "(fusion_pf/filter/calibration.py, process_scale); off: --process-noise",
+    )
+    replay_frames: int = option(
+        DEFAULT_REPLAY_FRAMES,
+        kind="int",
+        lo=0,
+        hi=10_000,
+        metavar="K",
+        help="warm-start replay: once the track has held K frames from its first start, run the filter "
+        "again over those K frames' cues (kept, not recomputed) from their first, with the noise and "
+        "motion learned from them (--adapt-noise, --adapt-motion), and write those rows from the "
+        "replay; they come K frames late, once. 0: off",
     )
     burst_gate: bool = option(
         True,

@@ -55,6 +55,31 @@ Cue faults
     frame; the run goes on. :class:`TrackStats` counts per cue the frames
     without a measurement and those it failed on (with the first message).
 
+Warm-start replay (``TrackConfig.replay_frames``, K)
+    The filter starts at rest with every cue at its configured noise, and the
+    per-cue noise (:mod:`fusion_pf.filter.calibration`) needs some 20-30
+    frames to learn, e.g., that a sharp depth cue is 0.3 px: meanwhile the
+    track trusts its own prediction and lags the moving palm (on the matrix
+    scenes with one very precise cue, half or more of the squared error was
+    in the first 20-30 frames). So the frames from the first one in which a
+    target holds a track are held (their cue rows only: the cues ran once)
+    until K of them are, and the filters then run again over them from the
+    first, new filters (same seeds) with the noise, outlier probabilities,
+    process noise and palm scale the first pass learned from those frames,
+    fixed during the replay (they taught them once); they start at the most
+    trusted cue within one apparent palm length of the first pass's estimate
+    of the first frame (a cue the learned noise trusts may be off the palm
+    in that one frame), and go on online after it. The held frames' rows
+    come from the replay, in frame order, one per frame, K frames late, once
+    (a live view receives them at once; a queue shorter than K drops the
+    oldest, counted). A stream that ends before K tracked frames replays
+    what it has; so does one stopped by a signal or a source's fault, whose
+    held rows come out before the error. Only the first start of the stream is replayed: after a
+    loss the learned noise persists, so a re-acquisition does not start
+    from the configured noise, and is not delayed. Several targets are held
+    and replayed together (from the first frame any of them holds a track),
+    the supervision between them included.
+
 Background model (colour and depth cues)
     1. the ``background`` argument: a model the caller built, e.g. the command
        line from the empty-scene recording ``config.background`` (the pipeline
@@ -101,6 +126,7 @@ import time
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -859,6 +885,30 @@ class _FilterStage:
         self._moves: deque[float] = deque(maxlen=MOTION_WINDOW)
         self._motion_scale = 1.0
         self.bursts = BurstFilter() if config.burst_gate else None
+        self._learn = True
+        self._anchor: tuple[float, float] | None = None
+
+    def replaying(self, learnt: _FilterStage, start: tuple[float, float] | None) -> None:
+        """Start this (new) stage as the replay of ``learnt``'s first frames (module docstring, "Warm-start replay").
+
+        It takes the noise, outlier probabilities and process noise ``learnt`` learned, and its
+        smoothed palm scale, and keeps them fixed until :meth:`online`: the replayed frames taught
+        them once. ``start``: ``learnt``'s estimate of the first replayed frame; the replay starts
+        at the most trusted cue within one apparent palm length of it (a cue the learned noise
+        trusts may be off the palm in that one frame), else at it as at a given ``--init``; None:
+        at the most trusted cue.
+        """
+        self._calibration = learnt._calibration
+        self._moves = learnt._moves
+        self._motion_scale = learnt._motion_scale
+        self._palm_k = learnt._palm_k
+        self._learn = False
+        self.init = None
+        self._anchor = start
+
+    def online(self) -> None:
+        """Learn again from every frame (the replay is over)."""
+        self._learn = True
 
     def _start(self, size: tuple[int, int]) -> None:
         self.tracker = make_tracker(self.config, self.rng, size)
@@ -866,6 +916,11 @@ class _FilterStage:
         self._init_spread = 20.0 * pixel_scale(size, self.config)
         self._var = {s: v * v for s, v in self.tracker.noise_px.items()}
         self._scale = pixel_scale(size, self.config)
+        if self._palm_k is not None and self.config.palm_scale and self.config.scale_noise:
+            self._rescale()  # a replay: the palm scale it learned, and its process noise
+        elif self._motion_scale != 1.0:
+            r = self._motion_scale * self._scale
+            self.tracker.set_process_noise((self.config.process_noise[0] * r, self.config.process_noise[1] * r))
         diag = math.hypot(*size)
         self.states = StateConfig(
             max_spread_px=self.config.max_spread * diag,
@@ -944,7 +999,8 @@ class _FilterStage:
         if isinstance(tracker, ParticleFilter):
             for m in ms:
                 tracker.set_outlier_prob(m.source, calibration.outlier(m))
-        calibration.update(ms, sigmas, self._scale, predicted, timestamp_ns)
+        if self._learn:
+            calibration.update(ms, sigmas, self._scale, predicted, timestamp_ns)
 
     def _predicted(self, timestamp_ns: int) -> tuple[float, float, float] | None:
         """The filter's prediction of this frame and its per-axis variance (u, v px, px^2) while it tracks, else None.
@@ -1124,6 +1180,14 @@ class _FilterStage:
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
             predicted = None  # a restart is no correction of the motion model
+        anchor, self._anchor = self._anchor, None
+        if anchor is not None and not tracker.initialised:
+            reach = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+            near = [m for m in ms if math.hypot(m.u - anchor[0], m.v - anchor[1]) <= reach]
+            if near:
+                self._restart(tracker, min(near, key=lambda m: trust[m.source]))
+            else:
+                self.init = anchor
         if not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
                 assert best is not None  # ms is not empty
@@ -1145,6 +1209,7 @@ class _FilterStage:
             predicted is not None
             and estimate is not None
             and self.config.adapt_motion
+            and self._learn
             and isinstance(tracker, ParticleFilter)
         ):
             self._learn_motion(estimate, predicted)
@@ -1213,16 +1278,26 @@ class _Targets:
     """
 
     def __init__(self, config: TrackConfig, rng: np.random.Generator | int | None) -> None:
-        names = targets_of(config)
-        self.names = names
-        self.stages = {
-            t: _FilterStage(
-                config, rng if k == 0 else np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(3, k)))
-            )
-            for k, t in enumerate(names)
-        }
+        self.config = config
+        self.rng = rng
+        self.names = targets_of(config)
+        self.stages = self._stages()
         self.entry: dict[str, tuple[float, float]] = {}
         self.parted: dict[str, int] = {}
+        self._held: list[tuple[Mapping[str, CueRow], tuple[int, int]]] | None = None  # the frames to replay
+        self._starts: dict[str, tuple[float, float] | None] = {}  # per target its estimate of the first of them
+        self._replayed = config.replay_frames == 0
+
+    def _stages(self) -> dict[str, _FilterStage]:
+        """A new filter stage per target (the first seeded by ``rng``, the others by their own streams of ``config.seed``)."""
+        seed = self.config.seed
+        return {
+            t: _FilterStage(
+                self.config,
+                self.rng if k == 0 else np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3, k))),
+            )
+            for k, t in enumerate(self.names)
+        }
 
     def partners(self) -> dict[str, str]:
         """The combined targets, each to its partner."""
@@ -1249,7 +1324,43 @@ class _Targets:
             out[t] = (SHARED_OFFSET_PALMS * palm * e[0] / n, SHARED_OFFSET_PALMS * palm * e[1] / n)
         return out
 
-    def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
+    def __call__(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> list[TrackResult]:
+        """The results this frame completes, in frame order (module docstring, "Warm-start replay").
+
+        One, the frame's own, except from the first frame a target holds a track on: those frames
+        are held (none) until ``config.replay_frames`` of them are, then all of them come from the
+        replay at once.
+        """
+        result = self._step(rows, size)
+        if self._replayed:
+            return [result]
+        if self._held is None:
+            if not any(f.tracking for f in self.stages.values()):
+                return [result]
+            self._held = []
+            results = result.targets or {self.names[0]: result}
+            self._starts = {t: None if (e := r.estimate) is None else (e.u, e.v) for t, r in results.items()}
+        self._held.append((rows, size))
+        return self._replay() if len(self._held) >= self.config.replay_frames else []
+
+    def flush(self) -> list[TrackResult]:
+        """The frames still held at the end of the stream, replayed with what they taught."""
+        return self._replay() if self._held else []
+
+    def _replay(self) -> list[TrackResult]:
+        """Run new filters over the held frames with the noise and motion the first pass learned; they go on online."""
+        held, self._held, self._replayed = self._held or [], None, True
+        learnt, self.stages = self.stages, self._stages()
+        self.entry, self.parted = {}, {}
+        for t, f in self.stages.items():
+            f.replaying(learnt[t], self._starts.get(t))
+        out = [self._step(rows, size) for rows, size in held]
+        for f in self.stages.values():
+            f.online()
+        return out
+
+    def _step(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
+        """Every target's filter over its row of this frame and the supervision between them: the first target's result."""
         results = {t: f(rows[t]) for t, f in self.stages.items()}
         if len(self.names) == 1:
             first = results[self.names[0]]
@@ -1454,41 +1565,105 @@ def track(
     targets = _Targets(config, rng)
     events = EventDetector(targets.names)
     frames = _with_background(source, config, background)
+    order: _InOrder[tuple[Frame, int]] = _InOrder()
     while True:
         # the whole frame on the cues' OpenCV threads, its decoding too: lowering the count while OpenCV's
         # pool has threads (the decode's colour conversion starts them) stops them, ~3 ms of waiting a frame
         # on a loaded machine; the caller's count is back for its own code between frames
+        stop: BaseException | None = None
         with opencv_threads(config.cue_options.cv_threads):
-            item = next(frames, None)
+            try:
+                item = next(frames, None)
+                if item is not None:
+                    _track_frame(item, cues, targets, order, config, stats)
+            except BaseException as exc:  # a stop (signal, source fault): the held frames go out first, then it
+                item, stop = None, exc
             if item is None:
-                return
-            index, frame, dec, model = item
-            t0 = time.perf_counter_ns() - dec
-            if model is None:
-                result = _background_result(_background_row(index, frame, dec, cues.names))
-                result.target = cues.targets[0]
-            else:
-                priors, palms = {}, {}
-                for t, f in targets.stages.items():
-                    priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
-                    palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
-                gates = {t: f.source_gates() for t, f in targets.stages.items()}
-                rows = cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates, targets.offsets())
-                result = targets(rows, frame.size)
-                result.latency_ns["total"] = time.perf_counter_ns() - t0
-                for r in result.targets.values():
-                    r.latency_ns["total"] = result.latency_ns["total"]
-                if stats is not None:
-                    stats.losses = sum(f.losses for f in targets.stages.values())
-                    stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
-                    stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
-                    stats.rested = cues.rested
-                    stats.bursts = {}
-                    for f in targets.stages.values():
-                        for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
-                            stats.bursts[name] = stats.bursts.get(name, 0) + n
-            result.source_frame = frame
-            result.events = events.feed(result)
+                order.fill(targets.flush())
+        yield from _finish(order.ready(), events)  # outside: the caller's own OpenCV threads
+        if stop is not None:
+            raise stop
+        if item is None:
+            return
+
+
+def _track_frame(
+    item: tuple[int, Frame, int, BackgroundModel | None],
+    cues: _CueStage,
+    targets: _Targets,
+    order: _InOrder[tuple[Frame, int]],
+    config: TrackConfig,
+    stats: TrackStats | None,
+) -> None:
+    """One frame of :func:`track`: its cues and filters; the results it completes to ``order``."""
+    index, frame, dec, model = item
+    t0 = time.perf_counter_ns() - dec
+    if model is None:
+        result = _background_result(_background_row(index, frame, dec, cues.names))
+        result.target = cues.targets[0]
+        order.add((frame, result.latency_ns["total"]), result)
+        return
+    priors, palms = {}, {}
+    for t, f in targets.stages.items():
+        priors[t] = cues.prior(frame, config.roi_prior, f.prediction(frame.timestamp_ns), t)
+        palms[t] = None if config.roi_prior == "skeleton" else f.palm_px  # as extract_cues: no filter there
+    gates = {t: f.source_gates() for t, f in targets.stages.items()}
+    rows = cues.rows(index, frame, dec, model, priors, palms, targets.partners(), gates, targets.offsets())
+    results = targets(rows, frame.size)
+    order.add((frame, time.perf_counter_ns() - t0))
+    order.fill(results)
+    if stats is not None:
+        stats.losses = sum(f.losses for f in targets.stages.values())
+        stats.reacquisitions = sum(f.reacquisitions for f in targets.stages.values())
+        stats.missing, stats.failed, stats.first_error = cues.missing, cues.failed, cues.first_error
+        stats.rested = cues.rested
+        stats.bursts = {}
+        for f in targets.stages.values():
+            for name, n in ({} if f.bursts is None else f.bursts.bursts).items():
+                stats.bursts[name] = stats.bursts.get(name, 0) + n
+
+
+T = TypeVar("T")
+
+
+class _InOrder(Generic[T]):
+    """Per frame a tag and its result, given out in frame order once the results are there.
+
+    A frame's result may come later than the frame (the warm-start replay's
+    held frames): :meth:`fill` gives the oldest frames without one theirs.
+    """
+
+    def __init__(self) -> None:
+        self._slots: deque[list] = deque()  # [tag, result or None], oldest first
+
+    def add(self, tag: T, result: TrackResult | None = None) -> None:
+        """A frame, with its result when it has one already."""
+        self._slots.append([tag, result])
+
+    def fill(self, results: Sequence[TrackResult]) -> None:
+        """``results`` to the oldest frames without one, in order."""
+        open_slots = (slot for slot in self._slots if slot[1] is None)
+        for slot, result in zip(open_slots, results):
+            slot[1] = result
+
+    def ready(self) -> list[tuple[T, TrackResult]]:
+        """The leading frames that have their results (removed)."""
+        out = []
+        while self._slots and self._slots[0][1] is not None:
+            tag, result = self._slots.popleft()
+            out.append((tag, result))
+        return out
+
+
+def _finish(ready: Sequence[tuple[tuple[Frame, int], TrackResult]], events: EventDetector) -> Iterator[TrackResult]:
+    """Complete the results :func:`track` gives out: each frame's total time (its own processing), the frame, its events."""
+    for (frame, total), result in ready:
+        if not result.background:
+            result.latency_ns["total"] = total
+            for r in result.targets.values():
+                r.latency_ns["total"] = total
+        result.source_frame = frame
+        result.events = events.feed(result)
         yield result
 
 
@@ -1515,17 +1690,18 @@ def extract_cues(
     """
     cues = _CueStage(config)
     mode = config.roi_prior
-    filt = None if mode == "skeleton" else _FilterStage(config, None)
+    targets = None if mode == "skeleton" else _Targets(config, None)
     rows = []
     for index, frame, dec, model in _with_background(frames, config, background):
         if model is None:
             rows.append(_background_row(index, frame, dec, cues.names))
             continue
+        filt = None if targets is None else targets.stages[targets.names[0]]
         prediction = None if filt is None else filt.prediction(frame.timestamp_ns)
         palm = None if filt is None else filt.palm_px
         row = cues(index, frame, dec, model, cues.prior(frame, mode, prediction), palm)
-        if filt is not None:
-            filt(row)
+        if targets is not None:
+            targets({targets.names[0]: row}, frame.size)
         rows.append(row)
     return rows
 
@@ -1550,13 +1726,17 @@ def run_filter(
         ``latency_ns`` holds the cue stages as measured by :func:`extract_cues`,
         this run's ``filter`` time and ``total`` = their sum.
     """
-    filt = _FilterStage(config, rng)
-    out = []
+    targets = _Targets(config, rng)
+    order: _InOrder[None] = _InOrder()
     for row in cue_rows:
         if row.background:
-            out.append(_background_result(row))
+            order.add(None, _background_result(row))
             continue
-        result = filt(row)
-        result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(tuple(row.cues))[:-1])
-        out.append(result)
+        order.add(None)
+        order.fill(targets({targets.names[0]: row}, (row.intrinsics.width, row.intrinsics.height)))
+    order.fill(targets.flush())
+    out = [result for _, result in order.ready()]
+    for result in out:
+        if not result.background:
+            result.latency_ns["total"] = sum(result.latency_ns[s] for s in stages(tuple(result.cues))[:-1])
     return out
