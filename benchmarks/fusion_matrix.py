@@ -3,7 +3,7 @@
 Usage (from the repository root)::
 
     python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...]
-        [--recordings DIR] [--save FILE.json] [--compare FILE.json] [--noise-split] [--startup]
+        [--recordings DIR] [--save FILE.json] [--compare FILE.json] [--noise-split] [--startup] [--bestmax]
         [-- TRACK OPTIONS]
 
 Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
@@ -308,6 +308,95 @@ def print_startup_split(rows: list[dict]) -> None:
         )
 
 
+def bestmax_split(table: Path, scene: Scene, frames: int) -> dict[str, float]:
+    """Where the fused estimate loses BestMax in ``table`` (paper 003 §4.4; ground truth from the synthetic source).
+
+    A contested frame has the truth, the fused estimate and at least one cue. The fused estimate loses it
+    when a cue is nearer the truth (beyond :data:`~fusion_pf.score.metrics.TIE_TOL_PX`). A lost frame is
+    *behind* when the cue nearest the fused estimate is that winning cue (fused is a smoothed or pulled
+    copy of the best cue of the frame), else *elsewhere* (fused sits nearer a cue that is further from the
+    truth: it follows a wrong cue, or lies between cues). ``lag`` is the mean of the fused error along the
+    palm's motion (the truth's central difference; negative: behind the palm).
+
+    Returns
+    -------
+    dict
+        ``frames`` (contested), ``won``, ``behind``, ``elsewhere`` (shares of them); ``behind_fused``,
+        ``behind_cue``, ``elsewhere_fused``, ``elsewhere_cue`` (median error of the fused estimate and of
+        the winning cue in those frames, px); ``behind_sq``, ``elsewhere_sq`` (their share of the fused
+        squared error over the contested frames); ``lag`` and ``speed`` (median palm speed), px and px/frame.
+    """
+    from drivers.synth import SynthSource
+    from fusion_pf.score.metrics import TIE_TOL_PX
+
+    w, h = (int(x) for x in scene.size.split("x"))
+    src = SynthSource(frames=frames, seed=scene.seed, size=(w, h), background_frames=10, **scene.options)
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+
+    def points(u: str, v: str) -> np.ndarray:
+        return np.array([[float(r[u]), float(r[v])] if r.get(u) and r.get(v) else [np.nan, np.nan] for r in rows])
+
+    truth = [src.ground_truth(int(r["frame"])) for r in rows]
+    g = np.array([(t.u, t.v) if t is not None else (np.nan, np.nan) for t in truth])
+    fused = points("u", "v")
+    cues = np.stack([points(f"{c}_u", f"{c}_v") for c in CUES if f"{c}_u" in rows[0]])  # (cues, n, 2)
+    err = np.hypot(*(cues - g).transpose(2, 0, 1))  # (cues, n)
+    to_fused = np.hypot(*(cues - fused).transpose(2, 0, 1))
+    fe = np.hypot(*(fused - g).T)
+    ok = np.isfinite(fe) & np.isfinite(err).any(axis=0)
+    winner = np.argmin(np.where(np.isfinite(err), err, np.inf), axis=0)
+    best = np.take_along_axis(np.where(np.isfinite(err), err, np.inf), winner[None], axis=0)[0]
+    nearest = np.argmin(np.where(np.isfinite(to_fused), to_fused, np.inf), axis=0)
+    lost = ok & (fe > best + TIE_TOL_PX)
+    behind, elsewhere = lost & (nearest == winner), lost & (nearest != winner)
+    # the palm's motion per frame: central differences of the truth over consecutive frames
+    frame = np.array([int(r["frame"]) for r in rows])
+    vel = np.full_like(g, np.nan)
+    inner = (frame[2:] - frame[:-2] == 2) if len(rows) > 2 else np.zeros(0, bool)
+    vel[1:-1][inner] = 0.5 * (g[2:] - g[:-2])[inner]
+    speed = np.hypot(*vel.T)
+    moving = ok & np.isfinite(speed) & (speed > 0.0)
+    along = ((fused - g) * vel).sum(axis=1)[moving] / speed[moving]
+    total = float((fe[ok] ** 2).sum())
+    n = int(ok.sum())
+
+    def median(a: np.ndarray) -> float:
+        return float(np.median(a)) if a.size else math.nan
+
+    return {
+        "frames": n,
+        "won": float((ok & ~lost).sum() / n) if n else math.nan,
+        "behind": float(behind.sum() / n) if n else math.nan,
+        "elsewhere": float(elsewhere.sum() / n) if n else math.nan,
+        "behind_fused": median(fe[behind]),
+        "behind_cue": median(best[behind]),
+        "elsewhere_fused": median(fe[elsewhere]),
+        "elsewhere_cue": median(best[elsewhere]),
+        "behind_sq": float((fe[behind] ** 2).sum() / total) if total > 0 else math.nan,
+        "elsewhere_sq": float((fe[elsewhere] ** 2).sum() / total) if total > 0 else math.nan,
+        "lag": float(along.mean()) if along.size else math.nan,
+        "speed": median(speed[moving]),
+    }
+
+
+def print_bestmax_split(rows: list[dict]) -> None:
+    """Per scene: the frames the fused estimate wins and where it loses them (:func:`bestmax_split`)."""
+    print(
+        "BestMax split: frames fused wins; loses behind the winning cue (fused nearest it) / elsewhere (nearer "
+        "another cue): share of frames, median error fused / winning cue px, share of fused squared error; "
+        "lag = mean fused error along the motion px (speed px/frame)"
+    )
+    for r in rows:
+        b = r["bestmax_split"]
+        print(
+            f"{r['scene'].name:<20} {r['scene'].split:<5} {r['scene'].size:>9} won {b['won']:4.0%}  "
+            f"behind {b['behind']:4.0%} {b['behind_fused']:5.2f} / {b['behind_cue']:5.2f} ({b['behind_sq']:4.0%})  "
+            f"elsewhere {b['elsewhere']:4.0%} {b['elsewhere_fused']:5.2f} / {b['elsewhere_cue']:5.2f} "
+            f"({b['elsewhere_sq']:4.0%})  lag {b['lag']:+5.2f} ({b['speed']:4.1f})"
+        )
+
+
 def print_noise_split(rows: list[dict]) -> None:
     """Per scene and cue: median error / white noise / slow error / online slow error per axis, px (:func:`noise_split`)."""
     print(
@@ -348,6 +437,7 @@ def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str], recor
         "cover2sd": coverage_2sd(table, scene, frames),
         "noise": noise_split(table, scene, frames),
         "startup": startup_split(table, scene, frames, best),
+        "bestmax_split": bestmax_split(table, scene, frames),
     }
 
 
@@ -446,6 +536,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help=f"also print fused and best-cue RMSE over the first {STARTUP_FRAMES} tracked frames and the rest per scene",
     )
+    p.add_argument(
+        "--bestmax",
+        action="store_true",
+        help="also print per scene where the fused estimate loses BestMax: behind the winning cue or near another",
+    )
     args = p.parse_args(argv)
     scenes = SCENES
     if args.only:
@@ -464,6 +559,8 @@ def main(argv: list[str] | None = None) -> int:
         print_noise_split(rows)
     if args.startup:
         print_startup_split(rows)
+    if args.bestmax:
+        print_bestmax_split(rows)
     if args.save is not None:
         save(rows, args.save)
     if args.compare is not None:

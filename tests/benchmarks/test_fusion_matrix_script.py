@@ -101,3 +101,59 @@ def test_startup_split_separates_the_first_tracked_frames(tmp_path):
     ff, bf, fr, br = fusion_matrix.startup_split(table, scene, frames, "depth")
     assert abs(ff - 3.0) < 1e-6 and abs(fr - 0.5) < 1e-6
     assert abs(bf - 1.0) < 1e-6 and abs(br - 1.0) < 1e-6
+
+
+def _table(tmp_path, frames, row_of):
+    """A tracker table for default-320's truth: ``row_of(i, g, before, after)`` gives (u, v, colour_u, colour_v, depth_u, depth_v)."""
+    import csv
+
+    from drivers.synth import SynthSource
+
+    scene = next(s for s in fusion_matrix.SCENES if s.name == "default-320")
+    src = SynthSource(frames=frames, seed=scene.seed, size=(320, 200), background_frames=10, **scene.options)
+    table = tmp_path / "t.csv"
+    with open(table, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["frame", "u", "v", "colour_u", "colour_v", "depth_u", "depth_v"])
+        for i, k in enumerate(range(11, frames - 1)):  # each row's neighbours have a truth
+            out.writerow([k, *row_of(i, src.ground_truth(k), src.ground_truth(k - 1), src.ground_truth(k + 1))])
+    return table, scene
+
+
+def test_bestmax_split_tells_a_fused_estimate_behind_the_best_cue_from_one_near_another(tmp_path):
+    # reference: offsets written into the table, 10 rows of each kind. won: fused 0.1 px off, depth 1 px, no
+    # colour; behind: depth 0.2 px, fused 0.5 px beside it (nearest to depth), colour 3 px; elsewhere: depth
+    # 0.2 px, fused 2.5 px off and 0.5 px from colour (3 px off); uncontested: fused alone
+    def row_of(i, g, before, after):
+        u, v = g.u, g.v
+        return [
+            (u + 0.1, v, "", "", u + 1.0, v),
+            (u + 0.5, v, u + 3.0, v, u + 0.2, v),
+            (u, v + 2.5, u, v + 3.0, u + 0.2, v),
+            (u, v, "", "", "", ""),
+        ][i % 4]
+
+    table, scene = _table(tmp_path, 52, row_of)
+    b = fusion_matrix.bestmax_split(table, scene, 52)
+    assert b["frames"] == 30
+    assert abs(b["won"] - 1 / 3) < 1e-9 and abs(b["behind"] - 1 / 3) < 1e-9 and abs(b["elsewhere"] - 1 / 3) < 1e-9
+    assert abs(b["behind_fused"] - 0.5) < 1e-6 and abs(b["behind_cue"] - 0.2) < 1e-6
+    assert abs(b["elsewhere_fused"] - 2.5) < 1e-6 and abs(b["elsewhere_cue"] - 0.2) < 1e-6
+    # squared errors: 10 x 0.01 won, 10 x 0.25 behind, 10 x 6.25 elsewhere
+    assert abs(b["behind_sq"] - 2.5 / 65.1) < 1e-6 and abs(b["elsewhere_sq"] - 62.5 / 65.1) < 1e-6
+
+
+def test_bestmax_split_measures_the_lag_along_the_palms_motion(tmp_path):
+    # reference: the fused estimate written 1 px behind the truth along its central difference (the direction
+    # computed here from the neighbouring frames' truth); depth 5 px off, so fused wins every frame
+    import math
+
+    def row_of(i, g, before, after):
+        du, dv = after.u - before.u, after.v - before.v
+        n = math.hypot(du, dv)
+        return (g.u - du / n, g.v - dv / n, "", "", g.u + 5.0, g.v)
+
+    table, scene = _table(tmp_path, 40, row_of)
+    b = fusion_matrix.bestmax_split(table, scene, 40)
+    assert b["won"] == 1.0 and b["behind"] == 0.0 and b["elsewhere"] == 0.0
+    assert abs(b["lag"] + 1.0) < 1e-6 and b["speed"] > 0.0
