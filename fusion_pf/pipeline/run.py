@@ -1154,6 +1154,13 @@ class _FilterStage:
                 tracker.set_noise(source, math.sqrt(self._var[source] / w))
         return weights
 
+    def _consensus(self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float]) -> Measurement:
+        """The cue a (re)start begins at: the most trusted of those the most other cues agree with (within one
+        apparent palm length), so one trusted cue off the palm does not outvote two that agree on it."""
+        reach = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+        agree = {id(m): sum(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m) for m in ms}
+        return min(ms, key=lambda m: (-agree[id(m)], trust[m.source] / math.sqrt(share[m.source])))
+
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
         return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
@@ -1191,7 +1198,7 @@ class _FilterStage:
         if not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
                 assert best is not None  # ms is not empty
-                self._restart(tracker, best)
+                self._restart(tracker, self._consensus(ms, trust, share))
             else:
                 if isinstance(tracker, (ParticleFilter, KalmanFilter)):
                     tracker.init_spread_px = self._init_spread
