@@ -1155,11 +1155,11 @@ class _FilterStage:
         return weights
 
     def _consensus(self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float]) -> Measurement:
-        """The cue a (re)start begins at: the most trusted of those the most other cues agree with (within one
-        apparent palm length), so one trusted cue off the palm does not outvote two that agree on it."""
+        """The cue a (re)start begins at: the most trusted of those another cue agrees with (within one apparent
+        palm length), when any does; so one trusted cue off the palm is not started at while two others agree."""
         reach = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
-        agree = {id(m): sum(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m) for m in ms}
-        return min(ms, key=lambda m: (-agree[id(m)], trust[m.source] / math.sqrt(share[m.source])))
+        backed = [m for m in ms if any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)]
+        return min(backed or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
 
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
