@@ -847,8 +847,9 @@ class _FilterStage:
     """The filter over a stream of cue rows, its track state and the prediction used as ROI prior.
 
     Initialisation and re-acquisition start the filter at the most trusted
-    measurement (smallest quality-widened noise; ``config.init`` in the first
-    tracked frame when given). Supervision (:func:`fusion_pf.filter.states.step_state`):
+    measurement (smallest quality-widened noise) that another cue agrees with,
+    when any does (:meth:`_consensus`; ``config.init`` in the first tracked
+    frame when given). Supervision (:func:`fusion_pf.filter.states.step_state`):
     a cue *supports* the estimate when it lies within :data:`SUPPORT_SIGMAS` of
     its fused noise plus the posterior spread of it; the track is lost when the
     estimate leaves the image, when no fused cue supported it for
@@ -896,7 +897,7 @@ class _FilterStage:
         them once. ``start``: ``learnt``'s estimate of the first replayed frame; the replay starts
         at the most trusted cue within one apparent palm length of it (a cue the learned noise
         trusts may be off the palm in that one frame), else at it as at a given ``--init``; None:
-        at the most trusted cue.
+        as a first start (:meth:`_consensus`).
         """
         self._calibration = learnt._calibration
         self._moves = learnt._moves
@@ -961,9 +962,14 @@ class _FilterStage:
         """
         if not self.tracking or self._spread is None or not self._var:
             return None
-        floor = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+        floor = self._reach
         spread2 = self._spread**2
         return {s: max(floor, SUPPORT_SIGMAS * math.sqrt(spread2 + v)) for s, v in self._var.items()}
+
+    @property
+    def _reach(self) -> float:
+        """:data:`GATE_FLOOR_PALMS` apparent palm lengths, px (the reference palm at this image's scale until one is measured)."""
+        return GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
 
     @property
     def palm_px(self) -> float | None:
@@ -1154,6 +1160,15 @@ class _FilterStage:
                 tracker.set_noise(source, math.sqrt(self._var[source] / w))
         return weights
 
+    def _consensus(
+        self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float]
+    ) -> Measurement:
+        """The cue a (re)start begins at: the most trusted of those another cue agrees with (within one apparent
+        palm length), when any does; so one trusted cue off the palm is not started at while two others agree."""
+        reach = self._reach
+        backed = [m for m in ms if any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)]
+        return min(backed or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
+
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
         return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
@@ -1182,7 +1197,7 @@ class _FilterStage:
             predicted = None  # a restart is no correction of the motion model
         anchor, self._anchor = self._anchor, None
         if anchor is not None and not tracker.initialised:
-            reach = GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+            reach = self._reach
             near = [m for m in ms if math.hypot(m.u - anchor[0], m.v - anchor[1]) <= reach]
             if near:
                 self._restart(tracker, min(near, key=lambda m: trust[m.source]))
@@ -1191,7 +1206,7 @@ class _FilterStage:
         if not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
                 assert best is not None  # ms is not empty
-                self._restart(tracker, best)
+                self._restart(tracker, self._consensus(ms, trust, share))
             else:
                 if isinstance(tracker, (ParticleFilter, KalmanFilter)):
                     tracker.init_spread_px = self._init_spread
