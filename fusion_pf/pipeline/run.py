@@ -64,9 +64,10 @@ Warm-start replay (``TrackConfig.replay_frames``, K)
     in the first 20-30 frames). So the frames from the first one in which a
     target holds a track are held (their cue rows only: the cues ran once)
     until K of them are, and the filters then run again over them from the
-    first, new filters (same seeds) with the noise, outlier probabilities,
-    process noise and palm scale the first pass learned from those frames,
-    fixed during the replay (they taught them once); they start at the most
+    first, new filters (same seeds) with the noise, outlier probabilities
+    and process noise the first pass learned from those frames, fixed during
+    the replay (they taught them once), and its palm scale, which the replay
+    goes on smoothing over those frames; they start at the most
     trusted cue within one apparent palm length of the first pass's estimate
     of the first frame (a cue the learned noise trusts may be off the palm
     in that one frame), and go on online after it. The held frames' rows
@@ -892,9 +893,9 @@ class _FilterStage:
     def replaying(self, learnt: _FilterStage, start: tuple[float, float] | None) -> None:
         """Start this (new) stage as the replay of ``learnt``'s first frames (module docstring, "Warm-start replay").
 
-        It takes the noise, outlier probabilities and process noise ``learnt`` learned, and its
-        smoothed palm scale, and keeps them fixed until :meth:`online`: the replayed frames taught
-        them once. ``start``: ``learnt``'s estimate of the first replayed frame; the replay starts
+        It takes the noise, outlier probabilities and process noise ``learnt`` learned and keeps
+        them fixed until :meth:`online` (the replayed frames taught them once); its smoothed palm
+        scale is the start of this stage's own, smoothed on over the replayed frames. ``start``: ``learnt``'s estimate of the first replayed frame; the replay starts
         at the most trusted cue within one apparent palm length of it (a cue the learned noise
         trusts may be off the palm in that one frame), else at it as at a given ``--init``; None:
         as a first start (:meth:`_consensus`).
