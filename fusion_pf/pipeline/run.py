@@ -895,10 +895,11 @@ class _FilterStage:
 
         It takes the noise, outlier probabilities and process noise ``learnt`` learned and keeps
         them fixed until :meth:`online` (the replayed frames taught them once); its smoothed palm
-        scale is the start of this stage's own, smoothed on over the replayed frames. ``start``: ``learnt``'s estimate of the first replayed frame; the replay starts
-        at the most trusted cue within one apparent palm length of it (a cue the learned noise
-        trusts may be off the palm in that one frame), else at it as at a given ``--init``; None:
-        as a first start (:meth:`_consensus`).
+        scale is the start of this stage's own, smoothed on over the replayed frames. ``start``:
+        ``learnt``'s estimate of the first replayed frame; the replay starts at the most trusted
+        cue within one apparent palm length of it (a cue the learned noise trusts may be off the
+        palm in that one frame), else at it as at a given ``--init``; None: as a first start
+        (:meth:`_consensus`).
         """
         self._calibration = learnt._calibration
         self._moves = learnt._moves
