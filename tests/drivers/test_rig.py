@@ -52,6 +52,16 @@ def _write_extrinsics(path, entries):
     return path
 
 
+@pytest.mark.parametrize("angle", [1e-9, 1e-7, 1e-4, 0.5, 3.0])
+def test_pose_rotation_error_is_the_relative_angle_at_every_scale(angle):
+    # a rotation of `angle` rad about an oblique axis, applied after an arbitrary pose
+    base = CameraPose.from_rvec([0.3, -1.1, 0.7], [10, 20, 30])
+    axis = np.array([1.0, 2.0, -2.0]) / 3.0
+    turned = base.compose(CameraPose.from_rvec(angle * axis, [0, 0, 0]))
+    assert turned.error_to(base)[1] == pytest.approx(math.degrees(angle), rel=1e-6, abs=1e-12)
+    assert base.error_to(base)[1] < 1e-12
+
+
 def test_extrinsics_files_accept_quaternion_matrix_and_rvec(tmp_path):
     pose = CameraPose.from_rvec([0.1, 0.5, -0.2], [100, -20, 30])
     entries = [
