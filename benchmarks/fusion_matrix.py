@@ -4,7 +4,7 @@ Usage (from the repository root)::
 
     python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...]
         [--recordings DIR] [--save FILE.json] [--compare FILE.json] [--noise-split] [--startup] [--bestmax]
-        [-- TRACK OPTIONS]
+        [--generate FIRST:COUNT] [-- TRACK OPTIONS]
 
 Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
 variations: depth noise, the palm's distance in front of the body, lighting, skin tone, skeleton
@@ -35,6 +35,14 @@ scene's best cue over the first :data:`STARTUP_FRAMES` tracked frames and over t
 while the calibration has no residuals yet: first / rest, fused against the best cue, far-hand-noisy-640b
 1.74 / 0.64 px against depth's 0.38 / 0.72, skeleton-lit-320 3.02 / 1.10 against the skeleton's
 1.50 / 1.32, far-hand-sharp-960 1.14 / 0.33 against depth's 0.26 / 0.28.
+
+``--generate FIRST:COUNT`` replaces the fixed matrix by COUNT scenes drawn from the seeds FIRST..
+(:func:`generated_scenes`: every variation drawn, the kind of scene, i.e. which cue should win, set by the
+seed), reported as the split ``generated``: a fresh held-out matrix for any change, as long as nobody
+tuned on those seeds. ``--generate 20001:30`` (session 11's lead set, never shown to a helper before it
+was measured), main dc73706, default track, seed 0: ratio mean 0.68, fused above the best cue on 5 of
+30 (1.01-1.73x, each where depth is the best cue at 0.4-1.9 px), BestMax mean 50 %, against
+``498736c`` (before issue 22's one pipeline) fused new / old geometric mean 0.53, worse on 5 of 30.
 
 ``--bestmax`` also prints, per scene, where the fused estimate loses BestMax (:func:`bestmax_split`):
 *behind* the winning cue (fused sits nearest that cue, a smoothed or pulled copy of it) or *elsewhere*
@@ -172,6 +180,69 @@ SCENES = (
         {"skin_tone": 0.6, "skeleton_bias": 2.5, "depth_noise": 9.0, "hand_front": 0.04},
     ),
 )
+
+
+#: Split of the scenes :func:`generated_scenes` draws (``--generate``), reported after the fixed matrix's.
+GENERATED = "generated"
+#: Image sizes :func:`generated_scenes` draws from.
+GENERATED_SIZES = (
+    "320x200",
+    "360x240",
+    "400x250",
+    "480x300",
+    "560x350",
+    "640x400",
+    "800x450",
+    "960x540",
+    "1024x576",
+    "1280x720",
+)
+#: Kinds of generated scene, in turn by seed: which cue should be best, or how far the palm is from the body.
+GENERATED_KINDS = ("near", "far", "mid", "skel", "colour", "lit")
+
+
+def generated_scenes(first: int, count: int) -> tuple[Scene, ...]:
+    """``count`` scenes of seeds ``first, first + 1, ...``, each drawn from its own seed: a fresh held-out matrix.
+
+    Every scene varies the size, depth noise, skin tone, clothing, clutter, lighting, skeleton bias and the
+    palm's distance in front of the body; its kind (:data:`GENERATED_KINDS`, ``seed % 6``) then sets the
+    variations that decide which cue is best: ``near`` a palm 3-7 cm before the body, ``far`` 30-50 cm with
+    sharp depth, ``skel`` an unbiased skeleton beside noisy depth near the body, ``colour`` a biased
+    skeleton and noisy depth near the body, ``lit`` a lighting drift, ``mid`` none. The same seed gives the
+    same scene on any machine, so a set of seeds nobody tuned on is a matrix nobody tuned on.
+    """
+    return tuple(_generated_scene(seed) for seed in range(first, first + count))
+
+
+def _generated_scene(seed: int) -> Scene:
+    """One scene of :func:`generated_scenes`, drawn from ``np.random.default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    size = GENERATED_SIZES[int(rng.integers(len(GENERATED_SIZES)))]
+    kind = GENERATED_KINDS[seed % len(GENERATED_KINDS)]
+
+    def draw(lo: float, hi: float, digits: int = 2) -> float:
+        return round(float(rng.uniform(lo, hi)), digits)
+
+    o: dict[str, float] = {
+        "depth_noise": round(float(np.exp(rng.uniform(math.log(1.5), math.log(12.0)))), 2),
+        "skin_tone": draw(0.0, 1.0),
+        "clothing": float(rng.integers(0, 6)),
+        "clutter": int(rng.integers(0, 12)),
+        "lighting": draw(0.5, 2.0),
+        "skeleton_bias": draw(0.5, 2.5),
+        "hand_front": draw(0.1, 0.3),
+    }
+    if kind == "near":
+        o["hand_front"] = draw(0.03, 0.07, 3)
+    elif kind == "far":
+        o["hand_front"], o["depth_noise"] = draw(0.3, 0.5), draw(1.5, 3.0)
+    elif kind == "skel":
+        o["skeleton_bias"], o["depth_noise"], o["hand_front"] = 0.0, draw(6.0, 10.0), draw(0.04, 0.08, 3)
+    elif kind == "colour":
+        o["skeleton_bias"], o["depth_noise"], o["hand_front"] = draw(2.0, 3.0), draw(8.0, 11.0), draw(0.03, 0.06, 3)
+    elif kind == "lit":
+        o["lighting"] = draw(2.0, 4.0)
+    return Scene(f"gen-{seed}-{kind}-{size.split('x')[0]}", GENERATED, seed, size, o)
 
 
 def _cli(*args: str) -> list[str]:
@@ -467,7 +538,7 @@ def print_table(rows: list[dict]) -> None:
             + " ".join(f"{c:>13}" for c in cells)
             + f" {r['fused']:7.2f} {r['ratio']:6.2f} {r['bestmax']:7.0%} {r['coverage']:6.0%} {r['cover2sd']:6.1%}"
         )
-    for split in SPLITS:
+    for split in (*SPLITS, GENERATED):
         part = [r for r in rows if r["scene"].split == split]
         if not part:
             continue
@@ -506,7 +577,7 @@ def compare(rows: list[dict], path: Path) -> None:
             f"{r['scene'].name:<20} {r['scene'].split:<5} fused {o['fused']:7.2f} -> {r['fused']:7.2f} "
             f"({r['fused'] / o['fused']:5.2f}x); ratio {o['ratio']:5.2f} -> {r['ratio']:5.2f}"
         )
-    for split in SPLITS:
+    for split in (*SPLITS, GENERATED):
         part = [r for r in both if r["scene"].split == split]
         if not part:
             continue
@@ -530,6 +601,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=160, help="frames per scene (10 of them empty-scene)")
     p.add_argument("--only", default=None, help="comma-separated scene names or splits (tune, held, new, fresh)")
     p.add_argument(
+        "--generate",
+        default=None,
+        metavar="FIRST:COUNT",
+        help="instead of the fixed matrix, COUNT scenes drawn from seeds FIRST.. (generated_scenes): a fresh held-out set",
+    )
+    p.add_argument(
         "--recordings", type=Path, default=None, help="take the rendered scenes from this earlier --out instead"
     )
     p.add_argument("--save", type=Path, default=None, help="write the table as JSON (for a later --compare)")
@@ -551,6 +628,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = p.parse_args(argv)
     scenes = SCENES
+    if args.generate:
+        try:
+            first, count = (int(x) for x in args.generate.split(":"))
+        except ValueError:
+            p.error(f"--generate must be FIRST:COUNT (two integers), got {args.generate!r}")
+        if count < 1:
+            p.error(f"--generate COUNT must be >= 1, got {count}")
+        scenes = generated_scenes(first, count)
     if args.only:
         wanted = set(args.only.split(","))
         scenes = tuple(s for s in SCENES if s.name in wanted or s.split in wanted)
