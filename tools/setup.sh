@@ -29,7 +29,16 @@ fi
 extras="oak"
 [ "${1:-}" = "--test" ] && extras="oak,dev"
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[${extras}]"
+# tools/constraints.txt pins every Python package to the versions the last green fresh-clone CI ran
+# with, on Python 3.11 (a new numpy once changed a float result and failed two tests); other Python
+# versions resolve freely. To move to newer releases: in a fresh clone, delete it, run this script
+# with --test, then `.venv/bin/python -m pip freeze --exclude-editable > tools/constraints.txt` and
+# run the tests.
+constraints=()
+if [ -f tools/constraints.txt ] && [ "$(.venv/bin/python -c 'import sys; print(sys.version_info[:2] == (3, 11))')" = True ]; then
+  constraints=(-c tools/constraints.txt)
+fi
+.venv/bin/python -m pip install -q "${constraints[@]}" -e ".[${extras}]"
 
 if [ "${1:-}" = "--test" ] && [ -f tests/interop/package.json ]; then
   (cd tests/interop && npm ci --silent --no-audit --no-fund)

@@ -208,3 +208,27 @@ def test_build_has_no_licence_warnings(tmp_path):
     out = (proc.stdout + proc.stderr).lower()
     assert "deprecat" not in out and "project.license" not in out  # the warnings, not the shipped LICENSE files
     assert list(tmp_path.glob("fusion_pf-*.whl"))
+
+
+def test_constraints_pin_every_declared_dependency():
+    """tools/constraints.txt pins each requirement of pyproject (package, oak, dev) to a version its specifier allows."""
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11, the version the pins are for
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    pins = {}
+    for line in (REPO / "tools" / "constraints.txt").read_text().splitlines():
+        name, sep, version = line.partition("==")
+        assert sep and version, f"not a pin: {line!r}"
+        pins[canonicalize_name(name)] = version
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    declared = [
+        *project["dependencies"],
+        *project["optional-dependencies"]["oak"],
+        *project["optional-dependencies"]["dev"],
+    ]
+    for spec in declared:
+        req = Requirement(spec)
+        name = canonicalize_name(req.name)
+        assert name in pins, f"{req.name} is not pinned in tools/constraints.txt"
+        assert req.specifier.contains(pins[name], prereleases=True), f"{req.name}=={pins[name]} outside {req.specifier}"
