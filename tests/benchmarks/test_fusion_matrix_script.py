@@ -1,6 +1,7 @@
 """benchmarks/fusion_matrix.py end to end on one small scene (synth, track, score as a user runs them)."""
 
 import importlib.util
+import math
 import re
 import sys
 from pathlib import Path
@@ -16,8 +17,9 @@ def test_one_scene_row_and_its_split_summary(tmp_path, capsys):
     assert fusion_matrix.main(["--out", str(tmp_path), "--only", "default-320", "--frames", "40", "--jobs", "1"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("default-320"))
-    colour, depth, skeleton, fused, ratio = (float(x) for x in re.findall(r"\d+\.\d+", row)[:5])
+    colour, depth, skeleton, fused, ratio, paired = (float(x) for x in re.findall(r"\d+\.\d+", row)[:6])
     assert abs(ratio - fused / min(colour, depth, skeleton)) < 0.01
+    assert abs(paired - ratio) < 0.01  # the best cue (depth) measures in every tracked frame: paired = ratio
     assert "held: 1 scenes, ratio mean" in out and "tune:" not in out
     assert (tmp_path / "default-320.csv").is_file()
 
@@ -33,7 +35,7 @@ def test_save_then_compare_prints_fused_new_over_old_and_the_geometric_mean(tmp_
 
     def row(name, fused, ratio):
         cues = {"colour": (fused / ratio, 1.0)}
-        return {"scene": scenes[name], "cues": cues, "best": "colour", "fused": fused, "ratio": ratio,
+        return {"scene": scenes[name], "cues": cues, "best": "colour", "fused": fused, "ratio": ratio, "paired": ratio,
                 "bestmax": 0.5, "coverage": 1.0, "cover2sd": 0.95}  # fmt: skip
 
     old = tmp_path / "old.json"
@@ -183,3 +185,14 @@ def test_generate_runs_a_fresh_set_and_reports_it_as_its_own_split(tmp_path, cap
     out = capsys.readouterr().out
     assert any(line.startswith("gen-402-") for line in out.splitlines())
     assert "generated: 1 scenes, ratio mean" in out and "held:" not in out
+
+
+def test_paired_ratio_compares_fused_and_cue_on_the_cues_own_frames():
+    """A cue measured in two easy frames is not 'best' over frames it never saw: the paired ratio uses its frames only."""
+    fused = [1.0, 1.0, 30.0, 40.0]
+    cue = [4.0, None, float("nan"), 4.0]  # frames 0 and 3
+    plain = math.sqrt(sum(e * e for e in fused) / 4) / 4.0
+    assert plain > 1.0
+    # frames 0 and 3: sqrt((1 + 1600) / 2) / sqrt((16 + 16) / 2)
+    assert abs(fusion_matrix.paired_ratio(fused, cue) - math.sqrt(1601 / 2) / 4.0) < 1e-12
+    assert math.isnan(fusion_matrix.paired_ratio([1.0, None], [None, 2.0]))
