@@ -68,9 +68,15 @@ Warm-start replay (``TrackConfig.replay_frames``, K)
     and process noise the first pass learned from those frames, fixed during
     the replay (they taught them once), and its palm scale, which the replay
     goes on smoothing over those frames; they start at the most
-    trusted cue within one apparent palm length of the first pass's estimate
-    of the first frame (a cue the learned noise trusts may be off the palm
-    in that one frame), and go on online after it. The held frames' rows
+    trusted cue within one apparent palm length of an anchor (a cue the
+    learned noise trusts may be off the palm in the first frame): a backward
+    pass (a filter with the same learned noise run over the held frames from
+    the last to the first, started where the first pass had settled) gives
+    each held frame's anchor, so the start is chosen by the agreement of all
+    the held frames, not by the cues of the first one alone; a frame where no
+    cue lies near its anchor (every cue off the palm) holds the track
+    ``uninitialised`` (no estimate) and the next frame tries its own anchor.
+    They go on online after the held frames. The held frames' rows
     come from the replay, in frame order, one per frame, K frames late, once
     (a live view receives them at once; a queue shorter than K drops the
     oldest, counted). A stream that ends before K tracked frames replays
@@ -126,7 +132,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -888,18 +894,19 @@ class _FilterStage:
         self._motion_scale = 1.0
         self.bursts = BurstFilter() if config.burst_gate else None
         self._learn = True
-        self._anchor: tuple[float, float] | None = None
+        self._anchors: deque[tuple[float, float] | None] = deque()
 
-    def replaying(self, learnt: _FilterStage, start: tuple[float, float] | None) -> None:
+    def replaying(self, learnt: _FilterStage, anchors: Sequence[tuple[float, float] | None]) -> None:
         """Start this (new) stage as the replay of ``learnt``'s first frames (module docstring, "Warm-start replay").
 
         It takes the noise, outlier probabilities and process noise ``learnt`` learned and keeps
         them fixed until :meth:`online` (the replayed frames taught them once); its smoothed palm
-        scale is the start of this stage's own, smoothed on over the replayed frames. ``start``:
-        ``learnt``'s estimate of the first replayed frame; the replay starts at the most trusted
-        cue within one apparent palm length of it (a cue the learned noise trusts may be off the
-        palm in that one frame), else at it as at a given ``--init``; None: as a first start
-        (:meth:`_consensus`).
+        scale is the start of this stage's own, smoothed on over the replayed frames. ``anchors``:
+        where the palm is in each frame this stage will step, in order, as far as known (None: not
+        known); until the filter is initialised it starts only at the most trusted cue within one
+        apparent palm length of that frame's anchor (a cue the learned noise trusts may be off the
+        palm in one frame), and holds (``uninitialised``) in a frame where no cue is; a frame without an
+        anchor starts as a first start (:meth:`_consensus`).
         """
         self._calibration = learnt._calibration
         self._moves = learnt._moves
@@ -907,7 +914,7 @@ class _FilterStage:
         self._palm_k = learnt._palm_k
         self._learn = False
         self.init = None
-        self._anchor = start
+        self._anchors = deque(anchors)
 
     def online(self) -> None:
         """Learn again from every frame (the replay is over)."""
@@ -1197,15 +1204,15 @@ class _FilterStage:
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
             predicted = None  # a restart is no correction of the motion model
-        anchor, self._anchor = self._anchor, None
+        anchor = self._anchors.popleft() if self._anchors else None
+        hold = False  # no cue near the anchor: the filter waits for one (module docstring, "Warm-start replay")
         if anchor is not None and not tracker.initialised:
             reach = self._reach
             near = [m for m in ms if math.hypot(m.u - anchor[0], m.v - anchor[1]) <= reach]
             if near:
                 self._restart(tracker, min(near, key=lambda m: trust[m.source]))
-            else:
-                self.init = anchor
-        if not tracker.initialised and (ms or self.init is not None):
+            hold = not near
+        elif not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
                 assert best is not None  # ms is not empty
                 self._restart(tracker, self._consensus(ms, trust, share))
@@ -1218,7 +1225,7 @@ class _FilterStage:
             # several cues: the posterior mean averages their noise; one cue: the paper's robust mean
             # stays on it (the weighted mean of a cloud one cue spread lags it, re-entering hands 3.5 px)
             tracker.set_estimator("weighted_mean" if len(ms) >= 2 else "robust_mean")
-        estimate = tracker.step(row.timestamp_ns, ms)
+        estimate = None if hold else tracker.step(row.timestamp_ns, ms)
         for m in ms:
             if share[m.source] < 1.0:
                 tracker.set_noise(m.source, math.sqrt(self._var[m.source]))  # the burst's weight was this frame's
@@ -1302,7 +1309,7 @@ class _Targets:
         self.entry: dict[str, tuple[float, float]] = {}
         self.parted: dict[str, int] = {}
         self._held: list[tuple[Mapping[str, CueRow], tuple[int, int]]] | None = None  # the frames to replay
-        self._starts: dict[str, tuple[float, float] | None] = {}  # per target its estimate of the first of them
+        self._seen: list[dict[str, tuple[float, float] | None]] = []  # per held frame, each target's estimate of it
         self._replayed = config.replay_frames == 0
 
     def _stages(self) -> dict[str, _FilterStage]:
@@ -1354,9 +1361,9 @@ class _Targets:
         if self._held is None:
             if not any(f.tracking for f in self.stages.values()):
                 return [result]
-            self._held = []
-            results = result.targets or {self.names[0]: result}
-            self._starts = {t: None if (e := r.estimate) is None else (e.u, e.v) for t, r in results.items()}
+            self._held, self._seen = [], []
+        results = result.targets or {self.names[0]: result}
+        self._seen.append({t: _position(r) for t, r in results.items()})
         self._held.append((rows, size))
         return self._replay() if len(self._held) >= self.config.replay_frames else []
 
@@ -1369,12 +1376,34 @@ class _Targets:
         held, self._held, self._replayed = self._held or [], None, True
         learnt, self.stages = self.stages, self._stages()
         self.entry, self.parted = {}, {}
-        for t, f in self.stages.items():
-            f.replaying(learnt[t], self._starts.get(t))
+        for k, (t, f) in enumerate(self.stages.items()):
+            f.replaying(
+                learnt[t], self._anchors(learnt[t], k, [rows[t] for rows, _ in held], [s[t] for s in self._seen])
+            )
         out = [self._step(rows, size) for rows, size in held]
         for f in self.stages.values():
             f.online()
         return out
+
+    def _anchors(
+        self, learnt: _FilterStage, k: int, rows: Sequence[CueRow], seen: Sequence[tuple[float, float] | None]
+    ) -> list[tuple[float, float] | None]:
+        """Where target ``k``'s replay looks for the palm in each held frame: a backward pass's estimates.
+
+        A new filter with what ``learnt`` (the first pass) learned runs over the held ``rows`` from
+        the last to the first (time mirrored), anchored at the first pass's estimates ``seen``: it
+        starts where the first pass had settled and reaches the first frames with a prediction
+        from all the later ones (the palm moves smoothly; a cue off the palm in the first frames
+        is an outlier to it), where the first pass had only those frames' cues to start from.
+        Its estimate of each frame, else the first pass's (module docstring, "Warm-start replay").
+        """
+        back = _FilterStage(
+            self.config, np.random.default_rng(np.random.SeedSequence(self.config.seed, spawn_key=(4, k)))
+        )
+        back.replaying(learnt, seen[::-1])
+        mirror = rows[0].timestamp_ns + rows[-1].timestamp_ns
+        behind = [_position(back(replace(row, timestamp_ns=mirror - row.timestamp_ns))) for row in reversed(rows)]
+        return [b if b is not None else s for b, s in zip(reversed(behind), seen, strict=True)]
 
     def _step(self, rows: Mapping[str, CueRow], size: tuple[int, int]) -> TrackResult:
         """Every target's filter over its row of this frame and the supervision between them: the first target's result."""
@@ -1451,6 +1480,12 @@ class _Targets:
         if swap:
             self.stages[a], self.stages[b] = self.stages[b], self.stages[a]
             results[a], results[b] = results[b], results[a]
+
+
+def _position(result: TrackResult) -> tuple[float, float] | None:
+    """The estimate of ``result`` as ``(u, v)``, None without one."""
+    e = result.estimate
+    return None if e is None else (e.u, e.v)
 
 
 def _detected_apart(a: CueRow, b: CueRow, distance: float) -> bool:

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from drivers.synth import SynthSource
-from fusion_pf.pipeline import TrackConfig, extract_cues, run_filter, track
+from fusion_pf.frame import Intrinsics, Measurement
+from fusion_pf.pipeline import CueRow, TrackConfig, extract_cues, run_filter, track
 
 K = 25
+INTR = Intrinsics(320, 200, 250.0, 250.0, 160.0, 100.0)
+LATENCY = {"decode": 0, "colour": 0, "depth": 0, "skeleton": 0}
 
 
 @pytest.fixture(scope="module")
@@ -116,3 +120,51 @@ def test_a_stop_while_frames_are_held_gives_them_out_first(sharp_frames):
             results.append(r)
     assert [r.frame for r in results] == list(range(30))
     assert sum(r.estimate is not None for r in results) == 20  # the 20 held tracked frames, replayed
+
+
+def _curve_rows(
+    first: dict[str, tuple[float, float] | None], n: int, seed: int, quality: float = 0.9
+) -> tuple[list[CueRow], np.ndarray]:
+    """A palm moving on a curve at 320 x 200, each cue 1.5 px noisy and of quality 0.9; in the first frame the
+    sources of ``first`` are displaced by their offset with ``quality`` (None: no measurement)."""
+    rng = np.random.default_rng(seed)
+    rows, truth = [], []
+    for k in range(n):
+        u, v = 160.0 + 40.0 * math.sin(k / 25.0), 100.0 + 20.0 * math.cos(k / 30.0)
+        cues: dict[str, Measurement | None] = {}
+        for s in ("colour", "depth", "skeleton"):
+            off = first.get(s, (0.0, 0.0)) if k == 0 else (0.0, 0.0)
+            q = quality if k == 0 and s in first else 0.9
+            cues[s] = (
+                None
+                if off is None
+                else Measurement(s, u + off[0] + rng.normal(0, 1.5), v + off[1] + rng.normal(0, 1.5), q)
+            )
+        rows.append(CueRow(k, 1_000_000_000 + k * 33_333_333, False, cues, LATENCY, None, None, (0, 0), INTR))
+        truth.append((u, v))
+    return rows, np.array(truth)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_replay_starts_at_the_cue_the_later_frames_agree_with(seed):
+    """First frame: depth (the most trusted by its configured noise) 50 px off, the skeleton on the palm, no
+    colour: nothing agrees, so the first pass starts at depth. The replay's anchor is a backward pass's estimate
+    of that frame, which all the later frames put on the palm: it starts at the skeleton (main: at the first
+    pass's estimate, depth, 50 px off)."""
+    rows, truth = _curve_rows({"depth": (50.0, 0.0), "colour": None}, 40, seed)
+    first = run_filter(rows, TrackConfig(replay_frames=K, seed=seed))[0]
+    assert first.estimate is not None
+    assert math.hypot(first.estimate.u - truth[0, 0], first.estimate.v - truth[0, 1]) < 6.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_replay_holds_a_frame_whose_cues_all_miss_the_palm(seed):
+    """First frame: depth and the skeleton agree 50 px off the palm, both doubtful (quality 0.4: no jump the
+    filter would follow, ``JUMP_MIN_QUALITY``), no colour (main: tracked there, 50 px off). No cue lies near the
+    backward pass's estimate of that frame: it stays uninitialised; the next starts on the palm."""
+    rows, truth = _curve_rows({"depth": (50.0, 0.0), "skeleton": (50.0, 0.0), "colour": None}, 40, seed, 0.4)
+    results = run_filter(rows, TrackConfig(replay_frames=K, seed=seed))
+    assert results[0].estimate is None and results[0].state == "uninitialised"
+    e = results[1].estimate
+    assert e is not None and math.hypot(e.u - truth[1, 0], e.v - truth[1, 1]) < 6.0
+    assert all(r.state == "tracking" for r in results[1:])
