@@ -1429,7 +1429,7 @@ class _Targets:
             label_split_px=APART_PALMS * palm,
             image_size=size,
         )
-        positions = [None if (e := results[t].estimate) is None else (e.u, e.v) for t in self.names]
+        positions = [_position(results[t]) for t in self.names]
         before = [f.status for f in stages]
         labels = [_label_position(rows[t]) for t in self.names]
         apart = [
