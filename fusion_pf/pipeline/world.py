@@ -20,7 +20,10 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    robust Gaussian likelihood in mm (a skeleton joint with its own depth, never the
    depth image under it, :data:`PIXEL_ONLY`); in a colour-only camera (or without
    valid depth there) the pixel, with a robust reprojection likelihood in px (the source's ``--world-noise`` mm at the target:
-   ``mm x fx / z`` px). With several targets, two closer than :data:`COMBINE_MM`
+   ``mm x fx / z`` px); a camera with depth learns its own noise per source online (:class:`_Noise`: the robust
+   scale of its 3-D points' residuals against the posterior of targets far from every other, :func:`_alone`,
+   measured in 3-D; at least the position process noise) and uses it for targets alone; near another target, and
+   in a colour-only camera, the ``--world-noise``. With several targets, two closer than :data:`COMBINE_MM`
    (the one-camera pipeline's :data:`COMBINE_PALMS` palm lengths of 95 mm)
    are combined and share detections in every camera
    (paper 004 §5.2, as with one camera) until they are :data:`SEPARATE_MM` apart; a
@@ -84,11 +87,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.regions import separation, two_means
@@ -250,6 +255,11 @@ SIZE_MIN_SAMPLES, SIZE_MIN_SIGMA_MM = 10, 1.0
 #: measuring the target), 0.15 made the pooled RMSE 26.1 mm (15.6 without), 3 cameras with one colour-only 25.5
 #: (13.1), 4 with two 23.7 (12.3).
 ONE_LINE_PIXEL_SCALE = 0.1
+#: A camera's measurement noise per source (:class:`_Noise`) is learned online from the residuals of its gated
+#: observations of a target far from every other (:func:`_alone`) and measured in 3-D, against the posterior estimate:
+#: the median over the last :data:`NOISE_WINDOW` residuals, once :data:`NOISE_MIN_SAMPLES` were learned (before, the
+#: source's ``--world-noise``). Not tuned.
+NOISE_WINDOW, NOISE_MIN_SAMPLES = 200, 20
 
 
 @dataclass
@@ -368,6 +378,27 @@ class _Camera:
         self.config = dataclasses.replace(config, cues=names, sources=sources)
         self.stage = _CueStage(self.config)
         self.sources = sources or names
+        self.noise = {source: _Noise() for source in self.sources if source not in PIXEL_ONLY}
+        self.floor_mm = config.world_process_noise[0]
+
+    def nominal(self, m: Measurement) -> float:
+        """``m``'s source's ``--world-noise`` widened by its quality (:func:`~fusion_pf.filter.likelihood.quality_sigma`)."""
+        return quality_sigma(self.config.world_noise_mm[m.source], m)
+
+    def sigma(self, m: Measurement) -> float:
+        """``m``'s noise (mm) for a target :func:`_alone`: its source's learned noise (:class:`_Noise`), at least the position
+        process noise (a narrower likelihood holds only the few particles within one step of it); the :meth:`nominal`
+        one before it is learned or for a :data:`PIXEL_ONLY` source."""
+        noise = self.noise.get(m.source)
+        if noise is None or not noise.learned:
+            return self.nominal(m)
+        return max(noise.sigma(), self.floor_mm)
+
+    def learn(self, m: Measurement, ob: PointObservation | PixelObservation, estimate_mm: np.ndarray) -> None:
+        """Learn ``m``'s source's noise (:class:`_Noise`) from its observation ``ob`` at its target's posterior estimate."""
+        noise = self.noise.get(m.source)
+        if noise is not None and isinstance(ob, PointObservation):
+            noise.learn(ob, estimate_mm)
 
     def observations(
         self,
@@ -376,6 +407,7 @@ class _Camera:
         cues: Mapping[str, Measurement | None],
         partner: tuple[Mapping[str, Measurement | None], np.ndarray] | None = None,
         own_mm: np.ndarray | None = None,
+        alone: bool = False,
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
         """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel).
 
@@ -399,7 +431,7 @@ class _Camera:
                         shared = partner[1]
                     elif held == "partner":
                         continue
-            sigma = quality_sigma(self.config.world_noise_mm[source], m)
+            sigma = self.sigma(m) if alone and frame.depth is not None else self.nominal(m)
             if shared is not None and own_mm is not None and frame.depth is not None:
                 part = self.split(frame, m, own_mm, shared)
                 if part is not None:
@@ -633,15 +665,47 @@ class _Size(_Running):
         return SizeObservation(size, self.mean, self.sigma(SIZE_MIN_SIGMA_MM), ob.pose, ob.intrinsics)
 
 
+class _Noise:
+    """One camera's measurement noise of one source, learned online (mm, per axis).
+
+    Each residual of a gated 3-D point of a target :func:`_alone` and measured in 3-D against its posterior estimate
+    (the point's distance ``d`` from it) is a per-axis noise ``d / median(chi_3)`` (the median distance of a
+    3-dimensional standard normal from 0; a colour-only camera's pixels keep ``--world-noise``, :meth:`_Camera.sigma`);
+    the noise is the median of the last :data:`NOISE_WINDOW` of these (robust: a region on another object is one
+    large residual; the robust likelihood's outlier term takes it), used once :data:`NOISE_MIN_SAMPLES` were learned.
+    """
+
+    def __init__(self) -> None:
+        self.values: deque[float] = deque(maxlen=NOISE_WINDOW)
+
+    @property
+    def learned(self) -> bool:
+        return len(self.values) >= NOISE_MIN_SAMPLES
+
+    def sigma(self) -> float:
+        """The learned noise per axis (mm): the median of the last :data:`NOISE_WINDOW` residuals' noises."""
+        return float(np.median(self.values))
+
+    def learn(self, ob: PointObservation, estimate_mm: np.ndarray) -> None:
+        """Learn from the 3-D point ``ob`` at its target's posterior estimate ``estimate_mm``."""
+        # the median of chi_3: sqrt of chi-squared_3's, 2 P^-1(3 / 2, 1 / 2) (the regularised gamma's inverse)
+        self.values.append(
+            float(np.linalg.norm(ob.xyz_mm - estimate_mm)) / math.sqrt(2.0 * float(gammaincinv(1.5, 0.5)))
+        )
+
+
 def _across_line(
-    m: Measurement, ob: PointObservation | PixelObservation, floor_mm: float
+    cam: _Camera, m: Measurement, ob: PointObservation | PixelObservation, alone: bool
 ) -> PointObservation | PixelObservation:
     """A region pixel of the one camera that alone measures a target (:func:`_one_line`) with :data:`ONE_LINE_PIXEL_SCALE`
-    of its noise, at least ``floor_mm`` (the filter's position noise per step: a narrower line holds only the few
-    particles that stayed in it); a skeleton joint's (:data:`PIXEL_ONLY`) or a 3-D point as it is."""
-    if not isinstance(ob, PixelObservation) or m.source in PIXEL_ONLY:
+    of its noise, at least the camera's floor (the filter's position noise per step: a narrower line holds only the
+    few particles that stayed in it), while it has its nominal noise (:meth:`_Camera.sigma`: its source's noise not
+    learned yet, or the target not ``alone``, :func:`_alone`; a learned one is across the line already); a skeleton
+    joint's (:data:`PIXEL_ONLY`), a learned one or a 3-D point as it is."""
+    noise = cam.noise.get(m.source)
+    if not isinstance(ob, PixelObservation) or noise is None or (noise.learned and alone):
         return ob
-    return dataclasses.replace(ob, sigma_mm=max(ONE_LINE_PIXEL_SCALE * ob.sigma_mm, floor_mm))
+    return dataclasses.replace(ob, sigma_mm=max(ONE_LINE_PIXEL_SCALE * ob.sigma_mm, cam.floor_mm))
 
 
 def _apparent_size(m: Measurement, ob: PixelObservation) -> float | None:
@@ -690,6 +754,7 @@ class _WorldTarget:
         seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
         joint_mm: np.ndarray | None = None,
         apart: Exclusion | None = None,
+        alone: bool = False,
     ) -> tuple[np.ndarray | None, float | None]:
         """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread.
 
@@ -711,7 +776,7 @@ class _WorldTarget:
         reach = None if joint_mm is None or not one else self.reach.observation(joint_mm)
         fused: list[WorldObservation] = list(observations)
         if one:
-            fused = [_across_line(m, ob, self.filter.process_noise_mm[0]) for _, _, m, ob in seen]
+            fused = [_across_line(cam, m, ob, alone) for cam, _, m, ob in seen]
             sized = (self.sizes.setdefault(cam.name, _Size()).observation(m, ob) for cam, _, m, ob in seen)
             fused += [ob for ob in sized if ob is not None]
         if self.filter.initialised:
@@ -729,6 +794,9 @@ class _WorldTarget:
             for cam, _, m, ob in seen:
                 if isinstance(ob, PixelObservation):
                     self.sizes.setdefault(cam.name, _Size()).learn_at(estimate, m, ob)
+        if estimate is not None and measured_3d and alone and self.tracking:
+            for cam, _, m, ob in seen:
+                cam.learn(m, ob, estimate)
         support = 0 if estimate is None else self._support(estimate, spread or 0.0, observations)
         position = None if estimate is None else (float(estimate[0]), float(estimate[1]))
         self.status = step_state(
@@ -860,6 +928,7 @@ def track_world(
                 target.filter.predict(fs.timestamp_ns, scales[t] * target.noise_scale)
             predicted[t] = target.predicted()
         partners = _partners(predicted, partners)
+        alone = _alone(predicted)
         axes = _entry_axes(axes, predicted, partners)
         seen: dict[str, list] = {t: [] for t in names}
         for name, view in fs.views.items():
@@ -884,7 +953,7 @@ def track_world(
                 mate = partners.get(t)
                 mate_at = None if mate is None else predicted[mate]
                 shared = None if mate is None or mate_at is None else (rows[mate].cues, mate_at)
-                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t]):
+                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t], alone[t]):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
@@ -894,6 +963,7 @@ def track_world(
                 seen[t],
                 None if joint is None else _joint_world(fs, joint),
                 _exclusion(t, predicted, partners, axes, scales),
+                alone[t],
             )
             pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
             if estimate is not None:
@@ -945,6 +1015,16 @@ def _entry_axes(
         if n > 0.0:
             out[a, b] = r / n
     return out
+
+
+def _alone(predicted: Mapping[str, np.ndarray | None]) -> dict[str, bool]:
+    """Per target whether it has a prediction and every other target's is farther than :data:`SEPARATE_MM` (or none):
+    its regions are its own hand's alone, the condition its cameras' noise is learned in and used (:class:`_Noise`)."""
+    return {
+        t: p is not None
+        and all(q is None or float(np.linalg.norm(p - q)) > SEPARATE_MM for o, q in predicted.items() if o != t)
+        for t, p in predicted.items()
+    }
 
 
 def _partners(predicted: Mapping[str, np.ndarray | None], before: Mapping[str, str]) -> dict[str, str]:
