@@ -458,9 +458,10 @@ def test_a_target_measured_in_3d_keeps_more_of_its_velocity_and_lags_a_move_less
     assert target.filter.damping == VELOCITY_DAMPING
 
 
-def disc_rig(hidden_path_mm, cameras, intrinsics, static=15, background=3):
+def disc_rig(hidden_path_mm, cameras, intrinsics, static=15, background=3, hidden=True):
     """Frame sets of a 50 mm skin disc (a palm facing each camera) over grey walls: seen by every camera for ``static``
-    instants at the path's start, then along ``hidden_path_mm`` by the colour-only cameras only (no depth image)."""
+    instants at the path's start, then along ``hidden_path_mm`` by the colour-only cameras only (no depth image), or
+    by every camera (cam0 with a depth image) when not ``hidden``."""
     from fusion_pf.frame import Frame
 
     grey, skin = np.full(3, 90, np.uint8), (150, 120, 100)
@@ -474,7 +475,7 @@ def disc_rig(hidden_path_mm, cameras, intrinsics, static=15, background=3):
             colour = np.tile(grey, (intrinsics.height, intrinsics.width, 1))
             has_depth = name == "cam0"
             depth = np.full((intrinsics.height, intrinsics.width), 2000, np.uint16) if has_depth else None
-            if centre is not None and (not has_depth or i < background + static):
+            if centre is not None and (not has_depth or not hidden or i < background + static):
                 (u, v), z = (a[0] for a in project(centre[None], pose, intrinsics))
                 r = intrinsics.fx * 50.0 / z  # a disc facing the camera: fx R / z px
                 at, rad = (round(u * 16), round(v * 16)), round(r * 16)
@@ -588,31 +589,6 @@ def test_a_cameras_noise_is_learned_as_the_robust_scale_of_its_residuals():
     assert 4.5 < points.sigma() < 7.0, points.sigma()  # measured 5.4 (the outliers nudge the median)
 
 
-def _seen_rig(path_mm, cameras, intrinsics, background=3):
-    """Frame sets of a 50 mm skin disc over grey walls along ``path_mm``, seen by every camera at every instant (cam0
-    with a depth image, the others colour-only)."""
-    grey, skin = np.full(3, 90, np.uint8), (150, 120, 100)
-    out = []
-    for i in range(background + len(path_mm)):
-        t = i * 33_333_333
-        centre = None if i < background else path_mm[i - background]
-        views = {}
-        for name, pose in cameras.items():
-            colour = np.tile(grey, (intrinsics.height, intrinsics.width, 1))
-            depth = np.full((intrinsics.height, intrinsics.width), 2000, np.uint16) if name == "cam0" else None
-            if centre is not None:
-                (u, v), z = (a[0] for a in project(centre[None], pose, intrinsics))
-                at, rad = (round(u * 16), round(v * 16)), round(intrinsics.fx * 50.0 / z * 16)
-                cv2.circle(colour, at, rad, skin, -1, shift=4)
-                if depth is not None:
-                    cv2.circle(depth, at, rad, int(round(z)), -1, shift=4)
-            views[name] = CameraView(
-                name, Frame(t, i, colour, depth, intrinsics, background=centre is None, index=i), pose
-            )
-        out.append(FrameSet(i, t, views, None if centre is None else {"right_hand": centre}, centre is None))
-    return out
-
-
 def test_a_learned_noise_follows_a_moving_hand_with_less_lag(monkeypatch):
     # a disc an RGB-D and a colour-only camera see, still for 30 instants (the cameras' noises learned: a few mm), then
     # moving 200 mm across both cameras' lines of sight in 25 instants: with the learned noise the estimate stays on
@@ -627,7 +603,7 @@ def test_a_learned_noise_follows_a_moving_hand_with_less_lag(monkeypatch):
     }
     start = np.array([-60.0, 0.0, 750.0])
     path = [start + np.array([200.0 * min(max(k - 30, 0) / 25, 1.0), 0.0, 0.0]) for k in range(60)]
-    sets = _seen_rig(path, cams, intr)
+    sets = disc_rig(path, cams, intr, static=0, hidden=False)
 
     def lag():
         """Mm the estimate trails the disc along its move, the still instants' bias removed (mean over filter seeds)."""
