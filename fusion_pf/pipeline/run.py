@@ -916,6 +916,12 @@ class _FilterStage:
         self.init = None
         self._anchors = deque(anchors)
 
+    def restart_at(self, m: Measurement, timestamp_ns: int) -> None:
+        """Start the filter again at ``m`` (the next frame's window and prediction there)."""
+        assert self.tracker is not None  # stepped
+        self._restart(self.tracker, m)
+        self._history = [(timestamp_ns, m.u, m.v)]
+
     def online(self) -> None:
         """Learn again from every frame (the replay is over)."""
         self._learn = True
@@ -1297,7 +1303,9 @@ class _Targets:
     identities are given back: by the targets' own skeleton joints of this
     frame when both have one (handedness already decides in the association),
     else by the side each entered the combination from
-    (:func:`~fusion_pf.filter.states.reassign_identities`). A single target is
+    (:func:`~fusion_pf.filter.states.reassign_identities`). A target not
+    combined whose skeleton joint lies farther than :data:`SEPARATE_PALMS` from its
+    estimate is started again at the joint (:meth:`_astray`). A single target is
     the single palm: no supervision between targets, no ``targets`` in its result.
     """
 
@@ -1460,6 +1468,22 @@ class _Targets:
         for t, a in zip(self.names, after):
             self.stages[t].status = a
             results[t].state = a.state.value
+            self._astray(t, rows[t], results[t], config.split_px)
+
+    def _astray(self, t: str, row: CueRow, result: TrackResult, reach: float) -> None:
+        """Start target ``t`` again at its skeleton joint when it is not combined and the joint lies beyond ``reach`` of its estimate.
+
+        ``reach`` is the pair's separation distance (:data:`SEPARATE_PALMS` palm lengths): two hands
+        overlapping near the body separate because one estimate left the pair for a depth region off
+        both hands, while its joint stays 5-20 px from its hand; alone, the region then slides on
+        within the window around its own prediction. The joint's learned noise is no measure of
+        that distance: it was learned against the wrong track and grows to 2-4 palm lengths.
+        """
+        f, joint, e = self.stages[t], row.cues.get("skeleton"), result.estimate
+        if joint is None or e is None or f.status.state not in (TrackState.TRACKING, TrackState.UNLABELLED):
+            return
+        if math.hypot(joint.u - e.u, joint.v - e.v) > reach:
+            f.restart_at(joint, row.timestamp_ns)
 
     def _separate(self, a: str, b: str, rows: Mapping[str, CueRow], results: dict[str, TrackResult]) -> None:
         """Give a separating pair its identities: swap the two filters when the evidence says they crossed."""

@@ -266,3 +266,38 @@ def test_crossed_forearms_give_each_hand_its_colour_part():
         err = np.hypot(*(np.array(colour[t]) - tr[t]).T)
         assert np.isfinite(err[apart]).mean() > 0.95, (t, float(np.isfinite(err[apart]).mean()))
         assert np.isfinite(err[crossed]).all() and np.percentile(err[crossed], 95) < 6.0, t
+
+
+def test_a_lone_target_far_from_its_skeleton_joint_starts_again_at_it():
+    """A target alone whose trusted cue sits on something off the hand, farther from its skeleton joint
+    than a separating pair's distance, is started again at the joint: its next window is there."""
+    from fusion_pf.frame import Measurement
+    from fusion_pf.pipeline.run import CueRow, _Targets
+
+    targets = _Targets(TrackConfig(targets=HANDS), 0)
+    joints = {"right_hand": (40.0, 50.0), "left_hand": (120.0, 50.0)}
+    jitter = np.random.default_rng(0).normal(0.0, 6.0, (16, 2, 2))  # the joints 6 px noisy, depth exact: depth trusted
+
+    def rows(i, off):
+        out = {}
+        for k, (t, (u, v)) in enumerate(joints.items()):
+            depth = (u, v - 40.0) if off and t == "left_hand" else (u, v)  # a region off the left hand
+            du, dv = jitter[i, k]
+            cues = {
+                "depth": Measurement("depth", *depth, 1.0),
+                "skeleton": Measurement("skeleton", u + du, v + dv, 0.3),
+            }
+            out[t] = CueRow(i, i * 33_333_333, False, cues, {}, None, None, (0, 0), INTR)
+        return out
+
+    for i in range(10):
+        targets(rows(i, False), (160, 100))
+    left = targets.stages["left_hand"]
+    assert left.status.state.value == "tracking"
+    near = []
+    for i in range(10, 16):
+        targets(rows(i, True), (160, 100))
+        p = left.prediction((i + 1) * 33_333_333)
+        assert p is not None
+        near.append(math.hypot(p[0] - 120.0, p[1] - 50.0))
+    assert min(near) < 12.0  # the window went back to the joint (on the region 40 px off without the restart)
