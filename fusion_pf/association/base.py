@@ -35,7 +35,10 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the
    Hungarian gives each of the pair a detection; the blob they share is the
-   nearer one, not a distractor farther out), except when both are parts of
+   nearer one, not a distractor farther out) or its own is a *fragment* of
+   the partner's (:func:`fragment`: a region of less than
+   :data:`FRAGMENT_AREA` of the partner's area, a sliver of depth beside two
+   overlapping hands, not a hand), except when both are parts of
    one region the cue split between them (extras ``part``,
    :func:`fusion_pf.cues.regions.split_region`). No other detection is given
    to two targets.
@@ -57,10 +60,24 @@ from scipy.optimize import linear_sum_assignment
 from ..errors import InputError
 from ..frame import Measurement
 
-__all__ = ["HANDS", "Detection", "associate", "compatible", "handedness_label"]
+__all__ = [
+    "FRAGMENT_AREA",
+    "HANDS",
+    "Detection",
+    "associate",
+    "compatible",
+    "fragment",
+    "handedness_label",
+    "region_area",
+]
 
 #: Target names that are hands (the hand cue's detections go to these only).
 HANDS = frozenset({"right_hand", "left_hand"})
+#: A region detection with less than this fraction of another's area is a fragment of it (:func:`fragment`),
+#: and with several targets, of less than this fraction of its window's expected palm area no palm at all
+#: (``fusion_pf.pipeline.run._without_fragments``): slivers of depth beside two hands overlapping near the
+#: body are 40-460 px^2, the hands 900-4000 (issue 22).
+FRAGMENT_AREA = 0.25
 #: Cost of a forbidden pairing (larger than any gated cost).
 _FORBIDDEN = 1e12
 
@@ -120,6 +137,18 @@ def compatible(target: str, detection: Detection) -> bool:
     if detection.label == "head" and target != "head":
         return False
     return not (detection.label is not None and detection.label_score >= 1.0 and detection.label != target)
+
+
+def region_area(m: Measurement) -> float | None:
+    """The area of a region cue's measurement (its ``area`` extra, px^2; None for any other)."""
+    a = m.extras.get("area")
+    return None if a is None else float(cast("float", a))
+
+
+def fragment(m: Measurement, other: Measurement) -> bool:
+    """Whether region measurement ``m`` is a fragment beside ``other``: its area below :data:`FRAGMENT_AREA` of ``other``'s (False without both)."""
+    a, b = region_area(m), region_area(other)
+    return a is not None and b is not None and a < FRAGMENT_AREA * b
 
 
 def _merge(detections: Sequence[Detection], merge_px: float) -> list[Detection]:
@@ -236,9 +265,13 @@ def associate(
             p = predictions[targets.index(t)]
             if t in own and "part" in own[t].measurement.extras and "part" in own[q].measurement.extras:
                 continue  # the cue split the pair's region between them: each keeps its part
-            if t not in own or (
-                p is not None
-                and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])
+            if (
+                t not in own
+                or fragment(own[t].measurement, own[q].measurement)
+                or (
+                    p is not None
+                    and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])
+                )
             ):
                 got[t] = own[q]
         for t, d in got.items():

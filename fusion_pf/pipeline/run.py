@@ -137,7 +137,7 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from ..association import HANDS, Detection, associate
+from ..association import FRAGMENT_AREA, HANDS, Detection, associate, fragment, region_area
 from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.base import SOURCES, Cue, CueContext, opencv_threads
 from ..cues.regions import DEFAULT_PALM_AREA
@@ -690,6 +690,8 @@ class _CueStage:
             partners=partners,
             merge_px=MERGE_PX * pixel_scale(frame.size, self.config),
         )
+        if several:
+            assigned = _without_fragments(assigned, rois)
         if several and partners and offsets:
             assigned = _offset_shared(assigned, partners, offsets)
         out = {}
@@ -740,6 +742,24 @@ class _CueStage:
             intrinsics=frame.intrinsics,
             ground_truth=frame.ground_truth if target is None else (frame.ground_truths or {}).get(target),
         )
+
+
+def _without_fragments(
+    assigned: Mapping[str, list[Detection]], rois: Mapping[str, Roi | None]
+) -> dict[str, list[Detection]]:
+    """Each target's detections without the region detections smaller than :data:`~fusion_pf.association.FRAGMENT_AREA` of its window's expected palm area.
+
+    Two hands overlapping a few cm in front of the body often leave the depth cue no region of the
+    pair, only slivers of it and of the body around it (40-460 px^2 against the hand's 900-4000,
+    20-60 px off the hands); a target measured by one drifts with it, and its skeleton joint, whose
+    learned noise grew against that track, cannot pull it back.
+    """
+    out = {t: list(ds) for t, ds in assigned.items()}
+    for t, roi in rois.items():
+        if t in out and roi is not None:
+            least = FRAGMENT_AREA * roi.palm_area
+            out[t] = [d for d in out[t] if (a := region_area(d.measurement)) is None or a >= least]
+    return out
 
 
 def _offset_shared(
@@ -1513,11 +1533,16 @@ def _position(result: TrackResult) -> tuple[float, float] | None:
 
 
 def _detected_apart(a: CueRow, b: CueRow, distance: float) -> bool:
-    """Whether a region cue gave the two targets' rows two detections farther than ``distance`` apart (the cue sees two hands, not one shared blob)."""
+    """Whether a region cue gave the two targets' rows two detections farther than ``distance`` apart (the cue sees two hands, not one shared blob).
+
+    A fragment of the other's region (:func:`~fusion_pf.association.fragment`) is no second hand.
+    """
     for source, m in a.cues.items():
         n = b.cues.get(source)
         if m is None or n is None or m is n or source in ("skeleton", "hand") or "part" in m.extras:
             continue  # labelled sources count as labels; parts are one region the cue split between the pair
+        if fragment(m, n) or fragment(n, m):
+            continue
         if math.hypot(m.u - n.u, m.v - n.v) > distance:
             return True
     return False

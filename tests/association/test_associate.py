@@ -180,3 +180,21 @@ def test_a_combined_pair_keeps_the_parts_a_cue_split_their_region_into():
     # the parts are still each its own, not shared like a blob
     out = associate(HANDS, [(366.0, 270.0), (372.0, 270.0)], part, gates=[120, 120], partners=partners)
     assert picked(out) == {"right_hand": [("depth", 352, 270)], "left_hand": [("depth", 376, 270)]}
+
+
+def test_a_combined_target_shares_its_partners_region_rather_than_keep_a_fragment():
+    # two hands overlapping near the body: the depth cue sees the pair as one region (2400 px^2) and a sliver
+    # of 500 px^2 beside it, nearer the left hand's prediction; the left hand takes the pair's region
+    partners = {"right_hand": "left_hand", "left_hand": "right_hand"}
+    region = Detection(Measurement("depth", 360, 271, 0.9, {"area": 2400}))
+    sliver = Detection(Measurement("depth", 392, 300, 0.1, {"area": 500}))
+    preds = [(358.0, 283.0), (381.0, 294.0)]
+    out = associate(HANDS, preds, [region, sliver], gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("depth", 360, 271)], "left_hand": [("depth", 360, 271)]}
+    # a region of a quarter of the other's area or more is a hand's own
+    half = Detection(Measurement("depth", 392, 300, 0.5, {"area": 1200}))
+    out = associate(HANDS, preds, [region, half], gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("depth", 360, 271)], "left_hand": [("depth", 392, 300)]}
+    # not combined, the sliver is the left hand's (no sharing)
+    out = associate(HANDS, preds, [region, sliver], gates=[120, 120])
+    assert picked(out) == {"right_hand": [("depth", 360, 271)], "left_hand": [("depth", 392, 300)]}

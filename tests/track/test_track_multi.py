@@ -301,3 +301,25 @@ def test_a_lone_target_far_from_its_skeleton_joint_starts_again_at_it():
         assert p is not None
         near.append(math.hypot(p[0] - 120.0, p[1] - 50.0))
     assert min(near) < 12.0  # the window went back to the joint (on the region 40 px off without the restart)
+
+
+def test_several_targets_take_no_region_sliver_far_below_a_palm():
+    """Hands overlapping near the body can leave the depth cue only slivers of the pair and the body around it
+    (tens of px^2 against a palm's thousands, 20-60 px off the hands): no target takes one; a region of a
+    quarter of its window's expected palm area or more, a part of a split region and a joint stay."""
+    from fusion_pf.association import Detection
+    from fusion_pf.cues.roi import Roi
+    from fusion_pf.frame import Measurement
+    from fusion_pf.pipeline.run import _without_fragments
+
+    sliver = Detection(Measurement("depth", 130.0, 60.0, 0.1, {"area": 70}))
+    region = Detection(Measurement("depth", 100.0, 50.0, 0.8, {"area": 900}))
+    part = Detection(Measurement("colour", 104.0, 50.0, 0.5, {"area": 310, "part": 1}))
+    joint = Detection(Measurement("skeleton", 101.0, 51.0), label="left_hand")
+    rois = {"right_hand": Roi(0, 0, 160, 100, 1200.0), "left_hand": Roi(0, 0, 160, 100, 1200.0)}
+    assigned = {"right_hand": [region, sliver], "left_hand": [sliver, part, joint]}
+    out = _without_fragments(assigned, rois)
+    assert out == {"right_hand": [region], "left_hand": [part, joint]}  # 70 < 0.25 x 1200 <= 310
+    assert assigned["left_hand"][0] is sliver  # the input is not changed
+    # no window (no prior yet): nothing to measure a palm by, every detection stays
+    assert _without_fragments(assigned, {"right_hand": None, "left_hand": None}) == assigned
