@@ -544,6 +544,30 @@ def test_a_hand_one_colour_only_camera_sees_follows_its_pixel_across_the_line_of
     assert across[scaled] < 8.0  # measured 0.4 mm
 
 
+def test_a_region_part_one_colour_only_camera_gives_keeps_its_full_noise(rig2):
+    # measured in 3-D for 15 instants, the still hand is then seen by cam1 alone through a region part (a region two
+    # predictions split in 2-D: its centre is their guess) 70 mm off across cam1's line of sight for 3 instants (the
+    # synthetic rig's separating hands, 53-79 mm): at its full noise the estimate stays on the hand; at
+    # ONE_LINE_PIXEL_SCALE of it (a whole region's) it followed the part
+    from fusion_pf.filter.world import PixelObservation
+    from fusion_pf.pipeline.world import _WorldTarget
+
+    config, cam0, cam1, intr, here, d = _one_line_setup(rig2)
+    side = np.cross(d, [0.0, 1.0, 0.0])
+    off = here + 70.0 * side / np.linalg.norm(side)
+    point = (cam0, intr, Measurement("colour", 0.0, 0.0, 1.0), PointObservation(here, 60.0))
+    target = _WorldTarget("right_hand", config, np.random.default_rng(0))
+    for k in range(18):
+        at, extras = (here, {}) if k < 15 else (off, {"part": 0})
+        (u, v) = project(at[None], cam1.pose, intr)[0][0]
+        m = Measurement("colour", u, v, 0.3, extras)
+        pixel = (cam1, intr, m, PixelObservation(np.array([u, v]), 100.0, cam1.pose, intr))
+        if target.filter.initialised:
+            target.filter.predict(k * 33_333_333)
+        est, _ = target.step(k * 33_333_333, [point, pixel] if k < 15 else [pixel])
+    assert float(np.linalg.norm(est - here)) < 35.0  # measured 15-20 mm (filter seeds 0-3); 69-72 at 0.1 of its noise
+
+
 def test_a_hand_one_camera_sees_before_any_3d_instant_is_held_at_the_populations_reach(rig2):
     # acquired from cam0's point at the first instant, the (still) hand is then seen by cam1 alone for 40 instants,
     # never measured in 3-D: nothing is learned of its distance from its elbow (REACH_PRIOR_MM away), so the
