@@ -48,10 +48,16 @@ from .motion import DEFAULT_PROCESS_NOISE, FrameClock, check_process_noise, nois
 from .proposal import PROPOSALS, check_manoeuvre, guided_positions, prior_positions
 from .resample import RESAMPLERS, residual_trusted
 
-__all__ = ["GATE", "ParticleFilter"]
+__all__ = ["GATE", "PRECISE", "QUALITY_FALL", "ParticleFilter"]
 
 #: Chi-square 99 % point of 2 degrees of freedom, ``-2 ln 0.01``: the guided proposal's anchor gate.
 GATE = -2.0 * math.log(0.01)
+#: The anchor's displacement measures the velocity when its noise ``sqrt(2) sigma_white / dt`` is at most this
+#: share of eq. 4's velocity noise (:meth:`ParticleFilter._velocity`).
+PRECISE = 0.5
+#: ... and its quality fell by at most this much since the last step (a blob whose confidence falls is changing
+#: shape, e.g. dragged onto the forearm: its displacement is not the palm's).
+QUALITY_FALL = 0.05
 
 
 class ParticleFilter(Tracker):
@@ -100,7 +106,10 @@ class ParticleFilter(Tracker):
         ``p(x_k | x_(k-1), z_anchor)``, exact for eq. 4's Gaussian position
         noise, the manoeuvre mixture and the robust outlier mixture (a mixture
         of up to four Gaussians per particle), and weighted by
-        ``p(z_anchor | x_(k-1))`` times the other sources' eqs. 5-7. Without a
+        ``p(z_anchor | x_(k-1))`` times the other sources' eqs. 5-7; with the
+        robust likelihood, the velocities are drawn given a precise anchor's
+        displacement since the last step when its white noise is known
+        (:meth:`set_white_noise`, :meth:`_velocity`). Without a
         measurement it is the prior proposal.
     manoeuvre : (float, float)
         ``(prob, std_px)``: with probability ``prob`` a step's position noise
@@ -237,6 +246,9 @@ class ParticleFilter(Tracker):
         self._std_unit = noise_std(self.process_noise, 1.0)
         self.reinitialisations = 0
         self._expected: np.ndarray | None = None
+        # each source's white noise per axis, px (set_white_noise), and the last guided step's anchor
+        self._white: dict[str, float] = {}
+        self._last_anchor: Measurement | None = None
         # what _finish does to the weights: 0 nothing, 1 add _joint and normalise, 2 normalise
         self._weighed = 0
         self.reset()
@@ -262,6 +274,19 @@ class ParticleFilter(Tracker):
         """Change the eq. 4 noise ``(pos px, vel px/frame)`` from the next step on."""
         self.process_noise = check_process_noise(process_noise)
         self._std_unit = noise_std(self.process_noise, 1.0)
+
+    def set_white_noise(self, source: str, sigma_px: float | None) -> None:
+        """``source``'s white noise per axis, px (the frame-to-frame part of its error; None: unknown).
+
+        The guided proposal measures the velocity with a precise anchor's displacement
+        (:meth:`_velocity`); without it the velocity follows eq. 4's walk only.
+        """
+        if sigma_px is None:
+            self._white.pop(source, None)
+        elif not (math.isfinite(float(sigma_px)) and float(sigma_px) >= 0.0):
+            raise InputError(f"white noise of {source!r} must be a finite number >= 0 px, got {sigma_px}")
+        else:
+            self._white[source] = float(sigma_px)
 
     def set_estimator(self, estimator: str) -> None:
         """Use ``estimator`` (one of :data:`~fusion_pf.filter.estimate.ESTIMATORS`) from the next step on."""
@@ -312,6 +337,7 @@ class ParticleFilter(Tracker):
         if prior is not None:
             self.prior = check_prior(prior)
         self._last_ns: int | None = None
+        self._last_anchor = None
         self.initialised = False
         self._weighed = 0
         if self.prior is not None:
@@ -327,6 +353,7 @@ class ParticleFilter(Tracker):
         # w_i = 1 / N
         self._logw.fill(-math.log(self.n_particles))
         self._w.fill(1.0 / self.n_particles)
+        self._last_anchor = None
         self.initialised = True
 
     def _centre_of(self, measurements: Sequence[Measurement]) -> np.ndarray:
@@ -384,6 +411,7 @@ class ParticleFilter(Tracker):
                 self._last_ns = t
                 self._guided(ms, dt)
                 return self._finish(t)
+            self._last_anchor = None
             top = self._move(dt, ms)
             if top is not None:
                 self._last_ns = t
@@ -429,24 +457,32 @@ class ParticleFilter(Tracker):
         :class:`~fusion_pf.filter.likelihood.JointLikelihood`). When the anchor
         is an outlier for every particle and so are the other cues, the
         particles are re-initialised around the cues as in the prior proposal.
+        With the robust likelihood, a precise anchor's displacement since the
+        last step also measures the velocity (:meth:`_velocity`).
         """
         std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
-        # velocity: v_k = v_(k-1) + sigma_v N(0, I); positions: mu = p_(k-1) + dt v_(k-1)
-        predict(self._x, np.array([0.0, 0.0, std[2], std[3]]), self.rng, dt=dt, scratch=self._noise)
         like = self._like
         if like.likelihood == "gaussian":
             prec = np.array([1.0 / like.noise_px[m.source] ** 2 for m in ms])
             # z_bar = sum_phi z_phi / rho_phi / P, sigma^2 = 1 / P   (eq. 7 as one Gaussian)
             z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
-            sigma, rest, outlier = 1.0 / math.sqrt(prec.sum()), [], None
+            sigma, rest, outlier, velocity = 1.0 / math.sqrt(prec.sum()), [], None, None
         else:
-            anchor = self._anchor(ms, dt)
+            anchor, explained = self._anchor(ms, dt)
             z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
             rest = [m for m in ms if m is not anchor]
             outlier = (like.outlier(anchor), like.outlier_area_px2)
+            velocity = self._velocity(anchor, dt, std[2]) if explained else None
+            self._last_anchor = anchor if explained else None
+        # velocity: v_k = v_(k-1) + sigma_v N(0, I), or drawn given the anchor's displacement below;
+        # positions: mu = p_(k-1) + dt v_(k-1)
+        walk = std[2:] if velocity is None else np.zeros(2)
+        predict(self._x, np.array([0.0, 0.0, walk[0], walk[1]]), self.rng, dt=dt, scratch=self._noise)
         log_ev, self._expected, inlier = guided_positions(
             self._x[:2], self._x[2:], self.process_noise[0], self.manoeuvre, z, sigma, self.rng, outlier=outlier, dt=dt
         )
+        if velocity is not None:
+            log_ev += self._measure_velocity(velocity, std[2])
         if rest:
             inlier = (not self._lost(rest)) or inlier
         if not inlier:
@@ -455,26 +491,85 @@ class ParticleFilter(Tracker):
             self._initialise(self._centre_of(ms))
             self._update(ms)
             return
-        # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) prod_(other phi) p(z_phi | x_k)   (eq. 3 with the guided proposal)
+        # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) [p(y | v)] prod_(other phi) p(z_phi | x_k)   (eq. 3, guided proposal)
         self._logw += log_ev
         self._weighed = 1 if rest else 2
 
-    def _anchor(self, ms: Sequence[Measurement], dt: float) -> Measurement:
-        """The guided proposal's anchor: the most precise of the cues the prediction can explain.
+    def _velocity(self, anchor: Measurement, dt: float, walk: float) -> tuple[float, float, float] | None:
+        """The velocity the anchor's displacement measures, ``(y_u, y_v, sigma_y)`` px/frame, or None.
+
+        A palm seen by a cue whose white noise ``sigma_w`` is far below the motion the model allows
+        (issue 23: far hands, a 0.2-0.9 px depth cue) moves, between two frames, by its velocity
+        plus ``sqrt(2) sigma_w`` of noise: ``y = (z_k - z_(k-1)) / dt`` measures it with
+        ``sigma_y = sqrt(2) sigma_w / dt``, while eq. 4's walk of ``walk`` px/frame per step and the
+        particles' selection by the position cue alone let the cloud's velocity lag a hand that turns
+        round by 6-12 px/frame. Only when the same source anchored the last step, both anchors were
+        explained by the prediction, the displacement is one the motion model allows (within the
+        chi-square gate of the cloud's velocity ``v_bar``, spread ``V``, the walk and the position
+        noise ``q``: a cloud widened by a jump to another blob explains the jump back, this gate not),
+        its white noise is known, ``sigma_y <= PRECISE walk`` and its quality fell by at most
+        :data:`QUALITY_FALL` (issue 23's far scenes: a depth blob dragged off the palm at 1.5-5 px/frame,
+        its quality falling by 0.09-0.15 at the first frame, while a steady one moves by 0.05 at most).
+        """
+        last = self._last_anchor
+        white = self._white.get(anchor.source)
+        if (
+            last is None
+            or white is None
+            or last.source != anchor.source
+            or anchor.quality < last.quality - QUALITY_FALL
+        ):
+            return None
+        sigma_y = math.sqrt(2.0) * white / dt
+        if not sigma_y <= PRECISE * walk:
+            return None
+        yu, yv = (anchor.u - last.u) / dt, (anchor.v - last.v) / dt
+        mean_u, mean_v, var = self._moments(self._x[2:])
+        # the displacement is one the motion model allows: |y - v_bar|^2 <= GATE (sigma_y^2 + V + walk^2 + q^2 / dt)
+        if (yu - mean_u) ** 2 + (yv - mean_v) ** 2 > GATE * (
+            sigma_y * sigma_y + var + walk * walk + self.process_noise[0] ** 2 / dt
+        ):
+            return None
+        return yu, yv, sigma_y
+
+    def _measure_velocity(self, velocity: tuple[float, float, float], walk: float) -> np.ndarray:
+        """Draw the velocities given the anchor's displacement (the optimal proposal); its log-evidence per particle.
+
+        Per particle, prior ``v_k ~ N(v, walk^2)`` (``v`` its velocity before eq. 4's walk, a
+        manoeuvre included) and ``y ~ N(v_k, sigma_y^2)``: ``v_k ~ N(v + b (y - v), b sigma_y^2)``
+        with ``b = walk^2 / (walk^2 + sigma_y^2)``, evidence ``N2(y; v, walk^2 + sigma_y^2)``.
+        """
+        yu, yv, sigma_y = velocity
+        total = walk * walk + sigma_y * sigma_y
+        gain = walk * walk / total
+        spread = math.sqrt(gain) * sigma_y
+        vel = self._x[2:]
+        du = yu - vel[0]
+        dv = yv - vel[1]
+        # log N2(y; v, T) = -|y - v|^2 / (2 T) - log(2 pi T)
+        log_ev = -(du * du + dv * dv) / (2.0 * total) - math.log(2.0 * math.pi * total)
+        noise = self.rng.standard_normal((2, self.n_particles))
+        # v_k = v + b (y - v) + sqrt(b) sigma_y N(0, I)
+        vel[0] += gain * du + spread * noise[0]
+        vel[1] += gain * dv + spread * noise[1]
+        return log_ev
+
+    def _anchor(self, ms: Sequence[Measurement], dt: float) -> tuple[Measurement, bool]:
+        """The guided proposal's anchor: the most precise of the cues the prediction can explain; whether it can.
 
         A cue the prediction explains lies within the chi-square 99 % gate of 2 degrees of freedom,
         ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` with ``mu, P`` the particles' predicted mean
-        and per-axis variance (velocities already applied: ``self._x`` holds ``p + dt v``); without
+        and per-axis variance (velocities applied: ``p + dt v``); without
         such a cue, the most precise of all (the palm moved beyond the motion model). A precise cue
         that jumped to a wrong blob then only weighs the particles (its robust likelihood), instead
         of drawing them all to it through the manoeuvre component (issue 23: a depth blob 38 px off
         pulled the estimate 22 px on skeleton-best, frame 4).
         """
         like = self._like
-        mu_u, mu_v, spread = self._moments(self._x[:2])
+        mu_u, mu_v, spread = self._moments(self._x[:2] + dt * self._x[2:])
         var = spread + dt * self.process_noise[0] ** 2
         near = [m for m in ms if (m.u - mu_u) ** 2 + (m.v - mu_v) ** 2 <= GATE * (like.sigma(m) ** 2 + var)]
-        return min(near or ms, key=like.expected_variance)
+        return min(near or ms, key=like.expected_variance), bool(near)
 
     def _finish(self, t: int) -> Estimate:
         """Weight update (eqs. 3, 2) when the step had measurements, estimation phase, ESS and resampling."""

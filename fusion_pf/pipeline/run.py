@@ -146,7 +146,14 @@ from ..cues.roi import PALM_LENGTH_MM, Roi, full_roi, make_roi
 from ..errors import InputError
 from ..filter import Estimate, KalmanFilter, ParticleFilter, Tracker
 from ..filter.bursts import BURST_PALMS, BurstFilter
-from ..filter.calibration import MOTION_MIN, MOTION_WINDOW, NoiseCalibration, process_scale, starting_sigma
+from ..filter.calibration import (
+    MOTION_MIN,
+    MOTION_WINDOW,
+    SELF_QUALITY,
+    NoiseCalibration,
+    process_scale,
+    starting_sigma,
+)
 from ..filter.estimate import largest_std
 from ..filter.kernel import warm_up
 from ..filter.likelihood import DEFAULT_OUTLIER_AREA_PX2, quality_sigma
@@ -1040,6 +1047,9 @@ class _FilterStage:
         if isinstance(tracker, ParticleFilter):
             for m in ms:
                 tracker.set_outlier_prob(m.source, calibration.outlier(m))
+                # the white noise measured from the cue alone (confident measurements): the noise of its displacement
+                white = calibration.white(m.source, m.quality) if m.quality >= SELF_QUALITY else None
+                tracker.set_white_noise(m.source, None if white is None else math.sqrt(white) * self._scale)
         if self._learn:
             calibration.update(ms, sigmas, self._scale, predicted, timestamp_ns)
 
