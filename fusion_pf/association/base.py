@@ -35,10 +35,11 @@ joint name (certain, ``label_score`` 1) or the hand model's handedness as
    make one blob) takes its partner's detection of a source when it got
    none of that source or its own lies farther from its prediction (the
    Hungarian gives each of the pair a detection; the blob they share is the
-   nearer one, not a distractor farther out) or its own is a *fragment* of
-   the partner's (:func:`fragment`: a region of less than
+   nearer one, not a distractor farther out) or, both being hands, its own
+   is a *fragment* of the partner's (:func:`fragment`: a region of less than
    :data:`FRAGMENT_AREA` of the partner's area, a sliver of depth beside two
-   overlapping hands, not a hand), except when both are parts of
+   overlapping hands, not a hand; a hand's region beside the head's is no
+   fragment), except when both are parts of
    one region the cue split between them (extras ``part``,
    :func:`fusion_pf.cues.regions.split_region`). No other detection is given
    to two targets.
@@ -267,7 +268,7 @@ def associate(
                 continue  # the cue split the pair's region between them: each keeps its part
             if (
                 t not in own
-                or fragment(own[t].measurement, own[q].measurement)
+                or (t in HANDS and q in HANDS and fragment(own[t].measurement, own[q].measurement))
                 or (
                     p is not None
                     and math.hypot(own[q].u - p[0], own[q].v - p[1]) < math.hypot(own[t].u - p[0], own[t].v - p[1])

@@ -637,6 +637,7 @@ class _CueStage:
         partners: Mapping[str, str] | None = None,
         source_gates: Mapping[str, Mapping[str, float] | None] | None = None,
         offsets: Mapping[str, tuple[float, float]] | None = None,
+        keep_slivers: bool = False,
     ) -> dict[str, CueRow]:
         """Every target's cue row of one frame: detections in the targets' windows (sized by ``palms``), associated to the targets.
 
@@ -644,7 +645,11 @@ class _CueStage:
         window's gate (:meth:`_gate`) and its ``source_gates`` of that source
         (:meth:`_FilterStage.source_gates`). A combined target's copy of the
         region detection it shares with its partner is moved by its
-        ``offsets`` (:meth:`_Targets.offsets`).
+        ``offsets`` (:meth:`_Targets.offsets`). A hand's region slivers are
+        dropped (:func:`_without_fragments`) unless ``keep_slivers``: the world
+        tracker keeps them, its other cameras outvote one camera's sliver (with
+        them dropped, the synthetic 4-camera rig at 320 x 200 lost a hand's
+        contact with the head, ``benchmarks/rig_events.py`` seed 5).
         """
         if self.cues is None:
             self.names = cue_names(self.config, frame, learnt=model is not None and model.learnt)
@@ -697,7 +702,7 @@ class _CueStage:
             partners=partners,
             merge_px=MERGE_PX * pixel_scale(frame.size, self.config),
         )
-        if several:
+        if several and not keep_slivers:
             assigned = _without_fragments(assigned, rois)
         if several and partners and offsets:
             assigned = _offset_shared(assigned, partners, offsets)
@@ -754,7 +759,7 @@ class _CueStage:
 def _without_fragments(
     assigned: Mapping[str, list[Detection]], rois: Mapping[str, Roi | None]
 ) -> dict[str, list[Detection]]:
-    """Each target's detections without the region detections smaller than :data:`~fusion_pf.association.FRAGMENT_AREA` of its window's expected palm area.
+    """Each hand's detections without the region detections smaller than :data:`~fusion_pf.association.FRAGMENT_AREA` of its window's expected palm area (other targets' as they are).
 
     Two hands overlapping a few cm in front of the body often leave the depth cue no region of the
     pair, only slivers of it and of the body around it (40-460 px^2 against the hand's 900-4000,
@@ -763,7 +768,7 @@ def _without_fragments(
     """
     out = {t: list(ds) for t, ds in assigned.items()}
     for t, roi in rois.items():
-        if t in out and roi is not None:
+        if t in out and t in HANDS and roi is not None:
             least = FRAGMENT_AREA * roi.palm_area
             out[t] = [d for d in out[t] if (a := region_area(d.measurement)) is None or a >= least]
     return out
@@ -1475,7 +1480,12 @@ class _Targets:
             for k, b in enumerate(before)
             if b.state == TrackState.COMBINED
             and b.partner is not None
-            and _detected_apart(rows[self.names[k]], rows[self.names[b.partner]], APART_PALMS * palm)
+            and _detected_apart(
+                rows[self.names[k]],
+                rows[self.names[b.partner]],
+                APART_PALMS * palm,
+                hands=self.names[k] in HANDS and self.names[b.partner] in HANDS,
+            )
         ]
         after = combine_states(before, positions, config, labels, apart)
         for k, (b, a) in enumerate(zip(before, after)):
@@ -1542,16 +1552,17 @@ def _position(result: TrackResult) -> tuple[float, float] | None:
     return None if e is None else (e.u, e.v)
 
 
-def _detected_apart(a: CueRow, b: CueRow, distance: float) -> bool:
+def _detected_apart(a: CueRow, b: CueRow, distance: float, *, hands: bool) -> bool:
     """Whether a region cue gave the two targets' rows two detections farther than ``distance`` apart (the cue sees two hands, not one shared blob).
 
-    A fragment of the other's region (:func:`~fusion_pf.association.fragment`) is no second hand.
+    Between two hands (``hands``), a fragment of the other's region (:func:`~fusion_pf.association.fragment`)
+    is no second hand; a hand's region beside the head's is a hand, however small against it.
     """
     for source, m in a.cues.items():
         n = b.cues.get(source)
         if m is None or n is None or m is n or source in ("skeleton", "hand") or "part" in m.extras:
             continue  # labelled sources count as labels; parts are one region the cue split between the pair
-        if fragment(m, n) or fragment(n, m):
+        if hands and (fragment(m, n) or fragment(n, m)):
             continue
         if math.hypot(m.u - n.u, m.v - n.v) > distance:
             return True

@@ -955,7 +955,7 @@ def track_world(
                         projected = (float(uv[0, 0]), float(uv[0, 1]))
                         palms[t] = frame.intrinsics.fx * PALM_LENGTH_MM / float(z[0])
                 priors[t] = cam.stage.prior(frame, config.roi_prior, projected, t)
-            rows = cam.stage.rows(fs.index, frame, 0, models.get(name), priors, palms, partners)
+            rows = cam.stage.rows(fs.index, frame, 0, models.get(name), priors, palms, partners, keep_slivers=True)
             for t in names:
                 mate = partners.get(t)
                 mate_at = None if mate is None else predicted[mate]

@@ -198,3 +198,14 @@ def test_a_combined_target_shares_its_partners_region_rather_than_keep_a_fragmen
     # not combined, the sliver is the left hand's (no sharing)
     out = associate(HANDS, preds, [region, sliver], gates=[120, 120])
     assert picked(out) == {"right_hand": [("depth", 360, 271)], "left_hand": [("depth", 392, 300)]}
+
+
+def test_a_hand_in_contact_with_the_head_keeps_its_region_however_small_against_the_heads():
+    # a hand touching the head: the head's region (6000 px^2) dwarfs the hand's (900 px^2); the hand's is no
+    # fragment of the head's, so the hand keeps its own region
+    targets = ("right_hand", "head")
+    partners = {"right_hand": "head", "head": "right_hand"}
+    head = Detection(Measurement("depth", 300, 120, 0.9, {"area": 6000}))
+    hand = Detection(Measurement("depth", 340, 150, 0.8, {"area": 900}))
+    out = associate(targets, [(338.0, 148.0), (302.0, 122.0)], [head, hand], gates=[120, 120], partners=partners)
+    assert picked(out) == {"right_hand": [("depth", 340, 150)], "head": [("depth", 300, 120)]}
