@@ -1,14 +1,5 @@
 """Association: the cues' detections to the targets (labels first, then gated nearest prediction)."""
 
-from .base import FRAGMENT_AREA, HANDS, Detection, associate, compatible, fragment, handedness_label, region_area
+from .base import HANDS, Detection, associate, compatible, handedness_label
 
-__all__ = [
-    "FRAGMENT_AREA",
-    "HANDS",
-    "Detection",
-    "associate",
-    "compatible",
-    "fragment",
-    "handedness_label",
-    "region_area",
-]
+__all__ = ["HANDS", "Detection", "associate", "compatible", "handedness_label"]

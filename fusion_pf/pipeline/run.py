@@ -137,7 +137,8 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from ..association import FRAGMENT_AREA, HANDS, Detection, associate, fragment, region_area
+from ..association import HANDS, Detection, associate
+from ..association.base import FRAGMENT_AREA, fragment, region_area
 from ..cues.background import AdaptiveBackground, BackgroundModel
 from ..cues.base import SOURCES, Cue, CueContext, opencv_threads
 from ..cues.regions import DEFAULT_PALM_AREA
