@@ -325,8 +325,10 @@ def dask_client(workers: int | None, scheduler: str | None, n_tasks: int) -> Ite
     import dask
     from distributed import Client, LocalCluster
 
-    logging.getLogger("distributed").setLevel(logging.ERROR)
+    log = logging.getLogger("distributed")
+    log.setLevel(logging.ERROR)
     cluster = client = None
+    stopped = False
     try:
         with sigint_deferred():  # a stop request waits until the cluster is up, so that it can be closed
             if scheduler is None:
@@ -349,11 +351,22 @@ def dask_client(workers: int | None, scheduler: str | None, n_tasks: int) -> Ite
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
         yield client, len(client.scheduler_info(n_workers=-1)["workers"]) or 1
+    except BaseException:
+        stopped = True
+        raise
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        # stopped mid-run (a signal, Ctrl-C, an error): the in-process scheduler's CRITICAL reports of results it
+        # can no longer send to the closing client are not the user's business (the stop is reported by the caller)
+        level = log.level
+        if stopped:
+            log.setLevel(logging.CRITICAL + 1)
+        try:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+        finally:
+            log.setLevel(level)
 
 
 def _run_dask(frames, config, background, counts, order, seed, workers, scheduler, points, seconds, bar) -> int:
