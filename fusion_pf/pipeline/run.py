@@ -224,7 +224,7 @@ SUPPORT_SIGMAS = 3.0
 GATE_FLOOR_PALMS = 1.0
 #: A combined target's share of the region it shares with its partner is moved this many of its apparent
 #: palm lengths toward the side it entered the combination from (:meth:`_Targets.offsets`): half the
-#: distance between two palms side by side.
+#: distance between two palms side by side. A shared copy is uncertain by as much (:func:`_shared_widened`).
 SHARED_OFFSET_PALMS = 0.225
 #: A pair combining again within this many frames of separating keeps the sides it first entered from
 #: (:meth:`_Targets.offsets`): it was never apart, and its estimates right after a brief separation
@@ -797,6 +797,28 @@ def _offset_shared(
     return out
 
 
+def _shared_widened(ms: Sequence[Measurement], sigmas: Mapping[str, float], palm: float) -> dict[str, float]:
+    """``sigmas`` (px per source) with each shared region copy's widened in quadrature by :data:`SHARED_OFFSET_PALMS` of ``palm`` (px), when every region measurement of ``ms`` is a shared copy.
+
+    A combined target's copy of the region it shares with its partner is the region's centre moved
+    by a guessed offset (:func:`_offset_shared`): where in the region each hand lies is uncertain by
+    about that offset, whatever noise the cue learned on its own. Two hands overlapping in front of
+    the body share the colour and the depth region; the colour cue's noise, learned at 2 px while
+    tracking alone and kept there by a track that follows its copy, made the pair follow the colour
+    region's centre, 10-15 px off both hands (depth's copy 5-9 px; issue 22).
+    Widened, the shared copies weigh about alike and the targets' own skeleton joints count. A row
+    holding a region of its own or a part of a split region keeps its noises: the shared copy is
+    not made weaker than the target's own evidence.
+    """
+    out = dict(sigmas)
+    regions = [m for m in ms if region_area(m) is not None]
+    if not regions or not all(m.extras.get("shared") for m in regions):
+        return out
+    for m in regions:
+        out[m.source] = math.hypot(out[m.source], SHARED_OFFSET_PALMS * palm)
+    return out
+
+
 def _joined_priors(
     priors: Mapping[str, tuple[float, float] | None],
     partners: Mapping[str, str],
@@ -1016,8 +1038,13 @@ class _FilterStage:
 
     @property
     def _reach(self) -> float:
-        """:data:`GATE_FLOOR_PALMS` apparent palm lengths, px (the reference palm at this image's scale until one is measured)."""
-        return GATE_FLOOR_PALMS * (self.palm_px or REFERENCE_PALM_PX * self._scale)
+        """:data:`GATE_FLOOR_PALMS` apparent palm lengths, px."""
+        return GATE_FLOOR_PALMS * self._palm
+
+    @property
+    def _palm(self) -> float:
+        """The apparent palm length, px (the reference palm at this image's scale until one is measured)."""
+        return self.palm_px or REFERENCE_PALM_PX * self._scale
 
     @property
     def palm_px(self) -> float | None:
@@ -1041,12 +1068,13 @@ class _FilterStage:
     ) -> None:
         """Fuse this frame's cues with their calibrated noise and outlier probability (:class:`~fusion_pf.filter.calibration.NoiseCalibration`), then learn from them.
 
-        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`); the cues are learned
-        from against ``predicted`` (:meth:`_predicted`) when there is one.
+        ``trust`` is each source's calibrated noise at scale 1 (:meth:`_trust`); a combined target's
+        shared region copies are fused with it widened (:func:`_shared_widened`). The cues are
+        learned from against ``predicted`` (:meth:`_predicted`) when there is one.
         """
         calibration, tracker = self._calibration, self.tracker
         assert calibration is not None and tracker is not None  # adapt_noise; created by _start
-        sigmas = {source: sigma * self._scale for source, sigma in trust.items()}
+        sigmas = _shared_widened(ms, {source: sigma * self._scale for source, sigma in trust.items()}, self._palm)
         for source, sigma in sigmas.items():
             tracker.set_noise(source, sigma)
             self._var[source] = sigma * sigma
@@ -1202,7 +1230,7 @@ class _FilterStage:
         """
         if self.bursts is None:
             return {m.source: 1.0 for m in ms}
-        palm = self.palm_px or REFERENCE_PALM_PX * self._scale
+        palm = self._palm
         weights = self.bursts.weights(ms, self._var, predicted if self.tracking else None, BURST_PALMS * palm)
         tracker = self.tracker
         assert tracker is not None  # created by _start

@@ -323,3 +323,32 @@ def test_several_targets_take_no_region_sliver_far_below_a_palm():
     assert assigned["left_hand"][0] is sliver  # the input is not changed
     # no window (no prior yet): nothing to measure a palm by, every detection stays
     assert _without_fragments(assigned, {"right_hand": None, "left_hand": None}) == assigned
+
+
+def test_a_combined_targets_shared_region_copies_are_fused_with_their_offsets_uncertainty():
+    """Two hands overlapping near the body share the colour and the depth region; each shared copy is the
+    region's centre moved by a guessed offset, so its noise is widened by that offset's size (the colour
+    cue's 2 px learned alone made the pair follow the colour region, 10-15 px off both hands, issue 22);
+    a row with a region or a part of its own keeps its noises, and so does a lone target."""
+    from fusion_pf.frame import Measurement
+    from fusion_pf.pipeline.run import SHARED_OFFSET_PALMS, _shared_widened
+
+    colour = Measurement("colour", 100.0, 50.0, 0.9, {"area": 3000, "shared": True})
+    depth = Measurement("depth", 102.0, 52.0, 0.8, {"area": 2500, "shared": True})
+    joint = Measurement("skeleton", 110.0, 48.0)
+    sigmas = {"colour": 2.0, "depth": 6.0, "skeleton": 20.0}
+    palm = 44.0
+    out = _shared_widened([colour, depth, joint], sigmas, palm)
+    w = SHARED_OFFSET_PALMS * palm
+    assert out == pytest.approx({"colour": math.hypot(2.0, w), "depth": math.hypot(6.0, w), "skeleton": 20.0})
+    assert out["colour"] / out["depth"] > 0.8  # about alike (2 against 6 px before)
+    assert sigmas["colour"] == 2.0  # the input is not changed
+    part = Measurement("depth", 96.0, 50.0, 0.8, {"area": 1200, "part": 0})
+    own = Measurement("depth", 96.0, 50.0, 0.8, {"area": 1200})
+    assert _shared_widened([colour, part, joint], sigmas, palm) == sigmas
+    assert _shared_widened([colour, own, joint], sigmas, palm) == sigmas
+    alone = [
+        Measurement("colour", 100.0, 50.0, 0.9, {"area": 3000}),
+        Measurement("depth", 101.0, 51.0, 0.8, {"area": 900}),
+    ]
+    assert _shared_widened(alone, sigmas, palm) == sigmas
