@@ -108,6 +108,28 @@ quality 0.2 fitted 1.3 px lent it to quality 0.3-0.45, fused 2.22 -> 2.45 px). D
 ``track``, seed 0: over the 30 matrix scenes fused new / old geometric mean 0.971 (far-hand-sharp-960
 0.78 -> 0.52 px, big-1280 2.39 -> 2.02; worst lighting-bias-960 1.08x); 32 scenes no helper saw
 0.98 (worst 1.04x); the sample 0.802 -> 0.738 px.
+
+The first frames of a precise cue. The warm-start replay (``fusion_pf.pipeline.run``) fuses its first 25
+frames with what the first pass learned from them, and a cue whose quality straddles a bin boundary
+splits those frames between two bins: on issue 23's far scene gen-31351-far-1280 (main 69f87d7) the
+0.25 px depth cue, quality 0.68-0.77, had 8 and 16 residuals and too few differences in its bin to
+measure its white noise; fitted 0 against the prediction, it stayed near its ``4 / q`` px prior, 5.5-6.9
+px in the image beside a 5.7 px skeleton, which anchored the guided proposal 16 px off (one frame, 75 %
+of the scene's squared error; fused 1.55 px). Two changes. A confident bin (:data:`SELF_QUALITY` or
+more) without :data:`SELF_MIN` differences of its own measures its white noise with those of all the
+source's confident bins (white noise is the cue's, not its quality's; the floor and the guided
+proposal's velocity measurement use it). And where the cue itself (its white and slow error) sees
+no error above the lowest floor (:data:`SLOW_FLOOR` of it, :data:`SELF_FLOOR` before the slow error
+is known), its difference samples are evidence of its noise as its residuals are: the learned noise
+is the geometric mean of the residuals' fit (within its bounds) and the floor, weighted by their
+counts, and both counts weigh it against the prior. The residuals measure such a cue through a
+prediction that cannot resolve it (first frames, an unsettled prediction: on held-out
+gen-31459-far-1280 3 residuals of a new bin fitted 1.15 px at palm scale 1 beside a 0.04 px white
+noise), the differences directly. A cue whose own error is above the lowest floor is learned from
+its residuals alone, as before: with the condition "below the floor" instead, the colour blob of
+gen-31342-colour-960 (own error 0.64 px at palm scale 1 against the 0.7 px floor, on a wrong blob 12
+px off in frames 127-132) was trusted at 2.7-4 px instead of 5.5-8 px, anchored the track there and
+the fused RMSE rose 3.59 -> 4.74 px.
 """
 
 from __future__ import annotations
@@ -193,6 +215,9 @@ SLOW_MIN = 20
 #: Residuals a quality bin needs before its noise bounds the next higher bin's shrinkage target
 #: (module docstring, "Bins without samples").
 BORROW_MIN = 20
+#: The lowest quality bin at or above :data:`SELF_QUALITY`: its and the higher bins' white noise is pooled
+#: for a confident bin without enough samples of its own (:meth:`NoiseCalibration.white`).
+_SELF_BIN = math.ceil(SELF_QUALITY * QUALITY_BINS)
 #: ``-ln(1 - 0.99)``: a core residual's ``r / (sigma^2 + p)`` is beyond it 1 % of the time.
 _TAIL = -math.log(0.01)
 
@@ -432,10 +457,22 @@ class NoiseCalibration:
         """Per-axis variance of ``source``'s white noise in ``quality``'s bin at palm scale 1, px^2 (None before :data:`SELF_MIN` samples).
 
         :func:`white_noise` of the bin's difference samples (each in the bin of its least
-        confident measurement).
+        confident measurement); for a confident bin (:data:`SELF_QUALITY` or more) with fewer than
+        :data:`SELF_MIN`, of the samples of all the source's confident bins (module docstring, "Bins
+        without samples").
         """
+        d = self._white_samples(source, quality)
+        return None if d is None else white_noise(d)
+
+    def _white_samples(self, source: str, quality: float) -> np.ndarray | None:
+        """The difference samples :meth:`white` measures ``source``'s white noise at ``quality`` with (None: too few)."""
         d = self._diffs.get((source, quality_bin(quality)))
-        return None if d is None or len(d) < SELF_MIN else white_noise(np.fromiter(d, float))
+        if d is not None and len(d) >= SELF_MIN:
+            return np.fromiter(d, float)
+        if quality < SELF_QUALITY:
+            return None
+        pooled = [x for (s, b), ds in self._diffs.items() if s == source and b >= _SELF_BIN for x in ds]
+        return np.array(pooled) if len(pooled) >= SELF_MIN else None
 
     def slow(self, source: str) -> float | None:
         """Per-axis variance of ``source``'s slow error at palm scale 1, px^2 (:func:`slow_errors`; None before :data:`SLOW_MIN` frames with another cue)."""
@@ -464,17 +501,27 @@ class NoiseCalibration:
             return target * scale
         var, _, n = fit
         low = min(self.floor, s0)
-        white = self.white(m.source, m.quality) if m.quality >= SELF_QUALITY else None
-        if white is not None:
+        own_samples = 0
+        diffs = self._white_samples(m.source, m.quality) if m.quality >= SELF_QUALITY else None
+        if diffs is not None:
+            white = white_noise(diffs)
             slow = self.slow(m.source)
-            if slow is None:
-                # the floor down to sigma_white / SELF_FLOOR, at most to SELF_FLOOR of it
-                low = min(low, max(math.sqrt(white) / SELF_FLOOR, SELF_FLOOR * low))
-            else:
-                # the floor down to sqrt(sigma_white^2 + B), at most to SLOW_FLOOR of it
-                low = min(low, max(SLOW_FACTOR * math.sqrt(white + slow), SLOW_FLOOR * low))
+            # the cue's error measured from itself: sigma_white / SELF_FLOOR, or SLOW_FACTOR sqrt(sigma_white^2 + B)
+            own = math.sqrt(white) / SELF_FLOOR if slow is None else SLOW_FACTOR * math.sqrt(white + slow)
+            # the floor down to it, at most to SELF_FLOOR (SLOW_FLOOR with B) of it
+            least = (SELF_FLOOR if slow is None else SLOW_FLOOR) * low
+            low = min(low, max(own, least))
+            if own <= least:
+                # the cue itself sees no error above the lowest floor: its difference samples are evidence of its
+                # noise, at that floor, as its residuals are of theirs (module docstring, "The first frames of a
+                # precise cue")
+                own_samples = len(diffs)
         # sigma_hat within [low, B sigma_0]
         learned = min(max(math.sqrt(var), low), s0 * BOUND)
+        if own_samples:
+            # log sigma_hat = (n log sigma_hat + n_d log low) / (n + n_d)
+            learned = learned ** (n / (n + own_samples)) * low ** (own_samples / (n + own_samples))
+            n += own_samples
         # log sigma = (n0 log sigma_0 + n log sigma_hat) / (n0 + n)
         w = n / (self.prior_count + n)
         return target ** (1.0 - w) * learned**w * scale
