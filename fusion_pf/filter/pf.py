@@ -249,6 +249,9 @@ class ParticleFilter(Tracker):
         # each source's white noise per axis, px (set_white_noise), and the last guided step's anchor
         self._white: dict[str, float] = {}
         self._last_anchor: Measurement | None = None
+        # per source its last guided step's measurement, the one before (None: none) and that step's length
+        # (frame steps), for _smooth
+        self._seen: dict[str, tuple[Measurement, Measurement | None, float]] = {}
         # what _finish does to the weights: 0 nothing, 1 add _joint and normalise, 2 normalise
         self._weighed = 0
         self.reset()
@@ -338,6 +341,7 @@ class ParticleFilter(Tracker):
             self.prior = check_prior(prior)
         self._last_ns: int | None = None
         self._last_anchor = None
+        self._seen = {}
         self.initialised = False
         self._weighed = 0
         if self.prior is not None:
@@ -354,6 +358,7 @@ class ParticleFilter(Tracker):
         self._logw.fill(-math.log(self.n_particles))
         self._w.fill(1.0 / self.n_particles)
         self._last_anchor = None
+        self._seen = {}
         self.initialised = True
 
     def _centre_of(self, measurements: Sequence[Measurement]) -> np.ndarray:
@@ -412,6 +417,7 @@ class ParticleFilter(Tracker):
                 self._guided(ms, dt)
                 return self._finish(t)
             self._last_anchor = None
+            self._seen = {}
             top = self._move(dt, ms)
             if top is not None:
                 self._last_ns = t
@@ -458,7 +464,9 @@ class ParticleFilter(Tracker):
         is an outlier for every particle and so are the other cues, the
         particles are re-initialised around the cues as in the prior proposal.
         With the robust likelihood, a precise anchor's displacement since the
-        last step also measures the velocity (:meth:`_velocity`).
+        last step also measures the velocity (:meth:`_velocity`), and while the
+        anchor is explained a cue the prediction cannot explain (:meth:`_anchor`)
+        neither anchors nor weighs.
         """
         std = self._std_unit if dt == 1.0 else self._std_unit * math.sqrt(dt)
         like = self._like
@@ -468,12 +476,16 @@ class ParticleFilter(Tracker):
             z = tuple(prec @ np.array([[m.u, m.v] for m in ms]) / prec.sum())
             sigma, rest, outlier, velocity = 1.0 / math.sqrt(prec.sum()), [], None, None
         else:
-            anchor, explained = self._anchor(ms, dt)
+            anchor, near = self._anchor(ms, dt)
+            explained = bool(near)
             z, sigma = (anchor.u, anchor.v), like.sigma(anchor)
-            rest = [m for m in ms if m is not anchor]
+            # a cue the prediction cannot explain while the anchor is explained is an outlier to every particle
+            rest = [m for m in (near or ms) if m is not anchor]
             outlier = (like.outlier(anchor), like.outlier_area_px2)
             velocity = self._velocity(anchor, dt, std[2]) if explained else None
             self._last_anchor = anchor if explained else None
+            seen = self._seen
+            self._seen = {m.source: (m, seen[m.source][0] if m.source in seen else None, dt) for m in ms}
         # velocity: v_k = v_(k-1) + sigma_v N(0, I), or drawn given the anchor's displacement below;
         # positions: mu = p_(k-1) + dt v_(k-1)
         walk = std[2:] if velocity is None else np.zeros(2)
@@ -494,6 +506,27 @@ class ParticleFilter(Tracker):
         # w_k ∝ w_(k-1) p(z_anchor | x_(k-1)) [p(y | v)] prod_(other phi) p(z_phi | x_k)   (eq. 3, guided proposal)
         self._logw += log_ev
         self._weighed = 1 if rest else 2
+
+    def _smooth(self, m: Measurement, dt: float) -> bool:
+        """Whether ``m`` continues its source's path: its white noise is known and its second difference is within the gate.
+
+        The second difference ``a = z_k - z_(k-1) - r (z_(k-1) - z_(k-2))`` over the last two guided steps
+        (``r`` the ratio of their lengths) of a cue that follows the palm is white noise of per-axis variance
+        ``(1 + (1 + r)^2 + r^2) sigma^2`` plus the palm's acceleration, within the chi-square gate of that
+        noise, eq. 4's walk and position noise (``dt^2 walk^2 + dt q^2``); a cue that jumped to another
+        blob is beyond it (issue 23, gen-31728-near-360 frame 59: a 2 px depth cue 42 px off its path).
+        Only a cue whose white noise is known (:meth:`set_white_noise`: a confident measurement) is judged.
+        """
+        last, before, step = self._seen.get(m.source, (None, None, 1.0))
+        if m.source not in self._white or last is None or before is None:
+            return False
+        r = dt / step
+        # a = z_k - z_(k-1) - r (z_(k-1) - z_(k-2))
+        au = m.u - last.u - r * (last.u - before.u)
+        av = m.v - last.v - r * (last.v - before.v)
+        noise = (1.0 + (1.0 + r) ** 2 + r * r) * self._like.sigma(m) ** 2
+        walk = self._std_unit[2]
+        return au * au + av * av <= GATE * (noise + dt * dt * walk * walk + dt * self.process_noise[0] ** 2)
 
     def _velocity(self, anchor: Measurement, dt: float, walk: float) -> tuple[float, float, float] | None:
         """The velocity the anchor's displacement measures, ``(y_u, y_v, sigma_y)`` px/frame, or None.
@@ -554,22 +587,66 @@ class ParticleFilter(Tracker):
         vel[1] += gain * dv + spread * noise[1]
         return log_ev
 
-    def _anchor(self, ms: Sequence[Measurement], dt: float) -> tuple[Measurement, bool]:
-        """The guided proposal's anchor: the most precise of the cues the prediction can explain; whether it can.
+    def _anchor(self, ms: Sequence[Measurement], dt: float) -> tuple[Measurement, list[Measurement]]:
+        """The guided proposal's anchor: the most precise of the cues the prediction can explain; those cues.
 
-        A cue the prediction explains lies within the chi-square 99 % gate of 2 degrees of freedom,
-        ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` with ``mu, P`` the particles' predicted mean
-        and per-axis variance (velocities applied: ``p + dt v``); without
-        such a cue, the most precise of all (the palm moved beyond the motion model). A precise cue
-        that jumped to a wrong blob then only weighs the particles (its robust likelihood), instead
-        of drawing them all to it through the manoeuvre component (issue 23: a depth blob 38 px off
-        pulled the estimate 22 px on skeleton-best, frame 4).
+        A cue the prediction explains lies within the chi-square 99 % gate of 2 degrees of freedom of
+        the bulk of the prediction, ``|z - mu|^2 <= GATE (sigma_eff^2 + P + dt q^2)`` with ``mu`` the
+        particles' predicted mean (velocities applied: ``p + dt v``) and ``P`` their bulk's per-axis
+        variance (:meth:`_bulk`); a cue that continues its own path (:meth:`_smooth`) within that gate
+        of the whole cloud's variance (its manoeuvres too: the track may be the one that is off); and two
+        cues outside it that agree with each other (``|z_a - z_b|^2 <= GATE (sigma_a^2 + sigma_b^2)``:
+        the track is what is off, issue 23, gen-31615-far-560 frames 114-118, depth and the skeleton on
+        the palm, a colour blob leading the track 15-25 px off). Without such a cue, the most precise of
+        all (the palm moved beyond the motion model), and every cue weighs. Otherwise a cue outside is an
+        outlier to every particle (:meth:`_guided`): a precise cue that jumped to a wrong blob neither
+        draws the particles to it through the manoeuvre component (issue 23: a depth blob 38 px off
+        pulled the estimate 22 px on skeleton-best, frame 4) nor, as a weight, the step to the particles
+        that manoeuvred towards it (gen-31728-near-360 frames 59-83: a 2 px depth cue jumped 42 px to a
+        blob beside a broad skeleton, and the track followed it 40-120 px off for 25 frames).
         """
         like = self._like
-        mu_u, mu_v, spread = self._moments(self._x[:2] + dt * self._x[2:])
-        var = spread + dt * self.process_noise[0] ** 2
-        near = [m for m in ms if (m.u - mu_u) ** 2 + (m.v - mu_v) ** 2 <= GATE * (like.sigma(m) ** 2 + var)]
-        return min(near or ms, key=like.expected_variance), bool(near)
+        positions = self._x[:2] + dt * self._x[2:]
+        q2 = dt * self.process_noise[0] ** 2
+        bulk_u, bulk_v, bulk = self._bulk(positions)
+        mu_u, mu_v, spread = self._moments(positions)
+
+        def explained(m: Measurement) -> bool:
+            s2 = like.sigma(m) ** 2
+            if (m.u - bulk_u) ** 2 + (m.v - bulk_v) ** 2 <= GATE * (s2 + bulk + q2):
+                return True
+            # the whole cloud, its manoeuvres too, for a cue that continues its own path
+            return (m.u - mu_u) ** 2 + (m.v - mu_v) ** 2 <= GATE * (s2 + spread + q2) and self._smooth(m, dt)
+
+        near = [m for m in ms if explained(m)]
+        outside = [m for m in ms if not any(m is n for n in near)]
+        # two cues the prediction cannot explain that agree with each other: the track is what is off
+        near += [
+            m
+            for m in outside
+            if any(
+                o is not m and (m.u - o.u) ** 2 + (m.v - o.v) ** 2 <= GATE * (like.sigma(m) ** 2 + like.sigma(o) ** 2)
+                for o in outside
+            )
+        ]
+        return min(near or ms, key=like.expected_variance), near
+
+    def _bulk(self, positions: np.ndarray) -> tuple[float, float, float]:
+        """Weighted mean ``(u, v)`` of ``positions`` (shape (2, N)) and the per-axis variance of their bulk.
+
+        The variance from the weighted median of the squared distances to the mean: for a Gaussian
+        cloud of per-axis variance ``s^2``, ``|d|^2 / 2`` is exponential with mean ``s^2`` and median
+        ``ln 2 s^2``. The weighted variance (:meth:`_moments`) counts the particles that drew a
+        manoeuvre and kept its velocity change (a broad anchor does not prune them), so one step with
+        a broad anchor widened it 5-8 fold and a wrong blob 40 px off entered the gate.
+        """
+        w = self._w
+        mu = positions @ w
+        d2 = np.einsum("ij,ij->j", positions - mu[:, None], positions - mu[:, None])
+        order = np.argsort(d2)
+        # the smallest d^2 whose cumulative weight reaches one half
+        median = float(d2[order[min(int(np.searchsorted(np.cumsum(w[order]), 0.5)), len(order) - 1)]])
+        return float(mu[0]), float(mu[1]), median / (2.0 * math.log(2.0))
 
     def _finish(self, t: int) -> Estimate:
         """Weight update (eqs. 3, 2) when the step had measurements, estimation phase, ESS and resampling."""

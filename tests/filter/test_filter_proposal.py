@@ -162,6 +162,101 @@ def test_the_anchor_is_a_cue_the_prediction_explains():
     assert e.u > 140.0
 
 
+def _steady(seed: int) -> ParticleFilter:
+    """A guided robust PF that followed a palm moving 3 px/frame along u, seen by a precise depth cue and the skeleton."""
+    pf = ParticleFilter(
+        n_particles=100,
+        likelihood="robust",
+        proposal="guided",
+        manoeuvre=(0.1, 20.0),
+        noise_px={"depth": 2.0, "skeleton": 2.0},
+        init_spread_px=2.0,
+        init_velocity_px=0.0,
+        outlier_area_px2=320 * 200,
+        rng=seed,
+    )
+    for k in range(10):
+        ms = [Measurement("skeleton", 100.0 + 3.0 * k, 100.0, 1.0), Measurement("depth", 100.0 + 3.0 * k, 100.0, 1.0)]
+        pf.step(k * 33_000_000, ms)
+    return pf
+
+
+def test_a_cue_that_jumped_off_its_path_outside_the_gate_neither_anchors_nor_weighs():
+    # issue 23, gen-31728-near-360 frame 59: the skeleton (broad) anchors, a precise depth cue jumped 42 px off its
+    # path to a blob outside the gate; as a weight it drew the step to the particles that had manoeuvred towards
+    # it, and the track flipped to that blob for 25 frames. Set aside while the blob stays outside the gate, it is an
+    # outlier to every particle: the steps are those without it
+    def step(ms, frames=1):
+        pf = _steady(3)
+        pf.set_noise("skeleton", 40.0)
+        for k in range(10, 10 + frames):
+            e = pf.step(k * 33_000_000, [m(k) for m in ms])
+        return e.u, e.v, pf.particles.copy()
+
+    def skeleton(k):
+        return Measurement("skeleton", 100.0 + 3.0 * k + 10.0, 100.0, 1.0)
+
+    def blob(k):
+        return Measurement("depth", 100.0 + 3.0 * k + 45.0, 100.0, 1.0)
+
+    alone = step([skeleton], frames=3)
+    assert step([blob, skeleton], frames=3)[:2] == alone[:2]
+    assert np.array_equal(step([blob, skeleton], frames=3)[2], alone[2])
+
+    # a cue that leaves the track without a jump (its second difference 6 px: the track may be the one that is off)
+    # still weighs the particles
+    def palm(k):
+        return Measurement("depth", 100.0 + 3.0 * k + 6.0 * (k - 9), 100.0, 1.0)
+
+    assert step([palm, skeleton], frames=3)[0] > alone[0] + 5.0
+
+
+def test_the_gate_holds_the_bulk_of_the_prediction_not_its_manoeuvres():
+    # issue 23, gen-31728-near-360 frames 59-60: the skeleton turned broad (40 px) and 20 px off, a depth blob 40 px
+    # off the palm. The broad anchor prunes none of the particles that drew a manoeuvre (10 %, 20 px/frame of
+    # velocity), so their weighted spread of the next prediction was 5-8 times its bulk's and the blob entered the
+    # gate at the next frame: anchored there, 30-70 px off at 6 of 10 seeds. It jumped there and the bulk of the
+    # prediction cannot explain it: set aside, the estimate stays within 5 px
+    def second_frame_error(seed):
+        pf = _steady(seed)
+        pf.set_noise("skeleton", 40.0)
+        for k, u in ((10, 130.0), (11, 133.0)):
+            e = pf.step(
+                k * 33_000_000,
+                [Measurement("depth", u + 40.0, 100.0, 1.0), Measurement("skeleton", u + 20.0, 100.0, 1.0)],
+            )
+        return abs(e.u - 133.0)
+
+    assert max(second_frame_error(seed) for seed in range(10)) < 5.0
+
+
+def test_two_cues_that_agree_outside_the_gate_move_the_track():
+    # issue 23, gen-31615-far-560 frames 114-118: a colour blob on the forearm (broad, explained) had led the track
+    # 15-25 px off, depth (0.7 px) and the skeleton (2.4 px) on the palm and agreeing; two cues agreeing where the
+    # prediction cannot explain them say the track is what is off: they count (and the more precise anchors)
+    def last_error(seed):
+        pf = ParticleFilter(
+            n_particles=100,
+            likelihood="robust",
+            proposal="guided",
+            manoeuvre=(0.1, 20.0),
+            noise_px={"colour": 40.0, "depth": 1.0, "skeleton": 2.0},
+            init_spread_px=2.0,
+            init_velocity_px=0.0,
+            outlier_area_px2=320 * 200,
+            rng=seed,
+        )
+        for k in range(12):
+            palm = 100.0 + 3.0 * k + (25.0 if k >= 10 else 0.0)
+            track = 100.0 + 3.0 * k
+            ms = [Measurement("colour", track, 100.0, 1.0)]
+            ms += [Measurement("depth", palm, 100.0, 1.0), Measurement("skeleton", palm + 1.0, 100.0, 1.0)]
+            e = pf.step(k * 33_000_000, ms)
+        return abs(e.u - palm)
+
+    assert max(last_error(seed) for seed in range(5)) < 3.0
+
+
 def test_predicted_is_the_weighted_mean_and_spread_of_p_plus_v():
     pf = _held_at(100.0)
     assert ParticleFilter(rng=1).predicted(0) is None  # nothing to predict from
