@@ -131,19 +131,16 @@ def test_guided_pf_is_deterministic_and_rejects_unknown_proposal():
         ParticleFilter(proposal="optimal")
 
 
-def _held_at(x0: float, **kw) -> ParticleFilter:
-    """A guided robust PF with manoeuvres (as ``track`` runs it) that has tracked a still palm at (x0, 100)."""
-    pf = ParticleFilter(
-        n_particles=500,
-        likelihood="robust",
-        proposal="guided",
-        manoeuvre=(0.1, 20.0),
-        noise_px={"depth": 3.0, "skeleton": 6.0},
-        init_spread_px=2.0,
-        init_velocity_px=0.0,
-        rng=4,
-        **kw,
+def _guided(**kw) -> ParticleFilter:
+    """A guided robust PF with manoeuvres, as ``track`` runs it, starting still and 2 px wide."""
+    return ParticleFilter(
+        likelihood="robust", proposal="guided", manoeuvre=(0.1, 20.0), init_spread_px=2.0, init_velocity_px=0.0, **kw
     )
+
+
+def _held_at(x0: float, **kw) -> ParticleFilter:
+    """A guided robust PF that has tracked a still palm at (x0, 100)."""
+    pf = _guided(n_particles=500, noise_px={"depth": 3.0, "skeleton": 6.0}, rng=4, **kw)
     for k in range(5):
         pf.step(k * 33_000_000, [Measurement("skeleton", x0, 100.0, 1.0)])
     return pf
@@ -164,17 +161,7 @@ def test_the_anchor_is_a_cue_the_prediction_explains():
 
 def _steady(seed: int) -> ParticleFilter:
     """A guided robust PF that followed a palm moving 3 px/frame along u, seen by a precise depth cue and the skeleton."""
-    pf = ParticleFilter(
-        n_particles=100,
-        likelihood="robust",
-        proposal="guided",
-        manoeuvre=(0.1, 20.0),
-        noise_px={"depth": 2.0, "skeleton": 2.0},
-        init_spread_px=2.0,
-        init_velocity_px=0.0,
-        outlier_area_px2=320 * 200,
-        rng=seed,
-    )
+    pf = _guided(n_particles=100, noise_px={"depth": 2.0, "skeleton": 2.0}, outlier_area_px2=320 * 200, rng=seed)
     for k in range(10):
         ms = [Measurement("skeleton", 100.0 + 3.0 * k, 100.0, 1.0), Measurement("depth", 100.0 + 3.0 * k, 100.0, 1.0)]
         pf.step(k * 33_000_000, ms)
