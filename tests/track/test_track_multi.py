@@ -172,13 +172,17 @@ def test_a_combined_pair_side_by_side_has_its_region_split():
 def test_joined_hands_keep_their_sides_of_the_region_they_share(washing):
     """While the hands are joined (320 x 200, ~70 frames), each target's copy of the shared colour and
     depth region is moved toward the side it entered from: each estimate stays on its own hand
-    (joined RMSE ~3.0 px each; 5.1 px when both take the region's centre)."""
-    est, _, truth = _run(washing, TrackConfig(targets=HANDS))
-    joined = np.hypot(*(truth["right_hand"] - truth["left_hand"]).T) < JOINED_FRACTION * math.hypot(320, 200)
-    assert joined.sum() > 50
+    (joined RMSE ~3.0 px each; 5.1 px when both take the region's centre). Over filter seeds 0-2: one
+    run's joined RMSE ranges over 2.5-4.6 px by seed alone (main 355402e)."""
+    errs = {t: [] for t in HANDS}
+    for seed in range(3):
+        est, _, truth = _run(washing, TrackConfig(targets=HANDS, seed=seed))
+        joined = np.hypot(*(truth["right_hand"] - truth["left_hand"]).T) < JOINED_FRACTION * math.hypot(320, 200)
+        assert joined.sum() > 50
+        for t in HANDS:
+            errs[t].append(np.hypot(*(est[t] - truth[t]).T)[joined])
     for t in HANDS:
-        err = np.hypot(*(est[t] - truth[t]).T)
-        assert np.sqrt(np.mean(err[joined] ** 2)) < 4.0, t
+        assert np.sqrt(np.mean(np.concatenate(errs[t]) ** 2)) < 4.0, t
 
 
 def test_a_shared_detection_is_moved_by_each_targets_offset_and_nothing_else():
