@@ -614,6 +614,11 @@ def compare(rows: list[dict], path: Path) -> None:
         )
 
 
+def select(scenes: tuple[Scene, ...], wanted: set[str]) -> tuple[Scene, ...]:
+    """The scenes of ``scenes`` (the fixed matrix or ``--generate``'s) named in ``wanted`` or in a split it names."""
+    return tuple(s for s in scenes if s.name in wanted or s.split in wanted)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     track_args: list[str] = []
@@ -663,7 +668,10 @@ def main(argv: list[str] | None = None) -> int:
         scenes = generated_scenes(first, count)
     if args.only:
         wanted = set(args.only.split(","))
-        scenes = tuple(s for s in SCENES if s.name in wanted or s.split in wanted)
+        unknown = wanted - {s.name for s in scenes} - {s.split for s in scenes}
+        if unknown:
+            p.error(f"--only names no scene or split of this matrix: {', '.join(sorted(unknown))}")
+        scenes = select(scenes, wanted)
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; track options: {track_args or 'defaults'}")
     try:

@@ -196,3 +196,18 @@ def test_paired_ratio_compares_fused_and_cue_on_the_cues_own_frames():
     # frames 0 and 3: sqrt((1 + 1600) / 2) / sqrt((16 + 16) / 2)
     assert abs(fusion_matrix.paired_ratio(fused, cue) - math.sqrt(1601 / 2) / 4.0) < 1e-12
     assert math.isnan(fusion_matrix.paired_ratio([1.0, None], [None, 2.0]))
+
+
+def test_only_selects_among_the_generated_scenes_and_names_what_it_cannot_find(capsys):
+    generated = fusion_matrix.generated_scenes(31, 6)
+    name = generated[2].name
+    assert [s.name for s in fusion_matrix.select(generated, {name})] == [name]
+    assert fusion_matrix.select(generated, {fusion_matrix.GENERATED}) == generated
+    try:
+        fusion_matrix.main(["--generate", "31:6", "--only", f"{name},default-320"])
+    except SystemExit as exc:
+        assert exc.code == 2
+    else:
+        raise AssertionError("--only with a fixed scene's name under --generate must fail")
+    err = capsys.readouterr().err
+    assert "default-320" in err and name not in err.split("split of this matrix:")[1]
