@@ -130,6 +130,21 @@ its residuals alone, as before: with the condition "below the floor" instead, th
 gen-31342-colour-960 (own error 0.64 px at palm scale 1 against the 0.7 px floor, on a wrong blob 12
 px off in frames 127-132) was trusted at 2.7-4 px instead of 5.5-8 px, anchored the track there and
 the fused RMSE rose 3.59 -> 4.74 px.
+
+A start at a less confident cue (:meth:`NoiseCalibration.start_sigma`). A (re)start spreads the particles
+around one cue by its noise (``fusion_pf.pipeline.run``), and a cue whose quality falls into a bin
+it has not been learned in is spread by its ``sigma / q`` prior, whatever it was learned at one bin
+higher: on issue 23's gen-31987-far-640 (main b7cd802) the warm-start replay restarted at a 0.2 px depth
+cue of quality 0.45, one residual in its bin, the bin above learned at 1.5 px; spread by its 14 px prior,
+the particles let a skeleton and a colour blob 35-52 px off pull the first estimate 10 px, 84 % of the
+scene's squared error (fused 0.92 px against depth's 0.34). While a bin holds fewer than
+:data:`PRIOR_COUNT` residuals (its prior outweighs them), a start spreads by the noise of the next
+higher bin, of quality :data:`SELF_QUALITY` or more once it holds :data:`BORROW_MIN` residuals, widened
+by the prior's ratio of the two qualities (``sigma_above q_above / q``): the prior's shape at the level
+the cue was measured. Only the start: the noise the cue is fused with stays the bin's own. Fused with it
+too, a depth blob of quality 0.3-0.4, 10-14 px off, entering its bin mid-track, was trusted at 3-4.5 px
+and anchored the track 8-12 px off for five frames (gen-32161-far-1024, fused 0.87 -> 2.08 px), and a
+colour blob of quality 0.3, 11-17 px off, pulled gen-31975-far-1280's track.
 """
 
 from __future__ import annotations
@@ -525,6 +540,27 @@ class NoiseCalibration:
         # log sigma = (n0 log sigma_0 + n log sigma_hat) / (n0 + n)
         w = n / (self.prior_count + n)
         return target ** (1.0 - w) * learned**w * scale
+
+    def start_sigma(self, m: Measurement, scale: float = 1.0) -> float:
+        """Noise of ``m`` a (re)start at it spreads the particles by, px at palm scale ``scale`` (module docstring, "A start at a less confident cue").
+
+        :meth:`sigma`; while ``m``'s bin holds fewer than :attr:`prior_count` residuals (its prior outweighs
+        them), at most the noise of the next higher bin (of quality :data:`SELF_QUALITY` or more, once it holds
+        :data:`BORROW_MIN` residuals) widened by the prior's ratio of the two qualities.
+        """
+        own = self.sigma(m, scale)
+        b = quality_bin(m.quality)
+        if (
+            b + 1 >= QUALITY_BINS
+            or m.source in PROBABILITY_QUALITY
+            or self.samples(m.source, m.quality) >= self.prior_count
+        ):
+            return own
+        higher = replace(m, quality=(b + 1) / QUALITY_BINS)
+        if higher.quality < SELF_QUALITY or self.samples(m.source, higher.quality) < BORROW_MIN:
+            return own
+        # sigma_above s0(q) / s0(q_above)
+        return min(own, self.sigma(higher, scale) * self.prior(m) / self.prior(higher))
 
     def outlier(self, m: Measurement) -> float:
         """Outlier probability of ``m``: the bin's learned share shrunk towards :data:`DEFAULT_EPS`."""

@@ -1199,11 +1199,16 @@ class _FilterStage:
         ]
         return math.sqrt((spread if math.isfinite(spread) else 0.0) ** 2 + (sum(excess) / len(excess) if ms else 0.0))
 
-    @staticmethod
-    def _restart(tracker: Tracker, m: Measurement) -> None:
-        """Start the filter at measurement ``m``; the PF and KF spread it by the cue's own noise (what one measurement tells)."""
+    def _restart(self, tracker: Tracker, m: Measurement) -> None:
+        """Start the filter at measurement ``m``; the PF and KF spread it by the cue's own noise (what one measurement
+        tells; calibrated, :meth:`~fusion_pf.filter.calibration.NoiseCalibration.start_sigma`)."""
         if isinstance(tracker, (ParticleFilter, KalmanFilter)):
-            tracker.init_spread_px = tracker.noise_px[m.source]
+            spread = tracker.noise_px[m.source]
+            calibration = self._calibration
+            if calibration is not None:
+                # the fused noise (widenings included) narrowed as the start noise is below the calibrated one
+                spread *= calibration.start_sigma(m) / calibration.sigma(m)
+            tracker.init_spread_px = spread
         tracker.reset(prior=(m.u, m.v))
 
     def _learn_motion(self, estimate: Estimate, predicted: tuple[float, float, float]) -> None:

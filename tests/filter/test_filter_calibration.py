@@ -450,6 +450,40 @@ def test_a_bin_without_residuals_is_no_noisier_than_the_bin_below_once_that_one_
     assert low.sigma(mid) == pytest.approx(prior(mid))
 
 
+def test_a_start_at_a_less_confident_cue_without_its_own_evidence_spreads_by_the_bin_above_widened_by_its_prior():
+    # issue 23, gen-31987-far-640 (main b7cd802): the warm-start replay restarted at a 0.2 px depth cue whose
+    # quality (0.45) was in a bin with one residual, above it a bin that had learned the cue to 1.5 px: spread
+    # by its 14 px prior, the particles let a skeleton and a colour blob 35-52 px off pull the first estimate
+    # 10 px (84 % of the scene's squared error, fused 0.92 px against depth's 0.34). Until the bin holds
+    # PRIOR_COUNT residuals (the prior outweighs them), a start spreads by the next higher confident bin's
+    # noise times the prior's ratio of the two qualities; the noise it is fused with stays its own
+    def prior(m):
+        return starting_sigma(5.0, m)
+
+    cal = NoiseCalibration(prior)
+    gen = np.random.default_rng(2)
+
+    def feed(frames, quality, sd):
+        for _ in range(frames):
+            palm = gen.uniform(50, 250, 2)
+            ms = [Measurement("a", *(palm + gen.normal(0, sd, 2)), quality=quality)]
+            ms.append(Measurement("b", *(palm + gen.normal(0, 2.0, 2)), quality=0.9))
+            cal.update(ms, {m.source: cal.sigma(m) for m in ms})
+
+    feed(BORROW_MIN, 0.6, 1.0)
+    low, edge = Measurement("a", 0.0, 0.0, quality=0.3), Measurement("a", 0.0, 0.0, quality=0.5)
+    assert cal.samples("a", 0.3) == 0 and cal.samples("a", 0.5) == BORROW_MIN
+    borrowed = cal.sigma(edge) * prior(low) / prior(edge)
+    assert borrowed < 0.5 * prior(low)
+    assert cal.start_sigma(low, 2.0) == pytest.approx(2.0 * borrowed)
+    assert cal.sigma(low) == pytest.approx(prior(low))  # fused with its own noise: the prior
+    assert cal.start_sigma(edge) == cal.sigma(edge)  # a bin with its own evidence starts from it
+    # once the bin's own evidence outweighs the prior it decides: a 10 px cue
+    feed(PRIOR_COUNT, 0.3, 10.0)
+    assert cal.samples("a", 0.3) == PRIOR_COUNT
+    assert cal.start_sigma(low) == cal.sigma(low) > 2.5 * borrowed
+
+
 def test_a_sharp_cue_straddling_two_quality_bins_is_trusted_after_the_replay_frames():
     # issue 23, gen-31351-far-1280 (main 69f87d7): a 0.25 px depth cue (0.06 px at palm scale 1) whose quality
     # straddled 0.75 had, after the warm-start replay's 25 frames, 8 and 16 residuals and too few differences in
