@@ -89,8 +89,14 @@ on the offsets splits it per cue (:func:`slow_errors`). Once known, a cue's floo
 Tune split: skeleton-best-960 fused 6.37 -> 2.94 px (its confident depth blob, 1.2 px of slow error,
 0.54 px estimated, is no longer lowered to twice its white noise), far-hand-sharp-960 0.89 -> 0.77 (the
 unbiased depth cue goes lower), ratio mean 1.03 -> 0.94, no scene worse by more than 3 %. With two
-cues the split is not identifiable (half each): far-hand-sharp-960's depth is estimated 0.3 px slow
-(truth 0) beside colour's 0.33 (truth 0.65).
+cues the split is not identifiable from the offset alone. Half each gave far-hand-sharp-960's depth 0.3 px
+of slow error (truth 0) beside colour's 0.33 (truth 0.65), and on issue 23's gen-32683-far-1280 (a 0.2 px
+depth cue, a colour blob 6-8 px off, the skeleton never measured with colour) it raised depth's floor
+0.33 -> 0.9 px at palm scale 1 and colour pulled the track 4-6 px (fused 1.22 px against depth's 0.24). The
+split follows the two cues' white noise instead, ``S_ab w_a / (w_a + w_b)``: a cue whose measurements
+scatter more is taken to wander more too (gen-32683 0.33 px; half each while either white noise is
+unknown). It is a prior, not a measurement: a smooth cue held off the palm beside a noisy unbiased one
+takes too little (near-body scenes, 5-7 % worse).
 
 Bins without samples. A cue whose quality enters a bin for the first time has no residuals there,
 and the bin's noise was its configured prior, ``sigma / q`` (:func:`starting_sigma`), however well
@@ -322,18 +328,24 @@ def slow_offset(d: np.ndarray) -> float:
     return max(0.5 * float(med @ med) - 0.5 * math.pi / 2.0 * float(spread.sum()) / len(d), 0.0)
 
 
-def slow_errors(offsets: Mapping[tuple[str, str], float]) -> dict[str, float]:
+def slow_errors(
+    offsets: Mapping[tuple[str, str], float], white: Mapping[str, float | None] | None = None
+) -> dict[str, float]:
     """Each cue's slow error variance ``B_s`` from the slow offsets of pairs, ``S_ab = B_a + B_b``, px^2.
 
     The three-cornered hat of clock metrology (Gray & Allan 1974) on the slow parts:
     ``B_a = (S_ab + S_ac - S_bc) / 2`` averaged over the pairs ``(b, c)`` of other cues measured with
-    ``a`` and with each other; with one other cue, ``S_ab / 2`` (the split is not identifiable); at least 0. It is not
+    ``a`` and with each other; with one other cue, split by their white noise (the split is not identifiable from
+    the offsets: module docstring, "Slow error"), else ``S_ab / 2``; at least 0. It is not
     clipped to the smallest ``S_ab``: a noisy pair's offset would pull it down.
 
     Parameters
     ----------
     offsets : mapping of (str, str) to float
         :func:`slow_offset` per pair of sources (either order), px^2.
+    white : mapping of str to float or None, optional
+        Each source's white noise variance: with one other cue the split follows it, ``S_ab w_a / (w_a + w_b)``
+        (half each while either is unknown).
     """
     pair = {frozenset(k): v for k, v in offsets.items()}
     sources = sorted({s for k in offsets for s in k})
@@ -348,9 +360,17 @@ def slow_errors(offsets: Mapping[tuple[str, str], float]) -> dict[str, float]:
             for c in others[i + 1 :]
             if frozenset((b, c)) in pair
         ]
-        est = float(np.mean(hats)) if hats else 0.5 * pair[frozenset((a, others[0]))]
+        est = float(np.mean(hats)) if hats else _share(a, others[0], white) * pair[frozenset((a, others[0]))]
         out[a] = max(est, 0.0)
     return out
+
+
+def _share(a: str, b: str, white: Mapping[str, float | None] | None) -> float:
+    """``a``'s share of a pair's slow offset: ``w_a / (w_a + w_b)`` of their white noise, else one half."""
+    wa, wb = (None, None) if white is None else (white.get(a), white.get(b))
+    if wa is None or wb is None or wa + wb <= 0.0:
+        return 0.5
+    return wa / (wa + wb)
 
 
 def process_scale(
@@ -493,7 +513,8 @@ class NoiseCalibration:
         """Per-axis variance of ``source``'s slow error at palm scale 1, px^2 (:func:`slow_errors`; None before :data:`SLOW_MIN` frames with another cue)."""
         if self._slow is None:
             offsets = {k: slow_offset(np.array(d)) for k, d in self._pairs.items() if len(d) >= SLOW_MIN}
-            self._slow = slow_errors(offsets)
+            sources = {s for k in offsets for s in k}
+            self._slow = slow_errors(offsets, {s: self.white(s, 1.0) for s in sources})
         return self._slow.get(source)
 
     def sigma(self, m: Measurement, scale: float = 1.0) -> float:

@@ -391,6 +391,27 @@ def test_slow_errors_recover_simulated_biases_under_white_noise():
     assert slow_errors({("a", "b"): 2.0}) == {"a": 1.0, "b": 1.0}
 
 
+def test_two_cues_split_their_slow_offset_by_their_white_noise():
+    # issue 23, gen-32683-far-1280: a 0.2 px depth cue and a colour blob 6-8 px off, no third cue beside both; split
+    # half each, depth took half of colour's offset as its own slow error and its floor rose 0.33 -> 0.9 px (at palm
+    # scale 1), and colour pulled the track 4-6 px. Reference: the simulation's biases, sharp 0 and noisy 2 px per
+    # axis (B = 4 px^2)
+    from fusion_pf.filter.calibration import slow_errors
+
+    cal = NoiseCalibration(lambda m: 4.0)
+    gen = np.random.default_rng(3)
+    frames = _biased_frames(200, {"sharp": (0.05, (0.0, 0.0)), "noisy": (1.0, (2.0, 2.0))})
+    palm = _smooth_track(200)
+    for i, ms in enumerate(frames):
+        pred = (*(palm[i] + gen.normal(0.0, 1.0, 2)), 9.0)
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, pred, 1_000_000_000 + i * 33_333_333)
+    assert cal.slow("sharp") < 0.1
+    assert cal.slow("noisy") == pytest.approx(4.0, rel=0.25)
+    # unknown white noise: half each, as before
+    assert slow_errors({("a", "b"): 2.0}, {"a": None, "b": 1.0}) == {"a": 1.0, "b": 1.0}
+    assert slow_errors({("a", "b"): 2.0}, {"a": 1.0, "b": 3.0}) == {"a": 0.5, "b": 1.5}
+
+
 def test_a_smooth_biased_cue_keeps_its_floor_where_an_unbiased_one_goes_below():
     # issue 23, skeleton-best-960: a confident depth blob with little white noise but 1.2 px of slow error had its
     # floor lowered by its white noise alone (the calibration before, which fails here) and pulled the fused track
