@@ -5,6 +5,7 @@ Use :func:`open_source` to get a source from a command-line spec.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from fusion_pf.errors import InputError
@@ -23,6 +24,12 @@ __all__ = [
     "FrameLoss",
     "SOURCE_SPECS",
 ]
+
+# depthai's crash handler (backward-cpp) allocates inside the signal handler: after a native crash inside malloc it
+# deadlocks and the process never ends (a test worker hung 20 min in tests/drivers/test_oak_rig.py on 2026-11-28,
+# glibc aborting in malloc under the handler). Without it a native crash ends the process, and Python's faulthandler
+# (pytest enables it) says where. Set before any depthai import, which all go through this package.
+os.environ.setdefault("DEPTHAI_INSTALL_SIGNAL_HANDLER", "0")
 
 #: The source specs :func:`open_source` understands, for help texts.
 SOURCE_SPECS = (

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import drivers  # noqa: F401  (before any test module imports depthai: drivers sets its environment)
+
 
 def pytest_configure(config: pytest.Config) -> None:
     """Ctrl-C as in a terminal, wherever the tests run.

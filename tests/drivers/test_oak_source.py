@@ -5,7 +5,9 @@ This machine has no OAK camera, so the no-device path runs for real.
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -189,3 +191,15 @@ def test_cli_ir_laser_is_validated_before_looking_for_a_device(tmp_path: Path) -
 def test_hands_option_reaches_the_config() -> None:
     src = open_source("oak:hands=full,ir_laser=250")
     assert (src.config.hands, src.config.ir_laser) == ("full", 250.0)
+
+
+def test_a_native_crash_after_importing_depthai_ends_the_process_without_depthais_handler() -> None:
+    # depthai's backward-cpp handler allocates inside the signal handler and deadlocked a test worker after glibc
+    # aborted inside malloc (drivers/__init__.py); with it unset by importing drivers first, a crash ends the process
+    # at once and no handler prints its stack trace
+    code = "import drivers, depthai, ctypes; ctypes.string_at(0)"
+    env = {k: v for k, v in os.environ.items() if k != "DEPTHAI_INSTALL_SIGNAL_HANDLER"}
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=env, cwd=root)
+    assert done.returncode == -signal.SIGSEGV
+    assert "Stack trace (most recent call last)" not in done.stderr
