@@ -294,7 +294,8 @@ def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float
     error is ``sqrt(median error^2 - white^2)`` (from the truth); the online one, what the calibration
     estimates without it, is the median over the frames of ``sqrt(B_s)`` of
     :func:`fusion_pf.filter.calibration.slow_errors` on the last ``SLOW_WINDOW`` frames each pair of
-    cues measured with quality ``SELF_QUALITY`` or more (px here, at the palm scale of the scene).
+    cues measured with quality ``SELF_QUALITY`` or more, a lone pair split by the cues' white noise above (px
+    here, at the palm scale of the scene).
     """
     from drivers.synth import SynthSource
     from fusion_pf.filter.calibration import (
@@ -349,7 +350,7 @@ def noise_split(table: Path, scene: Scene, frames: int) -> dict[str, tuple[float
             n = int(count[end])
             if n >= SLOW_MIN:
                 offsets[key] = slow_offset(d[max(n - SLOW_WINDOW, 0) : n])
-        for c, b in slow_errors(offsets).items():
+        for c, b in slow_errors(offsets, {c: v[1] ** 2 for c, v in out.items() if math.isfinite(v[1])}).items():
             online[c].append(math.sqrt(b))
     return {c: (*v[:3], float(np.median(online[c])) if online[c] else float("nan")) for c, v in out.items()}
 

@@ -96,7 +96,7 @@ depth cue, a colour blob 6-8 px off, the skeleton never measured with colour) it
 split follows the two cues' white noise instead, ``S_ab w_a / (w_a + w_b)``: a cue whose measurements
 scatter more is taken to wander more too (gen-32683 0.33 px; half each while either white noise is
 unknown). It is a prior, not a measurement: a smooth cue held off the palm beside a noisy unbiased one
-takes too little (near-body scenes, 5-7 % worse).
+takes too little (held-out near-body and mid scenes 5-10 % worse, two lit tune scenes 22-31 %).
 
 Bins without samples. A cue whose quality enters a bin for the first time has no residuals there,
 and the bin's noise was its configured prior, ``sigma / q`` (:func:`starting_sigma`), however well
