@@ -22,13 +22,14 @@ moved to the world with cam0's pose.
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/rig3d.py [--tuned 1,2] [--held-out 11,12] [--frames 160] [--size 640x400] [--recordings DIR]
+    PYTHONPATH=. python benchmarks/rig3d.py [--tuned 1,2] [--held-out 11,12] [--frames 160] [--size 640x400] [--recordings DIR] [--seed N]
 
 ``--recordings DIR`` keeps the rendered scenes there (``rig_CAMERAS_COLOUR-ONLY_SEED_SIZE_FRAMES.mcap``) and renders only those
 missing, so that a second run (another version of the tracker) tracks the same recordings.
 
 The seeds of ``--tuned`` are those the world tracker's constants were chosen on;
-``--held-out`` seeds are reported separately.
+``--held-out`` seeds are reported separately. ``--seed`` is the trackers' seed (``fusion-pf track --seed``; default
+the tracker's own), so that several filter seeds of the same scenes can be compared.
 """
 
 from __future__ import annotations
@@ -156,6 +157,11 @@ def single_camera(path: Path, config: TrackConfig, truths: dict[str, np.ndarray]
     return {"positions": {t: np.array(v) for t, v in pos.items()}, "truths": truths, "states": states}
 
 
+def tracker_config(seed: int | None) -> TrackConfig:
+    """Default options for both hands; the trackers' seed ``seed`` (None: the tracker's default)."""
+    return TrackConfig(targets=HANDS) if seed is None else TrackConfig(targets=HANDS, seed=seed)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--tuned", default="1,2", help="seeds the constants were tuned on (default 1,2)")
@@ -166,10 +172,11 @@ def main(argv: list[str] | None = None) -> int:
         "--recordings", type=Path, default=None, help="keep the rendered scenes in this folder and reuse them"
     )
     p.add_argument("--scenes", default=",".join(f"{c}:{k}" for c, k in SCENES), help="CAMERAS:COLOUR_ONLY,...")
+    p.add_argument("--seed", type=int, default=None, help="the trackers' seed (default: the tracker's own)")
     args = p.parse_args(argv)
     scenes = [tuple(int(v) for v in s.split(":")) for s in args.scenes.split(",")]
     groups = [("tuned", args.tuned), ("held-out", args.held_out)]
-    config = TrackConfig(targets=HANDS)
+    config = tracker_config(args.seed)
     print(
         "| seeds | cameras | colour-only | seed | hand | 3-D RMSE (mm) | median (mm) | RMSE while a camera cannot see it (mm, instants) "
         "| along / across the one seeing camera's line of sight (RMS mm, instants) | joined / apart RMSE (mm, instants joined) "

@@ -1,5 +1,6 @@
 """benchmarks/rig3d.py: the joined / apart split, the joined pair's midpoint / half-offset errors and its gap."""
 
+import dataclasses
 import importlib.util
 import math
 from pathlib import Path
@@ -48,3 +49,12 @@ def test_the_joined_distance_is_the_world_trackers_combine_distance():
     d = bench.COMBINE_MM
     data = _data([[0, 0, 0]] * 2, [[d, 0, 0]] * 2, [[0, 0, 0]] * 2, [[d - 0.5, 0, 0], [d + 0.5, 0, 0]])
     assert bench.joined_mask(data).tolist() == [True, False]
+
+
+def test_the_seed_option_reaches_both_trackers_config():
+    # both the world tracker and the cam0 baseline run with this config: --seed changes their filters' seed only
+    default = bench.tracker_config(None)
+    assert default.seed == bench.TrackConfig().seed and default.targets == bench.HANDS
+    seeded = bench.tracker_config(default.seed + 7)
+    assert seeded.seed == default.seed + 7
+    assert dataclasses.replace(seeded, seed=default.seed) == default
