@@ -84,8 +84,8 @@ floor made it worse (fused 1.06x on the tune split), and is not done.
 
 Lower floors were measured and are not used: :data:`SELF_FLOOR` 0.25 and :data:`SLOW_FLOOR` 0.15 (a far scene's
 0.155 px depth cue is fused at 1.27 px in the image with 0.5 / 0.35) made 60 tune scenes 3.7 % better
-(geometric mean; far BestMax 47 -> 49 %) but 210 held-out ones 1.3 % worse (lead20-29005-far-800 0.30 -> 1.40
-px, 30013-far-1024 1.9x; far BestMax 42 -> 46 %). An ideal constant-acceleration smoother of that depth cue,
+(geometric mean; far BestMax 47 -> 49 %) but 180 held-out ones 1.3 % worse (lead20-29005-far-800 0.30 -> 1.40
+px, 25015-far-960 and 24012-near-1024 1.5x; far BestMax 42 -> 47 %). An ideal constant-acceleration smoother of that depth cue,
 its noise and the palm's jerk known, gains 6 % (0.222 -> 0.208 px): far from the body the fused estimate is at
 what the motion model can add.
 

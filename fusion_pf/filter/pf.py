@@ -610,9 +610,9 @@ class ParticleFilter(Tracker):
         where two cues on the palm stood against a precise one that jumped or drifted (issue 23, tune
         scene tune20-40045-far-560 2.63 -> 1.51 px) but lost as often where two broad, low-quality cues on one
         wrong blob stood against a precise one on the palm: a broad cue costs little to keep and a precise one
-        much to drop (tune20-40060-colour-480 frames 58-59, 4-5 -> 28-35 px off). On 210 held-out scenes the fused
-        RMSE was 0.5 % worse (geometric mean), three colour scenes 1.6-1.8x; the evidence of one frame cannot
-        tell the two apart.
+        much to drop (tune20-40060-colour-480 frames 58-59, 4-5 -> 28-35 px off). On 180 held-out scenes the fused
+        RMSE was 0.8 % worse (geometric mean), two colour scenes 1.7-1.8x; the evidence of one frame cannot tell
+        the two apart.
         """
         like = self._like
         positions = self._x[:2] + dt * self._x[2:]
