@@ -342,26 +342,6 @@ def two_means(points: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
     return near
 
 
-def separation(points: np.ndarray, first: np.ndarray) -> float:
-    """How far apart two parts of ``points`` (N x D; ``first``: N booleans, the first part's) are against their spread:
-    Ashman's D along the line through the parts' means, ``sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2)`` (``m``, ``s``: each
-    part's mean and std of the points projected on that line).
-
-    A hard split of one blob is separated too (a Gaussian's halves 2.65, a uniform bar's ``sqrt(12)`` = 3.46, a
-    disc's 3.21); two abutting discs give 4.0 and grow with the gap between them. Infinite for two parts each
-    without spread along the line, 0 for coincident means.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    a, b = pts[first], pts[~first]
-    axis = a.mean(axis=0) - b.mean(axis=0)
-    gap = float(np.linalg.norm(axis))
-    if gap == 0.0:
-        return 0.0
-    xa, xb = a @ (axis / gap), b @ (axis / gap)
-    spread = math.sqrt(float(xa.var() + xb.var()))
-    return math.inf if spread == 0.0 else math.sqrt(2.0) * gap / spread
-
-
 def split_region(mask: np.ndarray, seeds: np.ndarray, *, core: bool = False) -> list[Region] | None:
     """Split the pixels of ``mask`` between two targets: 2-means over their positions (paper 000, :func:`two_means`).
 

@@ -31,8 +31,7 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    (:func:`~fusion_pf.filter.world.measured_point`, the partner at its prediction) when
    its region holds both targets' projected predictions (one blob of the two), unless a
    depth camera splits it: its depth pixels near the two predictions, 2-means in 3-D started
-   at them (paper 000), give each target its own part's centre when the parts are separated in
-   the data (:data:`SPLIT_SEPARATION`, :meth:`_Camera.split`); a region
+   at them (paper 000), give each target its own part's centre (:meth:`_Camera.split`); a region
    holding one of them is that target's alone (the nearer projected prediction keeps it:
    separating hands' two blobs, the partner took the other's). A combined pair closer than
    :data:`JOINED_MM` moves with :data:`JOINED_NOISE` of the process noise (step 1).
@@ -97,7 +96,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from ..cues.background import AdaptiveBackground, BackgroundModel
-from ..cues.regions import separation, two_means
+from ..cues.regions import two_means
 from ..cues.registry import CUES
 from ..cues.roi import PALM_LENGTH_MM
 from ..errors import InputError
@@ -178,19 +177,6 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 #: reach (seeds 1, 12), 12.8 / 13.4 at 0.5 and 60 mm, 12.4 / 12.8 at 0.4 and 60 mm, 12.8 / 13.4 at 0.4 and 50 mm;
 #: one RGB-D and one colour-only camera 14.2 / 15.0, 12.9 / 13.9, 13.1 / 13.9, 13.1 / 14.0. 0.3: worse on seeds 1, 12.
 SPLIT_PIXELS, SPLIT_REACH_MM, SPLIT_MIN_POINTS, SPLIT_NOISE_SCALE = 4000, 60.0, 20, 0.4
-#: A split is used only when its parts are two palms in the data, not the predictions' guess: their separation
-#: (:func:`~fusion_pf.cues.regions.separation`, Ashman's D of the points along the line through the parts' means) at
-#: least this. A 2-means split of one blob (a palm over the other, two palms pressed together: the visible surface is
-#: one hand's) is separated too (a disc's halves 3.21, a uniform bar's 3.46), two palms side by side (abutting discs)
-#: 4.0; below it the region measures the pair's midpoint. Per split (7444 of them, 2 RGB-D cameras, tuned seeds below,
-#: the 60 mm part-gap guard's runs) the part's centre was 10 mm or more farther from its hand than the prediction in
-#: 9.5 % of all splits, 3.8 % of those the 60 mm guard kept (50 %), 2.0 % of those 3.3 keeps (47 %). Tracking (640 x
-#: 400, 2 RGB-D cameras, tuned seeds 1, 2, 11, 12, 101-106 x filter seeds 0, 1; mean per-hand / mean worst hand / max
-#: RMSE, mm): 60 mm guard 13.6 / 14.6 / 18.0, no test 12.7 / 13.7 / 17.5, 3.2 12.9 / 13.7 / 15.6, 3.3 13.3 / 14.1 /
-#: 16.7, 3.46 14.1 / 15.0 / 17.1, 3.6 14.5 / 15.5 / 18.4; seeds 121-126: guard 14.0 / 15.2 / 19.6, 3.2 12.8 / 13.6 /
-#: 15.8, 3.3 13.6 / 14.3 / 16.5. 3.3 rather than 3.2: above a disc's halves (the unguarded split confirmed a wrong
-#: prediction on a lead-only seed, where the 60 mm guard was chosen).
-SPLIT_SEPARATION = 3.3
 #: Combined targets whose estimates were closer than :data:`JOINED_MM` (both palms in one blob: the shared region
 #: measures their midpoint only, their offset only each one's skeleton joint, 40-60 mm off while the hands touch) move
 #: with :data:`JOINED_NOISE` of the process noise: the pair's offset, measured that noisily, diffused with the full
@@ -463,9 +449,25 @@ class _Camera:
         prediction :data:`~fusion_pf.filter.world.SURFACE_DEPTH_MM` nearer the camera) are split between the two by
         2-means started at those surfaces (paper 000's k-means, :func:`~fusion_pf.cues.regions.two_means`); the
         target's part's centroid moved :data:`~fusion_pf.filter.world.SURFACE_DEPTH_MM` away from the camera is its
-        centre. None without a box, with fewer than :data:`SPLIT_MIN_POINTS` points on either side, or with the parts'
-        separation below :data:`SPLIT_SEPARATION` (one blob split by the predictions; the target's observation then
-        measures the pair's midpoint).
+        centre. None without a box or with fewer than :data:`SPLIT_MIN_POINTS` points on either side (the target's
+        observation then measures the pair's midpoint).
+
+        The parts are used whether or not they are separated in the data: two joined hands are two hands, and the
+        halves of their one blob, started at the predictions, measure each hand better than the blob's point
+        measures their midpoint. Until session 21 a split was used only when its parts' separation (Ashman's D along
+        the line through their means) was at least 3.3 (above a disc's halves, 3.21), else the region measured the
+        midpoint. Without that test (``benchmarks/rig3d.py``, 640 x 400, 15 held-out seeds 61, 62, 71, 72, 91-99,
+        251, 252; mean per hand, hands over 15 mm of 30, worst hand while a camera cannot see it, 0 swaps either way):
+        2 cameras with one colour-only 14.31 -> 13.52 mm, 11 -> 7, 39.6 -> 37.3 (filter seed 1: 14.40 -> 14.26,
+        10 -> 10, 46.7 -> 46.4); 2 RGB-D cameras 12.86 -> 12.22, 3 -> 0, 20.7 -> 20.2 (seed 1: 13.66 -> 12.19,
+        5 -> 1); seeds 61, 62, 71, 72, 91: 3 cameras with one colour-only 10.60 -> 10.53, 4 with two 10.27 -> 10.01.
+        The test rejected a split about half of the time, and the shared region's point then measured the midpoint
+        with the source's ``--world-noise`` widened by the blob's quality (a two-palm blob is a poor palm: quality
+        0.2-0.3, 110-170 mm), where that point was 8 mm per axis from the true midpoint (colour, tuned seeds 1, 2):
+        the joined pair moved with its skeleton joints, 35-37 mm per axis off while the hands are near. Giving the
+        shared point the unwidened 60 mm instead changed little (tuned seeds 1-6: 2 RGB-D 11.54 -> 11.01, one
+        colour-only 13.25 -> 13.32 mm); its learned noise (about 10 mm) made both 20-22 mm: a midpoint measured
+        against the partner's prediction moves each hand by twice the point's error. Neither is done.
         """
         box = m.extras.get("bbox")
         if box is None or frame.depth is None:
@@ -490,8 +492,6 @@ class _Camera:
             return None
         first = two_means(pts, seeds)
         if first is None or min(int(first.sum()), int((~first).sum())) < SPLIT_MIN_POINTS:
-            return None
-        if separation(pts, first) < SPLIT_SEPARATION:
             return None
         return beyond(pts[first].mean(axis=0), centre, SURFACE_DEPTH_MM)
 

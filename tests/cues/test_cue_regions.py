@@ -13,7 +13,6 @@ from fusion_pf.cues.regions import (
     region_detections,
     region_quality,
     remove_small,
-    separation,
     two_means,
 )
 
@@ -244,24 +243,22 @@ def test_region_statistics_equal_scipy_labelling(seed):
     assert got == want_all
 
 
-def test_separation_is_ashmans_d_of_the_parts_and_tells_one_blob_split_from_two():
-    # analytic references (independent of the code): a hard split of one blob at its middle, Ashman's D
-    # sqrt(2) |m1 - m2| / sqrt(s1^2 + s2^2): a uniform bar's halves (means L/2 apart, std L / (2 sqrt 12)) sqrt(12); a
-    # disc's halves (means 8R / (3 pi) apart, variance R^2 / 4 - (4R / (3 pi))^2 each) 3.21; two abutting discs (2R
-    # apart, std R / 2 each) 4.0, and more with a gap between them
-    bar = np.linspace(0.0, 1.0, 2001)[:, None]
-    assert separation(bar, bar[:, 0] < 0.5) == pytest.approx(math.sqrt(12.0), rel=1e-3)
-    grid = np.mgrid[-1:1:401j, -1:1:401j].reshape(2, -1).T
-    disc = grid[(grid**2).sum(axis=1) <= 1.0]
-    half = 4.0 / (3.0 * math.pi)
-    assert separation(disc, disc[:, 0] < 0) == pytest.approx(2.0 * half / math.sqrt(0.25 - half**2), rel=1e-2)
-    for gap, expected in ((0.0, 4.0), (1.0, 6.0)):
-        two = np.concatenate([disc, disc + [2.0 + gap, 0.0]])
-        assert separation(two, two[:, 0] < 1.0 + gap / 2) == pytest.approx(expected, rel=1e-2)
-    # along the line through the means whatever its direction; the parts' order does not matter; no gap: 0
+def test_two_means_splits_two_discs_from_poor_seeds_and_halves_one_blob():
+    # two abutting unit discs, rotated: started at poor seeds (half a radius off each centre, toward the other),
+    # the means converge to the discs (every point of each disc on its own side; the tangent point may go either way)
+    grid = np.mgrid[-1:1:201j, -1:1:201j].reshape(2, -1).T
+    disc = grid[(grid**2).sum(axis=1) < 1.0]
     turn = np.array([[0.6, -0.8], [0.8, 0.6]])
     two = np.concatenate([disc, disc + [2.0, 0.0]]) @ turn.T
-    first = two_means(two, np.array([[0.0, 0.0], [2.0, 0.0]]) @ turn.T)
-    assert separation(two, first) == pytest.approx(4.0, rel=1e-2) == separation(two, ~first)
-    assert separation(np.zeros((4, 3)), np.array([True, False, True, False])) == 0.0
-    assert separation(np.array([[0.0], [0.0], [1.0], [1.0]]), np.array([True, True, False, False])) == math.inf
+    first = two_means(two, np.array([[0.5, 0.0], [1.5, 0.0]]) @ turn.T)
+    assert first is not None
+    assert first[: len(disc)].all() and not first[len(disc) :].any()
+    # the seeds' order names the parts
+    swapped = two_means(two, np.array([[1.5, 0.0], [0.5, 0.0]]) @ turn.T)
+    assert swapped is not None and np.array_equal(swapped, ~first)
+    # one disc started at two points on a diameter: split at the perpendicular diameter, half each
+    halves = two_means(disc, np.array([[-0.3, 0.0], [0.3, 0.0]]))
+    assert halves is not None
+    assert np.array_equal(halves, disc[:, 0] <= 0.0) or np.array_equal(halves, disc[:, 0] < 0.0)
+    # seeds that put every point on one side: None
+    assert two_means(disc, np.array([[0.0, 0.0], [5.0, 0.0]])) is None

@@ -266,15 +266,16 @@ def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
     ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, left), right)
     assert ob.partner_mm is None and np.linalg.norm(ob.xyz_mm - right) < 3.0
     # one surface (a palm over the other: one hand's 160 x 100 mm ellipse seen) with the predictions on either side of
-    # its centre: 2-means halves it (parts 67 mm apart) but the halves are not separated (an ellipse's: Ashman's D
-    # 3.21), so which half is whose would be the predictions' guess: the pair's midpoint
+    # its centre: 2-means halves it, and each hand gets its half's centre (4a / (3 pi) = 34 mm from the ellipse's
+    # centre, where its prediction is), not the pair's midpoint, although the halves are not separated in the data
     depth[:] = 0
     vv, uu = np.mgrid[0:100, 0:160]
     depth[((uu - 79.5) / 16.0) ** 2 + ((vv - 49.5) / 10.0) ** 2 <= 1.0] = 1000
     m = Measurement("depth", 80.0, 50.0, 1.0, {"bbox": [63, 39, 34, 22]})
     right, left = centre(74.0 - 6.8, 1000), centre(74.0 + 6.8, 1000)  # 34 mm (6.8 px) either side of its centre
-    ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, ({"depth": m}, left), right)
-    assert ob.partner_mm is not None
+    for t, own, mate in (("right_hand", right, left), ("left_hand", left, right)):
+        ((_, ob),) = cam.observations(frame, t, {"depth": m}, ({"depth": m}, mate), own)
+        assert ob.partner_mm is None and np.linalg.norm(ob.xyz_mm - own) < 3.0, (t, ob.xyz_mm, own)
 
 
 def test_a_joined_pair_moves_with_less_process_noise():
