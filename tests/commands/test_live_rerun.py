@@ -14,7 +14,8 @@ pytestmark = pytest.mark.browser
 
 
 def _shot(page, path: Path) -> np.ndarray:
-    page.screenshot(path=path)
+    # the viewer renders in software (no GPU); beside another test worker one frame took over playwright's 30 s default
+    page.screenshot(path=path, timeout=120_000)
     return np.asarray(Image.open(path).convert("RGB"), dtype=np.int16)
 
 
