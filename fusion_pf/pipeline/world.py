@@ -41,7 +41,10 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    state: the shared blob measures the centre, the offset persists from the join);
    A tracked target's observations farther than :data:`GATE_SIGMAS` of their noise
    plus the predicted spread are another object and dropped (validation gate),
-   except its own skeleton joint (a certain label);
+   except its own skeleton joint (a certain label); so are those farther than
+   :data:`GATE_SIGMAS` of the skeleton's and their own noise from the target's own
+   joint in the world (:meth:`_WorldTarget._near_joint`: where the joint is, the
+   prediction may trail a fast move);
    before the gate, a move faster than the process noise follows: the point the cameras
    agree on (:func:`_triangulate`, as acquisition's) farther than :data:`GATE_SIGMAS`
    of its spread plus the predicted spread re-seeds
@@ -724,6 +727,18 @@ def _apparent_size(m: Measurement, ob: PixelObservation) -> float | None:
     return float(cast("float", radius))
 
 
+def _within(ob: PointObservation | PixelObservation, at: np.ndarray, reach2: float) -> bool:
+    """Whether observation ``ob`` lies within ``sqrt(reach2)`` mm of the world point ``at`` (a pixel: within that
+    many mm at ``at``'s depth)."""
+    if isinstance(ob, PointObservation):
+        return float(((ob.xyz_mm - at) ** 2).sum()) <= reach2
+    uv, z = project(at[None], ob.pose, ob.intrinsics)
+    return (
+        bool(np.isfinite(uv[0, 0]))
+        and float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * (ob.intrinsics.fx / float(z[0])) ** 2
+    )
+
+
 class _WorldTarget:
     """One target's filter, track state and supervision (module docstring, 5)."""
 
@@ -733,6 +748,7 @@ class _WorldTarget:
         self.filter = WorldParticleFilter(config.world_particles, config.world_process_noise, rng)
         self.status = TrackStatus()
         self.noise_scale = 1.0
+        self.joint_reach_mm = GATE_SIGMAS * config.world_noise_mm["skeleton"]
         self.reach = _Reach()
         self.sizes: dict[str, _Size] = {}
         self.states = StateConfig(
@@ -762,14 +778,18 @@ class _WorldTarget:
         joint_mm: np.ndarray | None = None,
         apart: Exclusion | None = None,
         alone: bool = False,
+        own_joint_mm: np.ndarray | None = None,
     ) -> tuple[np.ndarray | None, float | None]:
         """Update with this instant's observations (``seen``: every camera's), supervise; the estimate and its spread.
 
         ``joint_mm``: the target's :data:`REACH_JOINTS` joint in the world (:func:`_joint_world`), for its kinematic
         range (:class:`_Reach`), learned while the target is measured in 3-D and used while one camera alone sees it.
-        ``apart``: a combined partner's exclusion (:func:`_exclusion`), applied to a tracked target.
+        ``apart``: a combined partner's exclusion (:func:`_exclusion`), applied to a tracked target. ``own_joint_mm``:
+        the target's own skeleton joint in the world (:func:`_joint_world`): observations far from it are dropped
+        before the re-seed and the gate (:meth:`_near_joint`).
         """
         if self.filter.initialised:
+            seen = self._near_joint(seen, own_joint_mm)
             self._reseed(seen)
             seen = self._gated(seen)
         observations = [ob for *_, ob in seen]
@@ -814,6 +834,27 @@ class _WorldTarget:
             return None, None
         return estimate, spread
 
+    def _near_joint(
+        self,
+        seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]],
+        own_joint_mm: np.ndarray | None,
+    ) -> list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]:
+        """The observations near the target's own skeleton joint in the world (``own_joint_mm``, :func:`_joint_world`;
+        all without one): within :data:`GATE_SIGMAS` of the skeleton's ``--world-noise`` and their own noise (about 130 mm
+        for a depth camera's point at its learned noise, 270 mm at the colour's default 60 mm; not tuned). One farther is another object whatever the prediction says: a
+        hand raised fast to the head, its prediction trailing 100 mm, had every depth camera's region on the forearm
+        250-320 mm off, the cameras agreed on it and the target was re-seeded there (``benchmarks/rig_events.py``,
+        320 x 200, seed 5). A combined pair's shared measurement (of their midpoint) is kept."""
+        if own_joint_mm is None:
+            return seen
+        return [
+            item
+            for item in seen
+            if item[2].source in PIXEL_ONLY
+            or item[3].partner_mm is not None
+            or _within(item[3], own_joint_mm, self.joint_reach_mm**2 + GATE_SIGMAS**2 * item[3].sigma_mm ** 2)
+        ]
+
     def _reseed(self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]) -> None:
         """Re-draw :data:`~fusion_pf.filter.world.RESEED_FRACTION` of the particles around the point the cameras agree
         on (:func:`_triangulate`) when it lies beyond :data:`GATE_SIGMAS` of its spread plus the predicted spread of
@@ -848,17 +889,7 @@ class _WorldTarget:
             if item[2].source in PIXEL_ONLY:
                 kept.append(item)
                 continue
-            reach2 = GATE_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
-            at = measured_point(mean, ob.partner_mm)[0]
-            if isinstance(ob, PointObservation):
-                ok = float(((ob.xyz_mm - at) ** 2).sum()) <= reach2
-            else:
-                uv, z = project(at[None], ob.pose, ob.intrinsics)
-                ok = (
-                    bool(np.isfinite(uv[0, 0]))
-                    and float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * (ob.intrinsics.fx / float(z[0])) ** 2
-                )
-            if ok:
+            if _within(ob, measured_point(mean, ob.partner_mm)[0], GATE_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)):
                 kept.append(item)
         return kept
 
@@ -971,6 +1002,7 @@ def track_world(
                 None if joint is None else _joint_world(fs, joint),
                 _exclusion(t, predicted, partners, axes, scales),
                 alone[t],
+                _joint_world(fs, t),
             )
             pixels: dict[str, tuple[float, float] | None] = dict.fromkeys(intrinsics)
             if estimate is not None:

@@ -364,6 +364,36 @@ def test_cameras_agreeing_far_from_a_target_reseed_it_and_raise_its_process_nois
         assert target.noise_scale == (MAX_WORLD_NOISE_SCALE if moved else 1.0)
 
 
+def test_regions_the_cameras_agree_on_far_from_the_targets_own_joint_are_another_object(rig2):
+    # both cameras' colour regions agree on a point 250 mm from the target (the forearm of a hand raised fast to the
+    # head, its prediction trailing), their skeleton joints on the target: with the target's own joint in the world
+    # there the regions are dropped and nothing is re-seeded; with the joint at the regions' point (a fast move) or
+    # without a joint, a share of the particles goes there
+    from fusion_pf.filter.world import RESEED_FRACTION
+    from fusion_pf.pipeline.world import _WorldTarget
+
+    config = TrackConfig(targets=HANDS, cues=("colour",))
+    here = rig2.truth_mm(BACKGROUND)["right_hand"]
+    there = here + np.array([250.0, 0.0, 0.0])
+    seen = []
+    for name, frame in rig2.frames(BACKGROUND).items():
+        cam = _Camera(name, config, frame, rig2.poses[name])
+        for source, at, sigma in (("colour", there, 10.0), ("skeleton", here, 30.0)):
+            (u, v) = project(at[None], cam.pose, frame.intrinsics)[0][0]
+            seen.append((cam, frame.intrinsics, Measurement(source, u, v, 1.0), PointObservation(at, sigma)))
+    for joint, kept_sources, moved in (
+        (here, ["skeleton"] * 2, 0),
+        (there, ["colour", "skeleton"] * 2, round(RESEED_FRACTION * 300)),
+        (None, ["colour", "skeleton"] * 2, round(RESEED_FRACTION * 300)),
+    ):
+        target = _WorldTarget("right_hand", config, np.random.default_rng(0))
+        target.filter.reset(here, 10.0)
+        kept = target._near_joint(seen, joint)
+        assert [m.source for _, _, m, _ in kept] == kept_sources
+        target._reseed(kept)
+        assert int((np.linalg.norm(target.filter.particles[:, :3] - there, axis=1) < 150.0).sum()) == moved
+
+
 def _one_line_setup(rig2):
     """The colour-only set-up of the one-line-of-sight tests: the config, both cameras' cue stages, cam1's intrinsics,
     the right hand's true position at the first tracked instant and the unit direction of cam1's line of sight to it."""
