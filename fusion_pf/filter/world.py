@@ -57,6 +57,8 @@ __all__ = [
     "SizeObservation",
     "WorldObservation",
     "SURFACE_DEPTH_MM",
+    "HEAD_RADIUS_MM",
+    "surface_depth",
     "WorldParticleFilter",
     "beyond",
     "closest_point",
@@ -104,11 +106,22 @@ OUTLIER_RANGE_MM = 1000.0
 #: on the hand's near surface; on the synthetic two-hand rig (seeds 1 and 2, 640 x 400) the colour and depth regions'
 #: points lay a median 22 mm (hands apart) to 32 mm (joined) in front of the palm's centre along the line of sight.
 SURFACE_DEPTH_MM = 20.0
+#: The head as a ball in 3-D around its tracked point (mm): half of 195 mm, an adult head's length (glabella to the back
+#: of the skull; survey means 185-197 mm). The face a depth camera sees is on that ball: the head's region points lie
+#: this far in front of its centre (:func:`surface_depth`), and a hand touches the head where the two balls meet
+#: (:mod:`fusion_pf.pipeline.world_events`).
+HEAD_RADIUS_MM = 97.5
 #: The uniform outlier density of an apparent size (:class:`SizeObservation`) spans sizes from 0 to this many times
 #: the learned one: a region merged with another (twice as large) or cut by an occluder.
 OUTLIER_SIZE_FACTOR = 2.0
 #: Nearest depth in front of a camera at which a point projects (mm).
 MIN_DEPTH_MM = 1.0
+
+
+def surface_depth(target: str) -> float:
+    """How far ``target``'s centre lies behind the surface a depth camera sees (mm): :data:`HEAD_RADIUS_MM` for the
+    head, :data:`SURFACE_DEPTH_MM` (a palm's) for a hand."""
+    return HEAD_RADIUS_MM if target == "head" else SURFACE_DEPTH_MM
 
 
 def project(points_mm: np.ndarray, pose: CameraPose, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:

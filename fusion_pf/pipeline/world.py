@@ -123,6 +123,7 @@ from ..filter.world import (
     measured_point,
     project,
     ray,
+    surface_depth,
 )
 from ..frame import Frame, Intrinsics, Measurement
 from ..geometry import backproject, depth_at
@@ -398,6 +399,7 @@ class _Camera:
         partner: tuple[Mapping[str, Measurement | None], np.ndarray] | None = None,
         own_mm: np.ndarray | None = None,
         alone: bool = False,
+        partner_surface_mm: float = SURFACE_DEPTH_MM,
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
         """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel).
 
@@ -405,7 +407,7 @@ class _Camera:
         both have (the same detection) measures the pair's midpoint (``partner_mm``) when its region holds both
         targets' projected predictions (one blob of the two hands, :func:`_holds_both`); a region holding one of
         them only is that target's alone (the nearer prediction keeps it, the other drops it). ``own_mm``: the
-        target's predicted position.
+        target's predicted position. ``partner_surface_mm``: the partner's :func:`~fusion_pf.filter.world.surface_depth`.
         """
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
@@ -423,7 +425,7 @@ class _Camera:
                         continue
             sigma = self.sigma(m) if alone and frame.depth is not None else self.nominal(m)
             if shared is not None and own_mm is not None and frame.depth is not None:
-                part = self.split(frame, m, own_mm, shared)
+                part = self.split(frame, m, own_mm, shared, surface_depth(target), partner_surface_mm)
                 if part is not None:
                     out.append((m, PointObservation(part, SPLIT_NOISE_SCALE * sigma)))
                     continue
@@ -439,21 +441,29 @@ class _Camera:
             else:
                 xyz = self.pose.to_world(backproject(np.array([[m.u, m.v]]), np.array([z]), frame.intrinsics))[0]
                 if source not in PIXEL_ONLY:  # the surface seen, not the centre behind it
-                    xyz = beyond(xyz, self.pose.translation_mm, SURFACE_DEPTH_MM)
+                    xyz = beyond(xyz, self.pose.translation_mm, surface_depth(target))
                 out.append((m, PointObservation(xyz, sigma, shared)))
         return out
 
-    def split(self, frame: Frame, m: Measurement, own_mm: np.ndarray, partner_mm: np.ndarray) -> np.ndarray | None:
+    def split(
+        self,
+        frame: Frame,
+        m: Measurement,
+        own_mm: np.ndarray,
+        partner_mm: np.ndarray,
+        own_surface_mm: float = SURFACE_DEPTH_MM,
+        partner_surface_mm: float = SURFACE_DEPTH_MM,
+    ) -> np.ndarray | None:
         """The target's own part of a region two combined targets share (one blob of the two): its 3-D centre, or
         None when the region cannot be split.
 
         The depth pixels of the region's box (every ``k``-th row and column, at most :data:`SPLIT_PIXELS`) are
         back-projected to the world; those within :data:`SPLIT_REACH_MM` of either target's predicted surface (its
-        prediction :data:`~fusion_pf.filter.world.SURFACE_DEPTH_MM` nearer the camera) are split between the two by
-        2-means started at those surfaces (paper 000's k-means, :func:`~fusion_pf.cues.regions.two_means`); the
-        target's part's centroid moved :data:`~fusion_pf.filter.world.SURFACE_DEPTH_MM` away from the camera is its
-        centre. None without a box or with fewer than :data:`SPLIT_MIN_POINTS` points on either side (the target's
-        observation then measures the pair's midpoint).
+        prediction its :func:`~fusion_pf.filter.world.surface_depth`, ``own_surface_mm`` or ``partner_surface_mm``,
+        nearer the camera) are split between the two by 2-means started at those surfaces (paper 000's k-means,
+        :func:`~fusion_pf.cues.regions.two_means`); the target's part's centroid moved ``own_surface_mm`` away from the
+        camera is its centre. None without a box or with fewer than :data:`SPLIT_MIN_POINTS` points on either side
+        (the target's observation then measures the pair's midpoint).
 
         The parts are used whether or not they are separated in the data: two joined hands are two hands, and the
         halves of their one blob, started at the predictions, measure each hand better than the blob's point
@@ -488,7 +498,7 @@ class _Camera:
         uv = np.stack([x0 + k * cols, y0 + k * rows], axis=1).astype(np.float64)
         pts = self.pose.to_world(backproject(uv, patch[rows, cols].astype(np.float64), frame.intrinsics))
         centre = self.pose.translation_mm
-        seeds = np.stack([beyond(own_mm, centre, -SURFACE_DEPTH_MM), beyond(partner_mm, centre, -SURFACE_DEPTH_MM)])
+        seeds = np.stack([beyond(own_mm, centre, -own_surface_mm), beyond(partner_mm, centre, -partner_surface_mm)])
         near = ((pts[:, None, :] - seeds[None]) ** 2).sum(axis=2).min(axis=1) <= SPLIT_REACH_MM**2
         pts = pts[near]
         if len(pts) < 2 * SPLIT_MIN_POINTS:
@@ -496,7 +506,7 @@ class _Camera:
         first = two_means(pts, seeds)
         if first is None or min(int(first.sum()), int((~first).sum())) < SPLIT_MIN_POINTS:
             return None
-        return beyond(pts[first].mean(axis=0), centre, SURFACE_DEPTH_MM)
+        return beyond(pts[first].mean(axis=0), centre, own_surface_mm)
 
     def line_of_sight(self, m: Measurement, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """The world line of sight through ``m``'s pixel: (optical centre, direction)."""
@@ -991,7 +1001,8 @@ def track_world(
                 mate = partners.get(t)
                 mate_at = None if mate is None else predicted[mate]
                 shared = None if mate is None or mate_at is None else (rows[mate].cues, mate_at)
-                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t], alone[t]):
+                mate_surface = SURFACE_DEPTH_MM if mate is None else surface_depth(mate)
+                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t], alone[t], mate_surface):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..cues.roi import PALM_LENGTH_MM
 from ..errors import InputError
-from ..filter.world import in_view, project
+from ..filter.world import HEAD_RADIUS_MM, in_view, project
 from ..rig import FrameSet
 from .events import Event, EventConfig, EventDetector, Look, _clothing_hue, object_modes, pair_within
 from .world import WorldResult
@@ -55,10 +55,10 @@ __all__ = [
     "with_events",
 ]
 
-#: A hand and the head as balls in 3-D (mm): the hand's radius is half its palm length; the head's is half of 195 mm,
-#: an adult head's length (glabella to the back of the skull; survey means 185-197 mm), around the tracked head
-#: point. A hand touches the head when the balls meet.
-HAND_RADIUS_MM, HEAD_RADIUS_MM = PALM_LENGTH_MM / 2.0, 97.5
+#: A hand and the head as balls in 3-D (mm): the hand's radius is half its palm length; the head's is
+#: :data:`~fusion_pf.filter.world.HEAD_RADIUS_MM`, around the tracked head point. A hand touches the head when the
+#: balls meet.
+HAND_RADIUS_MM = PALM_LENGTH_MM / 2.0
 #: The contact ends when the surfaces are farther apart than this (mm): half a palm, so the estimates' frame-to-frame
 #: jitter (10-15 mm while the hand rests at the head) never ends and restarts one contact.
 RELEASE_GAP_MM = PALM_LENGTH_MM / 2.0

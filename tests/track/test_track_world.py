@@ -228,6 +228,23 @@ def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_h
     assert alone["right_hand"] == [None] and alone["left_hand"] == []
 
 
+def test_a_depth_cameras_point_lies_behind_the_surface_by_a_palm_or_by_the_heads_radius():
+    # a region at the image centre on a wall 1000 mm away: the point a hand's observation gives lies a palm's
+    # SURFACE_DEPTH_MM behind the wall along the optical axis, the head's its radius (the face seen is on the head's
+    # ball)
+    from fusion_pf.filter.world import HEAD_RADIUS_MM
+
+    intr = Intrinsics(160, 100, 200.0, 200.0, 80.0, 50.0)
+    frame = Frame(0, 0, np.zeros((100, 160, 3), np.uint8), np.full((100, 160), 1000, np.uint16), intr)
+    config = TrackConfig(targets=(*HANDS, "head"), cues=("depth",))
+    cam = _Camera("cam0", config, frame, CameraPose(np.eye(3), np.zeros(3)))
+    m = Measurement("depth", 80.0, 50.0, 1.0)
+    for target, behind in (("right_hand", SURFACE_DEPTH_MM), ("head", HEAD_RADIUS_MM)):
+        ((_, ob),) = cam.observations(frame, target, {"depth": m})
+        assert isinstance(ob, PointObservation)
+        assert ob.xyz_mm == pytest.approx([0.0, 0.0, 1000.0 + behind], abs=1e-6), target
+
+
 def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
     # two palms touching side by side (one region in the image), the right one 40 mm nearer the camera: each hand's
     # observation is its own part's centre (k-means in 3-D from the predictions, 15 mm off each hand toward the other),
