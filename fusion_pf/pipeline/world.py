@@ -906,18 +906,10 @@ class _WorldTarget:
     @staticmethod
     def _support(estimate: np.ndarray, spread: float, observations: list[PointObservation | PixelObservation]) -> int:
         """Observations within :data:`SUPPORT_SIGMAS` of their noise plus the posterior spread of ``estimate``."""
-        count = 0
-        for ob in observations:
-            reach2 = SUPPORT_SIGMAS**2 * (ob.sigma_mm**2 + spread**2)
-            at = measured_point(estimate, ob.partner_mm)[0]
-            if isinstance(ob, PointObservation):
-                count += float(((ob.xyz_mm - at) ** 2).sum()) <= reach2
-                continue
-            uv, z = project(at[None], ob.pose, ob.intrinsics)
-            if np.isfinite(uv[0, 0]):
-                px_per_mm = ob.intrinsics.fx / float(z[0])
-                count += float(((uv[0] - ob.uv) ** 2).sum()) <= reach2 * px_per_mm**2
-        return count
+        return sum(
+            _within(ob, measured_point(estimate, ob.partner_mm)[0], SUPPORT_SIGMAS**2 * (ob.sigma_mm**2 + spread**2))
+            for ob in observations
+        )
 
 
 def track_world(
