@@ -1,6 +1,6 @@
 """Compiled phases of :meth:`~fusion_pf.filter.pf.ParticleFilter.step` (numba).
 
-At the default N = 100 a step of separate numpy calls is mostly interpreter
+At N = 100-300 (300 is the default) a step of separate numpy calls is mostly interpreter
 overhead (~20 array operations of a microsecond or two each); at large N it is
 memory traffic (every operation streams the arrays once more). These kernels
 fuse the phases into a few compiled passes over the ``(4, N)`` particle rows:

@@ -151,7 +151,7 @@ class TrackConfig:
         help="the particle filter (paper 003), the Kalman baseline or the scatter-search PF (paper 002)",
     )
     particles: int = option(
-        100, kind="int", lo=1, hi=100_000, metavar="N", help="particles of the particle filter (ignored by kf)"
+        300, kind="int", lo=1, hi=100_000, metavar="N", help="particles of the particle filter (ignored by kf)"
     )
     likelihood: str | None = option(
         None,
