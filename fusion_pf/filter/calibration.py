@@ -158,6 +158,21 @@ the cue was measured. Only the start: the noise the cue is fused with stays the 
 too, a depth blob of quality 0.3-0.4, 10-14 px off, entering its bin mid-track, was trusted at 3-4.5 px
 and anchored the track 8-12 px off for five frames (gen-32161-far-1024, fused 0.87 -> 2.08 px), and a
 colour blob of quality 0.3, 11-17 px off, pulled gen-31975-far-1280's track.
+
+Between bins. A noise learned per quality bin is a step in the quality, and a cue whose quality crosses
+a boundary jumps with it: on the far tune scene gen-40141-far-480 the depth cue, learned at 0.31 px
+(palm scale 1.7) in quality 0.5-0.75 and at 1.26 px in 0.25-0.5 (19 residuals, shrunk towards its
+``4 / q`` prior), was fused at 1.26 px at quality 0.41-0.49 beside a 0.83 px skeleton 1.4-3.4 px off,
+and the track followed the skeleton (fused 0.73 px, depth alone 0.65). The noise a cue is fused with
+(:meth:`NoiseCalibration.sigma`) therefore goes log-linearly in the quality from its bin's own
+(:meth:`NoiseCalibration.bin_sigma`, everything above) at the bin's centre towards the neighbour bin's,
+half way at the boundary, once that neighbour holds :data:`BORROW_MIN` residuals; a bin below
+:data:`SELF_QUALITY` lends to no other (the biased low-quality blobs, as above), so a measurement
+just above :data:`SELF_QUALITY` keeps its bin's own. gen-40141 0.73 -> 0.65 px.
+Held-out scenes (``--generate`` 24001-29030, 180 scenes never tuned on), fused new / old geometric mean
+0.973 (filter seed 0) and 0.983 (seed 1), ratio mean 0.611 -> 0.589 and 0.605 -> 0.591, fused above the
+best cue on its frames on 14 -> 11 and 16 -> 14 scenes; tune scenes 40001-40060 1.009 (one colour scene
+lost the hand for 14 frames, 2.9x; 0.991 without it) and 20 far tune scenes 40063-40177 0.994.
 """
 
 from __future__ import annotations
@@ -525,7 +540,25 @@ class NoiseCalibration:
         return self._slow.get(source)
 
     def sigma(self, m: Measurement, scale: float = 1.0) -> float:
-        """Noise of ``m`` in px at palm scale ``scale``: the bin's learned core noise shrunk towards the prior.
+        """Noise of ``m`` in px at palm scale ``scale``: its bin's (:meth:`bin_sigma`) at the bin's centre, log-linear in
+        the quality towards the neighbour bin's, half way at the boundary, once that neighbour holds :data:`BORROW_MIN`
+        residuals and is not below :data:`SELF_QUALITY` under ``m`` (module docstring, "Between bins")."""
+        b = quality_bin(m.quality)
+        centre = (b + 0.5) / QUALITY_BINS
+        n = b + 1 if m.quality > centre else b - 1
+        own = self.bin_sigma(m, scale)
+        if not 0 <= n < QUALITY_BINS:
+            return own
+        edge = (b + 1) / QUALITY_BINS if n > b else math.nextafter(b / QUALITY_BINS, 0.0)
+        other = replace(m, quality=edge)
+        if self.samples(m.source, edge) < BORROW_MIN or edge < min(m.quality, SELF_QUALITY):
+            return own
+        # log sigma = (1 - t) log sigma_b + t log sigma_n, t = |q - centre_b| / bin width (1/2 at the boundary)
+        t = abs(m.quality - centre) * QUALITY_BINS
+        return own ** (1.0 - t) * self.bin_sigma(other, scale) ** t
+
+    def bin_sigma(self, m: Measurement, scale: float = 1.0) -> float:
+        """Noise of ``m``'s quality bin in px at palm scale ``scale``: the bin's learned core noise shrunk towards the prior.
 
         The shrinkage target is the configured prior (:attr:`prior`), at most the noise of the same
         source one quality bin lower once that bin holds :data:`BORROW_MIN` residuals (module
@@ -538,7 +571,7 @@ class NoiseCalibration:
             lower = replace(m, quality=math.nextafter(b / QUALITY_BINS, 0.0))
             if lower.quality >= SELF_QUALITY and self.samples(m.source, lower.quality) >= BORROW_MIN:
                 # a more confident measurement is no noisier: the next lower bin's noise bounds this one's target
-                target = min(s0, self.sigma(lower))
+                target = min(s0, self.bin_sigma(lower))
         fit = self._fit((m.source, b))
         if fit is None:
             return target * scale

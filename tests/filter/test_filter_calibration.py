@@ -561,3 +561,45 @@ def test_a_cue_below_its_floor_by_itself_outweighs_a_few_residuals_against_a_poo
     assert new.sigma(sharp) < FLOOR  # its differences pull it below the floor
     assert new.sigma(sharp) >= SLOW_FLOOR * FLOOR  # not below the lowest floor either
     assert new.sigma(b) == pytest.approx(old.sigma(b))
+
+
+def test_the_noise_is_continuous_across_a_bin_boundary_between_two_learned_bins():
+    # far tune scene gen-40141-far-480: a depth cue learned at 0.31 px in quality 0.5-0.75 and 1.26 px in 0.25-0.5
+    # was fused at 1.26 px at quality 0.41-0.49, and a 0.83 px skeleton 1.4-3.4 px off took the track
+    def prior(m):
+        return starting_sigma(5.0, m)
+
+    cal = NoiseCalibration(prior)
+    gen = np.random.default_rng(3)
+
+    def feed(frames, quality, sd):
+        for _ in range(frames):
+            palm = gen.uniform(50, 250, 2)
+            ms = [Measurement("a", *(palm + gen.normal(0, sd, 2)), quality=quality)]
+            ms.append(Measurement("b", *(palm + gen.normal(0, 2.0, 2)), quality=0.9))
+            cal.update(ms, {m.source: cal.sigma(m) for m in ms})
+
+    feed(BORROW_MIN, 0.4, 8.0)
+    feed(BORROW_MIN, 0.6, 1.0)
+
+    def at(q):
+        return cal.sigma(Measurement("a", 0.0, 0.0, quality=q))
+
+    def own(q):
+        return cal.bin_sigma(Measurement("a", 0.0, 0.0, quality=q))
+
+    # each bin's own noise, learned apart: the less confident one noisier
+    assert own(0.4) > 2.0 * own(0.6)
+    # at a bin's centre its own noise; below the boundary half way (in log) to the bin above
+    assert at(0.375) == pytest.approx(own(0.375))
+    assert at(0.625) == pytest.approx(own(0.625))
+    below = math.nextafter(0.5, 0.0)
+    assert at(below) == pytest.approx(math.sqrt(own(below) * own(0.5)), rel=1e-6)
+    # log-linear in between: a quarter of the way from the centre, a quarter of the log ratio
+    assert math.log(at(0.4375)) == pytest.approx(0.75 * math.log(own(0.4375)) + 0.25 * math.log(own(0.5)), rel=1e-6)
+    # monotone from one centre to the other
+    qs = np.linspace(0.375, 0.625, 26)
+    assert all(a >= b for a, b in zip([at(q) for q in qs], [at(q) for q in qs[1:]]))
+    # a bin below SELF_QUALITY lends to no other (the biased low-quality blobs): above the boundary the bin's own
+    assert at(0.5) == pytest.approx(own(0.5))
+    assert at(0.55) == pytest.approx(own(0.55))
