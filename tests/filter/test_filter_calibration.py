@@ -471,6 +471,19 @@ def test_a_bin_without_residuals_is_no_noisier_than_the_bin_below_once_that_one_
     assert low.sigma(mid) == pytest.approx(prior(mid))
 
 
+def _prior5(m: Measurement) -> float:
+    return starting_sigma(5.0, m)
+
+
+def _feed(cal: NoiseCalibration, gen: np.random.Generator, frames: int, quality: float, sd: float) -> None:
+    """``frames`` frames of cue "a" at ``quality`` with per-axis noise ``sd`` (px) beside a 2 px cue "b" of quality 0.9."""
+    for _ in range(frames):
+        palm = gen.uniform(50, 250, 2)
+        ms = [Measurement("a", *(palm + gen.normal(0, sd, 2)), quality=quality)]
+        ms.append(Measurement("b", *(palm + gen.normal(0, 2.0, 2)), quality=0.9))
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms})
+
+
 def test_a_start_at_a_less_confident_cue_without_its_own_evidence_spreads_by_the_bin_above_widened_by_its_prior():
     # issue 23, gen-31987-far-640 (main b7cd802): the warm-start replay restarted at a 0.2 px depth cue whose
     # quality (0.45) was in a bin with one residual, above it a bin that had learned the cue to 1.5 px: spread
@@ -478,20 +491,10 @@ def test_a_start_at_a_less_confident_cue_without_its_own_evidence_spreads_by_the
     # 10 px (84 % of the scene's squared error, fused 0.92 px against depth's 0.34). Until the bin holds
     # PRIOR_COUNT residuals (the prior outweighs them), a start spreads by the next higher confident bin's
     # noise times the prior's ratio of the two qualities; the noise it is fused with stays its own
-    def prior(m):
-        return starting_sigma(5.0, m)
-
+    prior = _prior5
     cal = NoiseCalibration(prior)
     gen = np.random.default_rng(2)
-
-    def feed(frames, quality, sd):
-        for _ in range(frames):
-            palm = gen.uniform(50, 250, 2)
-            ms = [Measurement("a", *(palm + gen.normal(0, sd, 2)), quality=quality)]
-            ms.append(Measurement("b", *(palm + gen.normal(0, 2.0, 2)), quality=0.9))
-            cal.update(ms, {m.source: cal.sigma(m) for m in ms})
-
-    feed(BORROW_MIN, 0.6, 1.0)
+    _feed(cal, gen, BORROW_MIN, 0.6, 1.0)
     low, edge = Measurement("a", 0.0, 0.0, quality=0.3), Measurement("a", 0.0, 0.0, quality=0.5)
     assert cal.samples("a", 0.3) == 0 and cal.samples("a", 0.5) == BORROW_MIN
     borrowed = cal.sigma(edge) * prior(low) / prior(edge)
@@ -500,7 +503,7 @@ def test_a_start_at_a_less_confident_cue_without_its_own_evidence_spreads_by_the
     assert cal.sigma(low) == pytest.approx(prior(low))  # fused with its own noise: the prior
     assert cal.start_sigma(edge) == cal.sigma(edge)  # a bin with its own evidence starts from it
     # once the bin's own evidence outweighs the prior it decides: a 10 px cue
-    feed(PRIOR_COUNT, 0.3, 10.0)
+    _feed(cal, gen, PRIOR_COUNT, 0.3, 10.0)
     assert cal.samples("a", 0.3) == PRIOR_COUNT
     assert cal.start_sigma(low) == cal.sigma(low) > 2.5 * borrowed
 
@@ -566,21 +569,10 @@ def test_a_cue_below_its_floor_by_itself_outweighs_a_few_residuals_against_a_poo
 def test_the_noise_is_continuous_across_a_bin_boundary_between_two_learned_bins():
     # far tune scene gen-40141-far-480: a depth cue learned at 0.31 px in quality 0.5-0.75 and 1.26 px in 0.25-0.5
     # was fused at 1.26 px at quality 0.41-0.49, and a 0.83 px skeleton 1.4-3.4 px off took the track
-    def prior(m):
-        return starting_sigma(5.0, m)
-
-    cal = NoiseCalibration(prior)
+    cal = NoiseCalibration(_prior5)
     gen = np.random.default_rng(3)
-
-    def feed(frames, quality, sd):
-        for _ in range(frames):
-            palm = gen.uniform(50, 250, 2)
-            ms = [Measurement("a", *(palm + gen.normal(0, sd, 2)), quality=quality)]
-            ms.append(Measurement("b", *(palm + gen.normal(0, 2.0, 2)), quality=0.9))
-            cal.update(ms, {m.source: cal.sigma(m) for m in ms})
-
-    feed(BORROW_MIN, 0.4, 8.0)
-    feed(BORROW_MIN, 0.6, 1.0)
+    _feed(cal, gen, BORROW_MIN, 0.4, 8.0)
+    _feed(cal, gen, BORROW_MIN, 0.6, 1.0)
 
     def at(q):
         return cal.sigma(Measurement("a", 0.0, 0.0, quality=q))
