@@ -526,14 +526,16 @@ def run_scene(scene: Scene, out: Path, frames: int, track_args: list[str], recor
     cues = {c: (src[c]["rmse_px"], src[c]["coverage"]) for c in CUES if c in src and src[c]["rmse_px"] is not None}
     best = min(cues, key=lambda c: cues[c][0])
     fused = src[fused_name]
+    # a run without a single estimate (its one cue never started a track) has no fused RMSE
+    fused_rmse = math.nan if fused["rmse_px"] is None else fused["rmse_px"]
     return {
         "scene": scene,
         "cues": cues,
         "best": best,
-        "fused": fused["rmse_px"],
-        "ratio": fused["rmse_px"] / cues[best][0],
+        "fused": fused_rmse,
+        "ratio": fused_rmse / cues[best][0],
         "paired": paired_ratio(score["per_frame"]["error_px"][fused_name], score["per_frame"]["error_px"][best]),
-        "bestmax": fused["bestmax"] / score["bestmax"]["n_frames"],
+        "bestmax": fused["bestmax"] / score["bestmax"]["n_frames"] if score["bestmax"]["n_frames"] else math.nan,
         "coverage": fused["coverage"],
         "cover2sd": coverage_2sd(table, scene, frames),
         "noise": noise_split(table, scene, frames),

@@ -54,10 +54,10 @@ mean: noises are scale parameters), the outlier probability towards
 within [:data:`MIN_EPS`, :data:`MAX_EPS`]. The floor is the noise of the most
 precise source measured on real frames (the learned hand cue,
 :data:`~fusion_pf.filter.likelihood.DEFAULT_NOISE_PX`). Frames with a single
-cue teach nothing: the prediction was made from that cue alone, so its residual
+cue add no residual: the prediction was made from that cue alone, so its residual
 measures the motion model's misfit as much as the cue (on the real development
 frames, where only the learned hand cue fires, learning from it made the fused
-RMSE 11.0 px instead of 10.0).
+RMSE 11.0 px instead of 10.0); the cue's own differences still measure it ("A lone cue").
 
 White noise. A cue more precise than the prediction cannot be learned against
 it: the residual is the prediction's error, the fit of every such cue is 0 and
@@ -173,6 +173,24 @@ Held-out scenes (``--generate`` 24001-29030, 180 scenes never tuned on), fused n
 0.973 (filter seed 0) and 0.983 (seed 1), ratio mean 0.611 -> 0.589 and 0.605 -> 0.591, fused above the
 best cue on its frames on 14 -> 11 and 16 -> 14 scenes; tune scenes 40001-40060 1.009 (one colour scene
 lost the hand for 14 frames, 2.9x; 0.991 without it) and 20 far tune scenes 40063-40177 0.994.
+A lone cue. A bin without residuals kept its prior, so a cue alone in a recording (``track --cues depth``,
+or a cue whose companions never measure) was fused at its ``sigma / q`` prior whatever it measured: on far
+scenes a 0.24-0.27 px depth cue was fused at about 15 px in the image and the particle filter, a heavy
+smoother of it, was 1.3-1.6 px off (far tune scenes gen-40339-far-1024, gen-40573-far-960,
+gen-40699-far-1280, gen-40705-far-1024: 1.57, 1.53, 1.50, 1.32 px). Its own differences need no other cue:
+a bin without residuals counts them as evidence as above (the lowest floor its white noise gives, against
+the prior by their count), with their *mean* for the white noise instead of the robust fit, since alone
+nothing catches a cue's jumps: the colour blob of gen-40018-colour-320, alone 6.1 px off, jumps between
+blobs at a robust white noise of 0.2 px and a mean one of 1.2, and keeps its prior (the robust fit made
+the filter follow it, 4.17 -> 6.06 px; with the mean 4.47). The four far scenes: 0.24-0.27 px, at or
+below depth alone. Tune scenes 40001-40020 with ``--cues depth``: fused new / old geometric mean 0.943,
+fused over depth on depth's frames 1.085 -> 0.961 (geometric mean); worse where the cue vanishes and the
+track coasts on a velocity that now follows the cue's last frames (gen-40015-far-400 5.8 -> 8.5 px over
+5 frames, gen-40013-lit-560 6.0 -> 9.9); ``--cues colour`` 1.005, ``--cues skeleton`` unchanged (its white
+noise lies above the lowest floor). Held-out scenes 24001-24030 (never tuned on): ``--cues depth`` 0.912,
+fused over depth on its frames 1.084 -> 1.014 (gen-24019-far-1280 1.75 -> 0.22 px; worst
+gen-24012-near-1024 16.5 -> 26.5), ``--cues colour`` 1.003; default ``track`` (three cues) over the 180
+held-out scenes 0.9996 (filter seed 0); the real development frames and the sample unchanged.
 """
 
 from __future__ import annotations
@@ -573,14 +591,13 @@ class NoiseCalibration:
                 # a more confident measurement is no noisier: the next lower bin's noise bounds this one's target
                 target = min(s0, self.bin_sigma(lower))
         fit = self._fit((m.source, b))
-        if fit is None:
-            return target * scale
-        var, _, n = fit
+        var, n = (fit[0], fit[2]) if fit is not None else (None, 0)
         low = min(self.floor, s0)
         own_samples = 0
         diffs = self._white_samples(m.source, m.quality) if m.quality >= SELF_QUALITY else None
         if diffs is not None:
-            white = white_noise(diffs)
+            # without residuals nothing catches the cue's jumps: their mean, not the robust fit ("A lone cue")
+            white = white_noise(diffs) if var is not None else float(np.mean(diffs))
             slow = self.slow(m.source)
             # the cue's error measured from itself: sigma_white / SELF_FLOOR, or SLOW_FACTOR sqrt(sigma_white^2 + B)
             own = math.sqrt(white) / SELF_FLOOR if slow is None else SLOW_FACTOR * math.sqrt(white + slow)
@@ -592,8 +609,10 @@ class NoiseCalibration:
                 # noise, at that floor, as its residuals are of theirs (module docstring, "The first frames of a
                 # precise cue")
                 own_samples = len(diffs)
-        # sigma_hat within [low, B sigma_0]
-        learned = min(max(math.sqrt(var), low), s0 * BOUND)
+        if var is None and not own_samples:
+            return target * scale
+        # sigma_hat within [low, B sigma_0] (without residuals, the difference samples alone: low)
+        learned = low if var is None else min(max(math.sqrt(var), low), s0 * BOUND)
         if own_samples:
             # log sigma_hat = (n log sigma_hat + n_d log low) / (n + n_d)
             learned = learned ** (n / (n + own_samples)) * low ** (own_samples / (n + own_samples))

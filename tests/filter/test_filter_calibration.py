@@ -340,6 +340,32 @@ def test_a_cue_more_precise_than_the_prediction_is_trusted_below_the_floor():
     assert new.sigma(b) == pytest.approx(old.sigma(b))
 
 
+def test_a_lone_precise_cue_is_learned_from_its_own_differences():
+    # a single cue has no residuals (the prediction was made from it alone), but its own differences measure its white
+    # noise without a prediction: a 0.05 px cue alone (`--cues depth` on a far scene) goes from its 4 px prior to the
+    # lowest floor its white noise gives, SELF_FLOOR of the floor (no other cue: no slow error); a 2 px cue alone, above
+    # that floor, and the same precise cue without timestamps (no differences) keep their prior
+    from fusion_pf.filter.calibration import SELF_FLOOR
+
+    w = WINDOW / (PRIOR_COUNT + WINDOW)
+    sharp, broad = Measurement("sharp", 0, 0, quality=0.9), Measurement("broad", 0, 0, quality=0.9)
+    alone = _run_moving(300, {("sharp", 0.9): 0.05})
+    assert alone.samples("sharp", 0.9) == 0
+    assert alone.sigma(sharp) == pytest.approx(4.0 ** (1 - w) * (SELF_FLOOR * FLOOR) ** w)
+    assert _run_moving(300, {("broad", 0.9): 2.0}).sigma(broad) == 4.0
+    assert _run_moving(300, {("sharp", 0.9): 0.05}, timestamps=False).sigma(sharp) == 4.0
+    # the same cue jumping 6 px in 1 frame of 10 (a blob switching objects: gen-40018-colour-320's colour-only run,
+    # 6.1 px RMSE at a robust white noise of 0.2 px): its mean difference, not the robust fit, keeps its prior
+    cal = NoiseCalibration(lambda m: 4.0)
+    gen = np.random.default_rng(1)
+    palm = _smooth_track(300)
+    for i in range(300):
+        jump = 6.0 if i % 10 == 0 else 0.0
+        z = palm[i] + gen.normal(0.0, 0.05, 2) + jump
+        cal.update([Measurement("sharp", *z, quality=0.9)], {"sharp": cal.sigma(sharp)}, 1.0, None, i * 33_333_333)
+    assert math.sqrt(cal.white("sharp", 0.9)) < 0.1 and cal.sigma(sharp) == 4.0
+
+
 def test_white_noise_needs_frames_in_a_row():
     # a cue seen every other frame (another cue seen in each) never has SELF_ORDER + 1 frames in a row
     from fusion_pf.filter.calibration import SELF_MIN
