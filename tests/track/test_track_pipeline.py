@@ -160,7 +160,8 @@ def test_running_median_background_when_there_is_no_empty_scene(scene_frames):
 
 
 def test_uncertainty_covers_the_error_in_about_95_percent_of_frames(scene_frames):
-    """``2 sigma_px`` bounds the error in ~95 % of frames (docs/architecture.md, "CSV"); the posterior spread alone does not."""
+    """``2 sigma_px`` bounds the error in ~95 % of frames (docs/architecture.md, "CSV"), without being wide enough to
+    cover nearly every frame at ``1 sigma_px``; the posterior spread alone does not cover it."""
     from fusion_pf.filter.estimate import largest_std
 
     results = [r for r in track(scene_frames, TrackConfig(seed=1)) if not r.background]
@@ -170,7 +171,10 @@ def test_uncertainty_covers_the_error_in_about_95_percent_of_frames(scene_frames
     err = np.array([np.hypot(r.estimate.u - r.ground_truth.u, r.estimate.v - r.ground_truth.v) for r in tracked])
     sigma = np.array([r.sigma_px for r in tracked])
     spread = np.array([largest_std(r.estimate.cov) for r in tracked])
-    assert 0.9 <= np.mean(err <= 2 * sigma) <= 0.99
+    assert 0.9 <= np.mean(err <= 2 * sigma) < 1.0
+    # a Rayleigh error of scale a covered at 2 sigma in 95 % of frames has sigma^2 = 1.5 a^2; a sigma 1.6x that wide
+    # covers 1 - exp(-sigma^2 / 2 a^2) = 85 % at 1 sigma (measured 76-78 %)
+    assert np.mean(err <= sigma) < 0.85
     assert np.mean(err <= 2 * spread) < np.mean(err <= 2 * sigma)
     for r in tracked:
         if r.xyz_mm is not None:
@@ -208,6 +212,41 @@ def test_an_offset_the_learned_noise_absorbed_still_counts_in_the_uncertainty(se
     assert np.mean(err <= 2.0 * sigma) >= 0.9
     # the disagreement widens it to about the offset, no further (measured: median 8.9-9.1 px, the error 12.3-12.6)
     assert np.median(sigma) < 12.0
+
+
+def test_a_lone_cue_does_not_narrow_the_uncertainty_below_the_posterior_spread():
+    """With one cue, ``sigma_px`` is the posterior spread plus that cue's unexplained distance, never its own noise
+    alone: a lone cue's noise is learned from its own differences, which do not see its slow error (module docstring
+    of :mod:`fusion_pf.pipeline.run`, "Uncertainty"; with its own noise, the real development frames' 2-sigma coverage
+    fell 90.6 -> 77.4 % and 91.5 -> 64.2 %)."""
+    import math
+
+    from fusion_pf.filter.estimate import largest_std
+    from fusion_pf.frame import Intrinsics, Measurement
+    from fusion_pf.pipeline.run import CueRow
+
+    intr = Intrinsics(640, 400, 500.0, 500.0, 320.0, 200.0)
+    rng = np.random.default_rng(0)
+    rows = []
+    for k in range(80):
+        u, v = 320.0 + 80.0 * math.sin(k / 25.0), 200.0 + 40.0 * math.cos(k / 30.0)
+        m = Measurement("depth", u + 6.0 * math.sin(k / 15.0) + rng.normal(0.0, 0.3), v + rng.normal(0.0, 0.3), 0.9)
+        rows.append(
+            CueRow(
+                k,
+                1_000_000_000 + k * 33_333_333,
+                False,
+                {"depth": m},
+                {"decode": 0, "depth": 0},
+                None,
+                None,
+                (0, 0),
+                intr,
+            )
+        )
+    results = [r for r in run_filter(rows, TrackConfig(seed=1)) if r.estimate is not None]
+    assert len(results) == 80
+    assert all(r.sigma_px >= largest_std(r.estimate.cov) for r in results)
 
 
 def test_cues_run_with_the_configured_opencv_threads(monkeypatch):
