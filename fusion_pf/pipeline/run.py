@@ -1219,17 +1219,15 @@ class _FilterStage:
     ) -> float:
         """``sigma_px`` (module docstring): the nearest cue's error plus the cues' unexplained disagreement; with one cue
         or none, the posterior spread plus its unexplained distance. px."""
-        if len(ms) < 2:
-            excess = [
-                max(0.0, (m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 - self._explained(m, weights)) for m in ms
-            ]
-            return math.sqrt((spread if math.isfinite(spread) else 0.0) ** 2 + sum(excess))
         d2 = [(m.u - estimate.u) ** 2 + (m.v - estimate.v) ** 2 for m in ms]
         explained = [self._explained(m, weights) for m in ms]
+        excess = sum(max(0.0, r2 - s2) for r2, s2 in zip(d2, explained))
+        if len(ms) < 2:
+            # lambda_max + max(0, r^2 - s^2)
+            return math.sqrt((spread if math.isfinite(spread) else 0.0) ** 2 + excess)
         n = int(np.argmin(d2))
         # s_n^2 + d_n^2 + mean_i max(0, r_i^2 - s_i^2)
-        disagreement = sum(max(0.0, r2 - s2) for r2, s2 in zip(d2, explained)) / len(ms)
-        return math.sqrt(explained[n] + d2[n] + disagreement)
+        return math.sqrt(explained[n] + d2[n] + excess / len(ms))
 
     def _explained(self, m: Measurement, weights: Mapping[str, float]) -> float:
         """The share of ``m``'s squared distance from the estimate its noise explains (module docstring,
