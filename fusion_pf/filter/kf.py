@@ -70,26 +70,26 @@ class KalmanFilter(Tracker):
         self.noise_px = self._like.noise_px
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
-        self.prior = check_prior(prior)
+        start = check_prior(prior)
         self._clock = FrameClock(frame_period_ns)
         self.frame_period_ns = self._clock.frame_period_ns
-        self.reset()
+        self.reset(start)
 
     def set_process_noise(self, process_noise: tuple[float, float]) -> None:
         """Change the process noise ``(pos px, vel px/frame)`` from the next step on."""
         self.process_noise = check_process_noise(process_noise)
 
     def reset(self, prior=None) -> None:
-        """Forget the state; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
-        constructor's prior, if any) or from the next measurement."""
-        if prior is not None:
-            self.prior = check_prior(prior)
+        """Forget the state and any earlier prior (the :meth:`~fusion_pf.filter.base.Tracker.reset` contract): start at
+        ``prior`` (``(u, v)`` or ``(u, v, du, dv)``) when given, else from the next measurement. A prior kept across
+        resets started the filter that re-acquires a lost palm at its last start, wherever the palm came back."""
+        start = check_prior(prior)
         self._last_ns: int | None = None
         self.x = np.zeros(4)
         self.P = np.eye(4)
         self.initialised = False
-        if self.prior is not None:
-            self._initialise(self.prior)
+        if start is not None:
+            self._initialise(start)
 
     def _initialise(self, centre: np.ndarray) -> None:
         """``x0 = centre``, ``P0 = diag(spread^2, spread^2, vel^2, vel^2)``."""

@@ -226,7 +226,7 @@ class ParticleFilter(Tracker):
         self._top_k = max(1, math.ceil(self.top_fraction * self.n_particles))
         self.init_spread_px = float(init_spread_px)
         self.init_velocity_px = float(init_velocity_px)
-        self.prior = check_prior(prior)
+        start = check_prior(prior)
         self._clock = FrameClock(frame_period_ns)
         self.frame_period_ns = self._clock.frame_period_ns
         self.keep_particles = bool(keep_particles)
@@ -254,7 +254,7 @@ class ParticleFilter(Tracker):
         self._seen: dict[str, tuple[Measurement, Measurement | None, float]] = {}
         # what _finish does to the weights: 0 nothing, 1 add _joint and normalise, 2 normalise
         self._weighed = 0
-        self.reset()
+        self.reset(start)
         # the compiled step kernels load from numba's cache while the caller gets its first frame
         warm_up()
 
@@ -335,17 +335,17 @@ class ParticleFilter(Tracker):
         return float(mu[0]), float(mu[1]), 0.5 * float(np.einsum("ij,ij,j->", d, d, w))
 
     def reset(self, prior=None) -> None:
-        """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
-        constructor's prior, if any) or from the next measurement."""
-        if prior is not None:
-            self.prior = check_prior(prior)
+        """Forget the particles and any earlier prior (the :meth:`~fusion_pf.filter.base.Tracker.reset` contract): start at
+        ``prior`` (``(u, v)`` or ``(u, v, du, dv)``) when given, else from the next measurement. A prior kept across
+        resets started the filter that re-acquires a lost palm at its last start, wherever the palm came back."""
+        start = check_prior(prior)
         self._last_ns: int | None = None
         self._last_anchor = None
         self._seen = {}
         self.initialised = False
         self._weighed = 0
-        if self.prior is not None:
-            self._initialise(self.prior)
+        if start is not None:
+            self._initialise(start)
 
     def _initialise(self, centre: np.ndarray) -> None:
         """Particles ~ N(centre, spread^2) with weights 1/N (initialisation phase)."""

@@ -320,9 +320,9 @@ class ScatterSearchPF(Tracker):
         self.process_noise = check_process_noise(process_noise)
         self._like = JointLikelihood(noise_px)
         self.noise_px = self._like.noise_px
-        self.prior = check_prior(prior)
+        start = check_prior(prior)
         self._clock = FrameClock(frame_period_ns)
-        self.reset()
+        self.reset(start)
 
     @property
     def particles(self) -> np.ndarray:
@@ -348,15 +348,15 @@ class ScatterSearchPF(Tracker):
         self._core.std_unit = noise_std(self.process_noise, 1.0)
 
     def reset(self, prior=None) -> None:
-        """Forget the particles; re-initialise at ``prior`` (``(u, v)`` or ``(u, v, du, dv)``; else the
-        constructor's prior, if any) or from the next measurement."""
-        if prior is not None:
-            self.prior = check_prior(prior)
+        """Forget the particles and any earlier prior (the :meth:`~fusion_pf.filter.base.Tracker.reset` contract): start at
+        ``prior`` (``(u, v)`` or ``(u, v, du, dv)``) when given, else from the next measurement. A prior kept across
+        resets started the filter that re-acquires a lost palm at its last start, wherever the palm came back."""
+        start = check_prior(prior)
         self._last_ns: int | None = None
         self._core.x = None
         self.initialised = False
-        if self.prior is not None:
-            self._core.initialise(self.prior[None])
+        if start is not None:
+            self._core.initialise(start[None])
             self.initialised = True
 
     def step(self, timestamp_ns: int, measurements: Sequence[Measurement]) -> Estimate | None:

@@ -12,11 +12,12 @@ from scipy.stats import multivariate_normal
 
 from fusion_pf.cues.base import Measurement
 from fusion_pf.errors import InputError
-from fusion_pf.filter import Estimate, ParticleFilter
+from fusion_pf.filter import Estimate, KalmanFilter, ParticleFilter
 from fusion_pf.filter.estimate import map_estimate, robust_mean, weighted_covariance, weighted_mean
 from fusion_pf.filter.kernel import stream
 from fusion_pf.filter.likelihood import JointLikelihood, robust_loglik
 from fusion_pf.filter.scenario import SCENARIO_NOISE_PX, rmse, run_tracker, scripted_scenario
+from fusion_pf.filter.sspf import ScatterSearchPF
 
 NOISE = {"colour": 6.0, "depth": 10.0, "skeleton": 15.0}
 MS = [Measurement("colour", 320.0, 200.0), Measurement("depth", 324.0, 197.0), Measurement("skeleton", 310.0, 210.0)]
@@ -70,6 +71,29 @@ def test_not_initialised_until_measurement_or_prior():
     )
     est = with_prior.step(0, [])
     assert est is not None and abs(est.u - 100) < 2 and abs(est.v - 50) < 2
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda **kw: ParticleFilter(n_particles=500, rng=0, **kw),
+        lambda **kw: KalmanFilter(**kw),
+        lambda **kw: ScatterSearchPF(n_particles=50, rng=0, **kw),
+    ],
+    ids=["pf", "kf", "sspf"],
+)
+def test_reset_without_a_prior_forgets_every_earlier_one(make):
+    """The Tracker.reset contract: a reset without a prior waits for the next measurement, whatever prior the
+    constructor or an earlier reset gave (a kept prior restarted a lost track where it had started before)."""
+    f = make(noise_px=SCENARIO_NOISE_PX, prior=(100.0, 50.0), init_spread_px=2.0)
+    assert f.initialised  # the constructor's prior
+    f.reset(prior=(10.0, 20.0))
+    est = f.step(0, [])
+    assert f.initialised and math.hypot(est.u - 10.0, est.v - 20.0) < 2.0
+    f.reset()
+    assert not f.initialised and f.step(1, []) is None
+    est = f.step(2, [Measurement("colour", 200.0, 150.0)])
+    assert math.hypot(est.u - 200.0, est.v - 150.0) < 2.0  # started at the measurement
 
 
 def test_shapes_and_estimate_fields():
