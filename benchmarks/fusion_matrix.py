@@ -4,7 +4,7 @@ Usage (from the repository root)::
 
     python benchmarks/fusion_matrix.py [--out DIR] [--jobs J] [--frames N] [--only NAME,...]
         [--recordings DIR] [--save FILE.json] [--compare FILE.json] [--noise-split] [--startup] [--bestmax]
-        [--generate FIRST:COUNT] [-- TRACK OPTIONS]
+        [--generate FIRST:COUNT] [--away N] [-- TRACK OPTIONS]
 
 Every scene of :data:`SCENES` is rendered with ``fusion-pf synth`` (its size, seed and scene
 variations: depth noise, the palm's distance in front of the body, lighting, skin tone, skeleton
@@ -72,7 +72,7 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -221,6 +221,12 @@ def generated_scenes(first: int, count: int) -> tuple[Scene, ...]:
     same scene on any machine, so a set of seeds nobody tuned on is a matrix nobody tuned on.
     """
     return tuple(_generated_scene(seed) for seed in range(first, first + count))
+
+
+def away_scenes(scenes: Sequence[Scene], away: int) -> tuple[Scene, ...]:
+    """``scenes`` with the person away ``away`` of every 100 frames (``synth --away``), named ``NAME-awayN``: the
+    track is lost while nobody is in view and re-acquired when the person is back, which the other scenes never ask."""
+    return tuple(replace(s, name=f"{s.name}-away{away}", options={**s.options, "away": away}) for s in scenes)
 
 
 def _generated_scene(seed: int) -> Scene:
@@ -640,6 +646,13 @@ def main(argv: list[str] | None = None) -> int:
         help="instead of the fixed matrix, COUNT scenes drawn from seeds FIRST.. (generated_scenes): a fresh held-out set",
     )
     p.add_argument(
+        "--away",
+        type=int,
+        default=0,
+        metavar="N",
+        help="the person away N of every 100 frames in every scene (synth --away): losses and re-acquisitions",
+    )
+    p.add_argument(
         "--recordings", type=Path, default=None, help="take the rendered scenes from this earlier --out instead"
     )
     p.add_argument("--save", type=Path, default=None, help="write the table as JSON (for a later --compare)")
@@ -669,6 +682,10 @@ def main(argv: list[str] | None = None) -> int:
         if count < 1:
             p.error(f"--generate COUNT must be >= 1, got {count}")
         scenes = generated_scenes(first, count)
+    if args.away:
+        if not 0 < args.away < 100:
+            p.error(f"--away must be in 1..99 (frames of every 100), got {args.away}")
+        scenes = away_scenes(scenes, args.away)
     if args.only:
         wanted = set(args.only.split(","))
         unknown = wanted - {s.name for s in scenes} - {s.split for s in scenes}

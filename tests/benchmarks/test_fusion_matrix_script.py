@@ -6,6 +6,8 @@ import re
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("fusion_matrix", ROOT / "benchmarks" / "fusion_matrix.py")
 fusion_matrix = importlib.util.module_from_spec(_spec)
@@ -179,6 +181,22 @@ def test_generated_scenes_are_a_pure_function_of_their_seeds_and_valid_synth_sce
     near = [s for s in a if "-near-" in s.name]
     far = [s for s in a if "-far-" in s.name]
     assert max(s.options["hand_front"] for s in near) < min(s.options["hand_front"] for s in far)
+
+
+def test_away_scenes_send_the_person_away_in_every_scene(capsys):
+    from drivers.synth import SynthSource
+
+    base = fusion_matrix.generated_scenes(500, 3)
+    away = fusion_matrix.away_scenes(base, 30)
+    assert [s.name for s in away] == [f"{s.name}-away30" for s in base]
+    assert all(a.options == {**b.options, "away": 30} and a.seed == b.seed for a, b in zip(away, base))
+    w, h = (int(x) for x in away[0].size.split("x"))
+    src = SynthSource(frames=130, seed=away[0].seed, size=(w, h), background_frames=10, **away[0].options)
+    gone = [src.away_at(i) for i in range(10, 130)]
+    assert 0.2 <= sum(gone) / len(gone) <= 0.4  # 30 of every 100 person frames
+    with pytest.raises(SystemExit) as exc:
+        fusion_matrix.main(["--generate", "500:3", "--away", "100"])
+    assert exc.value.code == 2 and "--away must be in 1..99" in capsys.readouterr().err
 
 
 def test_generate_runs_a_fresh_set_and_reports_it_as_its_own_split(tmp_path, capsys):
