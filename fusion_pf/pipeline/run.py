@@ -261,6 +261,14 @@ SPLIT_PALMS = 0.85
 #: Smallest quality of a cue that may restart the filter at itself (``jump_sigmas``):
 #: the hand cue's presence score is 0.9-1.0 on a visible hand.
 JUMP_MIN_QUALITY = 0.8
+#: Smallest quality of a lone measurement (no other cue within one apparent palm length) that may re-acquire a
+#: lost track when more than one cue runs (:meth:`_FilterStage._startable`): below it the filter waits for a
+#: confident cue or two that agree. With the person out of view the whole-frame search of the colour cue finds
+#: scraps of the room (a pale book under flickering light, quality 0.03-0.38), and a track re-acquired there was
+#: 100-290 px off when the person came back (``synth --away``). The first start is not held to it: a recording
+#: whose one measuring cue is weak (a real RGB-D recording whose hand cue never fires, depth at 0.07-0.34) is
+#: tracked from its first frame, as before.
+START_MIN_QUALITY = 0.5
 
 
 #: Without an empty scene (:attr:`BackgroundModel.learnt`), the auto cue that
@@ -1284,11 +1292,28 @@ class _FilterStage:
                 tracker.set_noise(source, math.sqrt(self._var[source] / w))
         return weights
 
+    def _startable(self, ms: Sequence[Measurement], cues: int) -> list[Measurement]:
+        """The measurements a (re)start may begin at: all of them, but for a lost track with more than one cue
+        running (``cues``: how many run) only those another cue agrees with (within one apparent palm length) or of
+        quality :data:`START_MIN_QUALITY` or more."""
+        if cues <= 1 or self.status.state != TrackState.LOST:
+            return list(ms)
+        reach = self._reach
+        return [
+            m
+            for m in ms
+            if m.quality >= START_MIN_QUALITY
+            or any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)
+        ]
+
     def _consensus(
         self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float]
-    ) -> Measurement:
-        """The cue a (re)start begins at: the most trusted of those another cue agrees with (within one apparent
-        palm length), when any does; so one trusted cue off the palm is not started at while two others agree."""
+    ) -> Measurement | None:
+        """The cue a (re)start begins at, among :meth:`_startable`'s ``ms``: the most trusted of those another cue
+        agrees with (within one apparent palm length), when any does; so one trusted cue off the palm is not started
+        at while two others agree. None: none of ``ms``."""
+        if not ms:
+            return None
         reach = self._reach
         backed = [m for m in ms if any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)]
         return min(backed or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
@@ -1305,7 +1330,8 @@ class _FilterStage:
             self._start(size)
         tracker, states = self.tracker, self.states
         assert tracker is not None and states is not None  # created by _start
-        ms = row.measurements(self.sources if self.sources is not None else tuple(row.cues))
+        running = self.sources if self.sources is not None else tuple(row.cues)
+        ms = row.measurements(running)
         trust = {m.source: self._trust(m) for m in ms}
         if self._observe_palm(row, ms, trust) and self.config.palm_scale and self.config.scale_noise:
             self._rescale()
@@ -1323,14 +1349,18 @@ class _FilterStage:
         hold = False  # no cue near the anchor: the filter waits for one (module docstring, "Warm-start replay")
         if anchor is not None and not tracker.initialised:
             reach = self._reach
-            near = [m for m in ms if math.hypot(m.u - anchor[0], m.v - anchor[1]) <= reach]
+            near = [
+                m for m in self._startable(ms, len(running)) if math.hypot(m.u - anchor[0], m.v - anchor[1]) <= reach
+            ]
             if near:
                 self._restart(tracker, min(near, key=lambda m: trust[m.source]))
             hold = not near
         elif not tracker.initialised and (ms or self.init is not None):
             if self.init is None:
-                assert best is not None  # ms is not empty
-                self._restart(tracker, self._consensus(ms, trust, share))
+                start = self._consensus(self._startable(ms, len(running)), trust, share)
+                if start is not None:
+                    self._restart(tracker, start)
+                hold = start is None  # one unconfident cue alone: the filter waits for better evidence
             else:
                 if isinstance(tracker, (ParticleFilter, KalmanFilter)):
                     tracker.init_spread_px = self._init_spread
