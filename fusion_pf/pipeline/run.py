@@ -944,7 +944,8 @@ class _FilterStage:
     Initialisation and re-acquisition start the filter at the most trusted
     measurement (smallest quality-widened noise) that another cue agrees with,
     when any does (:meth:`_consensus`; ``config.init`` in the first tracked
-    frame when given). Supervision (:func:`fusion_pf.filter.states.step_state`):
+    frame when given); a lost track only at one another cue agrees with or of
+    quality :data:`START_MIN_QUALITY` or more (:meth:`_startable`). Supervision (:func:`fusion_pf.filter.states.step_state`):
     a cue *supports* the estimate when it lies within :data:`SUPPORT_SIGMAS` of
     its fused noise plus the posterior spread of it; the track is lost when the
     estimate leaves the image, when no fused cue supported it for
