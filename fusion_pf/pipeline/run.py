@@ -1294,31 +1294,29 @@ class _FilterStage:
                 tracker.set_noise(source, math.sqrt(self._var[source] / w))
         return weights
 
+    def _backed(self, ms: Sequence[Measurement]) -> list[Measurement]:
+        """Those of ``ms`` another cue agrees with (within one apparent palm length)."""
+        reach = self._reach
+        return [m for m in ms if any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)]
+
     def _startable(self, ms: Sequence[Measurement], cues: int) -> list[Measurement]:
         """The measurements a (re)start may begin at: all of them, but for a lost track with more than one cue
-        running (``cues``: how many run) only those another cue agrees with (within one apparent palm length) or of
-        quality :data:`START_MIN_QUALITY` or more."""
+        running (``cues``: how many run) only those another cue agrees with (:meth:`_backed`) or of quality
+        :data:`START_MIN_QUALITY` or more."""
         if cues <= 1 or self.status.state != TrackState.LOST:
             return list(ms)
-        reach = self._reach
-        return [
-            m
-            for m in ms
-            if m.quality >= START_MIN_QUALITY
-            or any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)
-        ]
+        backed = {id(m) for m in self._backed(ms)}
+        return [m for m in ms if m.quality >= START_MIN_QUALITY or id(m) in backed]
 
     def _consensus(
         self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float]
     ) -> Measurement | None:
         """The cue a (re)start begins at, among :meth:`_startable`'s ``ms``: the most trusted of those another cue
-        agrees with (within one apparent palm length), when any does; so one trusted cue off the palm is not started
-        at while two others agree. None: none of ``ms``."""
+        agrees with (:meth:`_backed`), when any does; so one trusted cue off the palm is not started at while two
+        others agree. None: none of ``ms``."""
         if not ms:
             return None
-        reach = self._reach
-        backed = [m for m in ms if any(math.hypot(m.u - o.u, m.v - o.v) <= reach for o in ms if o is not m)]
-        return min(backed or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
+        return min(self._backed(ms) or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
 
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
