@@ -946,7 +946,10 @@ class _FilterStage:
     measurement (smallest quality-widened noise) that another cue agrees with,
     when any does (:meth:`_consensus`; ``config.init`` in the first tracked
     frame when given); a lost track only at one another cue agrees with or of
-    quality :data:`START_MIN_QUALITY` or more (:meth:`_startable`). Supervision (:func:`fusion_pf.filter.states.step_state`):
+    quality :data:`START_MIN_QUALITY` or more (:meth:`_startable`). A tracking filter restarts at a confident
+    cue beyond its reach (``config.jump_sigmas``, :meth:`_jumped`), and at the cues when a confident one another
+    agrees with lies away from the track while no confident cue is near it (:meth:`_deserted`: a track started on
+    a scrap of the room before the person came in). Supervision (:func:`fusion_pf.filter.states.step_state`):
     a cue *supports* the estimate when it lies within :data:`SUPPORT_SIGMAS` of
     its fused noise plus the posterior spread of it; the track is lost when the
     estimate leaves the image, when no fused cue supported it for
@@ -1318,6 +1321,26 @@ class _FilterStage:
             return None
         return min(self._backed(ms) or ms, key=lambda m: trust[m.source] / math.sqrt(share[m.source]))
 
+    def _deserted(
+        self, ms: Sequence[Measurement], trust: Mapping[str, float], share: Mapping[str, float], timestamp_ns: int
+    ) -> Measurement | None:
+        """The cue to restart at when a confident cue (:data:`JUMP_MIN_QUALITY`) another agrees with (:meth:`_backed`)
+        and every cue of quality :data:`START_MIN_QUALITY` or more lie away from the prediction (beyond one apparent
+        palm length and :data:`SUPPORT_SIGMAS` of their noise): the track holds on nothing or on unconfident cues.
+        None otherwise."""
+        predicted = self.prediction(timestamp_ns)
+        if predicted is None:
+            return None
+        backed = self._backed(ms)
+        if not any(m.quality >= JUMP_MIN_QUALITY for m in backed):
+            return None
+        reach2 = self._reach**2
+        for m in ms:
+            d2 = (m.u - predicted[0]) ** 2 + (m.v - predicted[1]) ** 2
+            if m.quality >= START_MIN_QUALITY and (d2 <= reach2 or d2 <= SUPPORT_SIGMAS**2 * self._var[m.source]):
+                return None
+        return self._consensus(backed, trust, share)
+
     def _trust(self, m: Measurement) -> float:
         """The noise ``m`` is fused with at scale 1 (calibrated, else configured): smaller is more trusted."""
         return self._prior(m) if self._calibration is None else self._calibration.sigma(m)
@@ -1345,6 +1368,10 @@ class _FilterStage:
             self._restart(tracker, best)  # the palm moved beyond the motion model: restart at the cue
             self.jumps += 1
             predicted = None  # a restart is no correction of the motion model
+        elif tracker.initialised and (moved := self._deserted(ms, trust, share, row.timestamp_ns)) is not None:
+            self._restart(tracker, moved)  # the cues agree elsewhere, none with the track: restart at them
+            self.jumps += 1
+            predicted = None
         anchor = self._anchors.popleft() if self._anchors else None
         hold = False  # no cue near the anchor: the filter waits for one (module docstring, "Warm-start replay")
         if anchor is not None and not tracker.initialised:

@@ -10,7 +10,7 @@ import pytest
 
 from drivers.synth import SynthSource
 from fusion_pf.cues.registry import CueOptions
-from fusion_pf.frame import Frame, Intrinsics, PalmPoint
+from fusion_pf.frame import Frame, Intrinsics, Joint, PalmPoint
 from fusion_pf.pipeline import TrackConfig, track
 from fusion_pf.pipeline.run import START_MIN_QUALITY
 
@@ -20,9 +20,9 @@ SKIN = np.array([225, 172, 140], np.uint8)
 EXACT = {"skin_rgb": 1.0, "depth": 1.0}
 
 
-def disc_frames(path, *, depth=None, start_ns=0):
+def disc_frames(path, *, depth=None, start_ns=0, size=SIZE):
     """A skin-coloured palm disc (radius 9 px) on a textured wall, following ``path`` ((n, 2), NaN = out of view)."""
-    w, h = SIZE
+    w, h = size
     rng = np.random.default_rng(0)
     wall = rng.integers(40, 90, (h, w, 3), dtype=np.uint8)
     yy, xx = np.mgrid[:h, :w]
@@ -118,6 +118,32 @@ def test_a_lost_track_waits_for_a_confident_cue_not_a_scrap_of_the_room():
     assert [r.state for r in results[40:]] == ["tracking"] * 20
     after = errors(results[40:], frames[40:])
     assert len(after) == 20 and after[0] < 2.0, after
+
+
+def test_a_track_held_by_a_scrap_moves_to_the_cues_that_agree_elsewhere():
+    """The palm is away for the first 30 frames of a 640 x 400 view; a skin-coloured scrap shows in every third of
+    them, and the first start is on it (the first start takes any cue). At frame 30 the palm comes in 200 px away:
+    the skin and depth cues and a confident skeleton joint (0.9) agree there, and no confident cue is near the track.
+    The track restarts at them in that frame (before: it stayed on the scrap, 207 and 213 px off for two frames)."""
+    w, h = size = (640, 400)
+    t = np.arange(60)
+    path = np.stack([w / 2 + 0.3 * w * np.cos(2 * np.pi * t / 60), h / 2 + 0.3 * h * np.sin(2 * np.pi * t / 60)], 1)
+    path[:30] = np.nan
+    frames = disc_frames(path, depth=(np.full((h, w), 2000, np.uint16), 600), size=size)
+    for k, f in enumerate(frames):
+        if k < 30 and k % 3 == 0:
+            color = f.color.copy()
+            color[h - 20 : h - 14, 18:24] = SKIN
+            frames[k] = dataclasses.replace(f, color=color)
+        elif f.ground_truth is not None:
+            frames[k] = dataclasses.replace(
+                f, joints={"right_hand": Joint(f.ground_truth.u, f.ground_truth.v, None, 0.9)}
+            )
+    results = list(track(frames, TrackConfig(cues=("skin_rgb", "depth", "skeleton"))))
+    assert results[29].state == "tracking" and results[29].estimate.v > h - 40  # on the scrap
+    assert {n for n, m in results[30].cues.items() if m is not None} == {"skin_rgb", "depth", "skeleton"}
+    after = errors(results[30:], frames[30:])
+    assert len(after) == 30 and after[0] < 3.0 and after[1] < 3.0, after
 
 
 def test_sample_without_skeleton_tracks_nearly_as_well():
