@@ -55,7 +55,7 @@ was measured), main dc73706, default track, seed 0: ratio mean 0.68, fused above
 ``--away N`` sends the person out of view N of every 100 frames in every scene (:func:`away_scenes`, ``synth
 --away``, names ``NAME-awayN``): the track is lost and re-acquired, which no other scene asks. Main 146bd06 against
 ``96c9a9c`` (a reset filter forgets its last start; a lost track is re-acquired only by a cue another one agrees
-with or of quality 0.5 or more), default track, seed 0, ``--away 30``: ``--generate 45101:24`` (held out: never looked
+with or of quality 0.5 or more; 0.8 since session 30), default track, seed 0, ``--away 30``: ``--generate 45101:24`` (held out: never looked
 at frame by frame) fused new / old geometric mean 0.736, ratio mean 1.52 -> 1.33 (gen-45103-far-560 8.75 -> 0.86 px,
 gen-45115-far-800 14.04 -> 1.58; worse on 8, gen-45123-skel-560 2.43 -> 14.46); development sets 45201:12 0.431 and
 the skel and near scenes of 45301:60 0.621 (gen-45321-skel-1024 4.30 -> 14.94: a track started on a scrap of the

@@ -100,16 +100,18 @@ def test_a_palm_that_comes_back_elsewhere_is_found_where_it_is(kind):
     assert len(after) == 20 and after[0] < 2.0, after
 
 
-def test_a_lost_track_waits_for_a_confident_cue_not_a_scrap_of_the_room():
-    """While the palm is away (frames 10-39) a small skin-coloured scrap at the wall's depth shows in frames 20-39:
-    the colour cue's whole-frame search finds it, alone and unconfident (a sliver of a palm's area). A lost track
-    is re-acquired only by a cue of quality START_MIN_QUALITY or more or by two that agree: it stays lost on the
-    scrap (before: tracked there, 77-85 px off for the first frames the palm was back) and starts at the palm."""
+@pytest.mark.parametrize("side", [6, 10])
+def test_a_lost_track_waits_for_a_confident_cue_not_a_scrap_of_the_room(side):
+    """While the palm is away (frames 10-39) a skin-coloured scrap at the wall's depth shows in frames 20-39: the
+    colour cue's whole-frame search finds it, alone and unconfident (6 x 6: quality 0.35; 10 x 10: 0.74). A lost
+    track is re-acquired only by a cue of quality START_MIN_QUALITY or more or by two that agree: it stays lost on
+    the scrap and starts at the palm (before: tracked there, 70-85 px off for the first frames the palm was back;
+    with START_MIN_QUALITY 0.5 the 10 x 10 scrap still was)."""
     w, h = SIZE
     frames = disc_frames(circle(60, leave=slice(10, 40)), depth=(np.full((h, w), 2000, np.uint16), 600))
     for k in range(20, 40):
         color = frames[k].color.copy()
-        color[98:104, 18:24] = SKIN
+        color[90 : 90 + side, 18 : 18 + side] = SKIN
         frames[k] = dataclasses.replace(frames[k], color=color)
     results = list(track(frames, TrackConfig(cues=("skin_rgb", "depth"), silent_frames=5)))
     scrap = [r.cues["skin_rgb"] for r in results[20:40]]
