@@ -87,7 +87,14 @@ Lower floors were measured and are not used: :data:`SELF_FLOOR` 0.25 and :data:`
 (geometric mean; far BestMax 47 -> 49 %) but 180 held-out ones 1.3 % worse (lead20-29005-far-800 0.30 -> 1.40
 px, 25015-far-960 and 24012-near-1024 1.5x; far BestMax 42 -> 47 %). An ideal constant-acceleration smoother of that depth cue,
 its noise and the palm's jerk known, gains 6 % (0.222 -> 0.208 px): far from the body the fused estimate is at
-what the motion model can add.
+what the motion model can add. What such a scene's fused estimate loses to its depth cue is the skeleton's pull, not
+the filter: gen-45667-far-1280 (``--generate 45601:72``, development) is 0.293 px fused (0.291 with 1,000 particles,
+0.291 with the skeleton as the only other cue), 0.244 tracked with depth alone, against depth's 0.245. Nor is the
+floor lowered to what a pair of cues can verify (the slow offset's own error ``pi / 2 s^2 / n`` of the cue's most
+precise pair, in place of :data:`SLOW_FLOOR`, down to 0.1 of the floor): on the 12 far scenes of those seeds
+gen-45655-far-1280 went 0.27 -> 0.25 px but gen-45625-far-640 0.32 -> 0.47 (geometric mean 1.032), where a colour
+blob whose offset from the 0.3 px depth cue had been small was fused at 0.13 px at palm scale 1 and then drifted
+from 0.3-0.6 to 0.9-1.8 px off the palm (frames 54-68), faster than :data:`SLOW_WINDOW` frames show.
 
 Slow error. Two cues' difference cancels the palm's motion; its median over the last
 :data:`SLOW_WINDOW` frames is their slow offset (:func:`slow_offset`), and the three-cornered hat
