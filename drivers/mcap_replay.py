@@ -1176,7 +1176,10 @@ class McapReplay(ReplaySource):
         self._part_times = {kind: set(self._topic_times(kind).tolist()) for kind in ("depth", "skeleton", "truth")}
         if len(self._all) == 0:
             color_topic = fmt.camera_topic(self.camera, fmt.COLOR_TOPIC)
-            raise RecordingError(f"{self.path} has no {color_topic} messages (no frames); {self._topics_present()}")
+            raise RecordingError(
+                f"{self.path} has no {color_topic} messages (no frames), although the topic is declared; "
+                f"{self._topics_present()}"
+            )
         self._cal_meta_times = np.array(sorted(self._cal_meta), np.int64)
         self._cal_times = np.union1d(self._topic_times("calibration"), self._cal_meta_times)
         if len(self._cal_times) == 0:

@@ -212,6 +212,34 @@ def _frame_messages(t, color_size=(64, 48), depth_size=(64, 48), calibration=Tru
     return out
 
 
+def test_a_declared_colour_topic_without_messages_is_named_as_such(tmp_path):
+    """A file cut before its first colour message still declares the topic: the error says so, not only "no messages"."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "no_colour_messages.mcap"
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for topic, schema_name, payload, t in _frame_messages(10):
+            if schema_name not in schemas:
+                schemas[schema_name] = writer.register_schema(
+                    schema_name, "protobuf", fmt.protobuf_schema_data(type(payload))
+                )
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "protobuf", schemas[schema_name])
+            if topic != fmt.COLOR_TOPIC:
+                writer.add_message(channels[topic], log_time=t, data=payload.SerializeToString(), publish_time=t)
+        writer.finish()
+    with pytest.raises(
+        RecordingError,
+        match="has no /camera/color messages \\(no frames\\), although the topic is declared; "
+        "topics present: /camera/calibration, /camera/color, /camera/depth$",
+    ):
+        McapReplay(path).open()
+
+
 def test_depth_not_aligned_to_colour(tmp_path, write_messages):
     path = write_messages(tmp_path / "m.mcap", _frame_messages(10, (640, 400), (320, 200)))
     with pytest.raises(RecordingError, match="/camera/depth is 320x200 but /camera/color is 640x400 in frame 0"):
