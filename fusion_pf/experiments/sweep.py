@@ -351,6 +351,14 @@ def dask_client(workers: int | None, scheduler: str | None, n_tasks: int) -> Ite
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
         yield client, len(client.scheduler_info(n_workers=-1)["workers"]) or 1
+    except KeyboardInterrupt:
+        # a signal or Ctrl-C (Terminated is one): the process ends. A request the in-process scheduler was serving
+        # when its workers closed (a scatter: KeyError of the removed worker's address) fails in an asyncio task
+        # nobody awaits, which asyncio reports with a traceback whenever the task is collected, up to the
+        # interpreter's exit; the stop is reported by the caller
+        logging.getLogger("asyncio").setLevel(logging.CRITICAL + 1)
+        stopped = True
+        raise
     except BaseException:
         stopped = True
         raise
