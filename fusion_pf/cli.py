@@ -58,15 +58,24 @@ def main(argv: list[str] | None = None) -> int:
 
     SIGTERM and SIGHUP stop every command like Ctrl-C from the first statement
     on, before the commands are imported: the running command finalises its
-    outputs and the process exits 143 / 129 with one line.
+    outputs and the process exits 143 / 129 with one line, whichever statement
+    the stop request arrives at.
     """
     from .signals import stop_on_terminate
 
-    with stop_on_terminate():
-        try:
+    try:
+        with stop_on_terminate():
             return _main(argv)
-        except KeyboardInterrupt as exc:  # a second stop request while the first or an error was reported
-            return 128 + getattr(exc, "signum", 2)
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", 2)
+        try:
+            print(
+                "fusion-pf: interrupted" if signum == 2 else f"fusion-pf: terminated by signal {signum}",
+                file=sys.stderr,
+            )
+        except KeyboardInterrupt:  # a second Ctrl-C while the first is reported: the process is ending anyway
+            pass
+        return 128 + signum
 
 
 def _main(argv: list[str] | None) -> int:
@@ -93,10 +102,6 @@ def _main(argv: list[str] | None) -> int:
             file=sys.stderr,
         )
         return 2
-    except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", 2)
-        print("fusion-pf: interrupted" if signum == 2 else f"fusion-pf: terminated by signal {signum}", file=sys.stderr)
-        return 128 + signum
 
 
 if __name__ == "__main__":

@@ -49,10 +49,12 @@ def stop_on_terminate() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS if s != signal.SIGINT}
-    for s in previous:
-        signal.signal(s, _raise_terminated)
-    try:
+    previous = {}
+    try:  # a stop arriving between two installations still restores the first
+        for s in STOP_SIGNALS:
+            if s != signal.SIGINT:
+                previous[s] = signal.getsignal(s)
+                signal.signal(s, _raise_terminated)
         yield
     finally:
         for s, handler in previous.items():

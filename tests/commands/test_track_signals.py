@@ -97,6 +97,65 @@ def test_track_stops_cleanly_on_a_signal_during_start_up(tmp_path, sig, code, wh
         check_outputs(out, table)
 
 
+#: Calls ``cli.main`` once per statement of :mod:`fusion_pf.cli` and :mod:`fusion_pf.signals` it runs, sending SIGHUP
+#: to itself just before that statement (while Python handles SIGHUP), and prints each run's injection point, exit
+#: status and stderr as JSON. CI's ``handler installed`` run once hit the statement between the handler's
+#: installation and the command's ``try``, and stopped with 129 and no line.
+_STOP_AT_EVERY_STATEMENT = """
+import io, json, os, signal, sys
+from fusion_pf import cli, signals
+
+watched = {cli.__file__, signals.__file__}
+argv = ["info", sys.argv[1]]
+cli.main(argv)  # the commands imported once, outside the count
+for n in range(1, 10000):
+    seen, sent = [0], []
+
+    def tracer(frame, event, arg):
+        if frame.f_code.co_filename not in watched:
+            return None
+        if event == "line":
+            seen[0] += 1
+            if seen[0] == n and callable(signal.getsignal(signal.SIGHUP)):
+                sent.append(f"{os.path.basename(frame.f_code.co_filename)}:{frame.f_lineno}")
+                os.kill(os.getpid(), signal.SIGHUP)
+        return tracer
+
+    sys.stderr, err = io.StringIO(), sys.stderr
+    sys.settrace(tracer)
+    try:
+        code = cli.main(argv)
+    finally:
+        sys.settrace(None)
+        sys.stderr, text = err, sys.stderr.getvalue()
+    print(json.dumps({"at": sent[0] if sent else None, "code": code, "stderr": text}), flush=True)
+    if seen[0] < n:
+        break
+"""
+
+
+def test_a_stop_at_any_statement_of_the_command_line_exits_129_with_one_line(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-c", _STOP_AT_EVERY_STATEMENT, str(tmp_path / "missing.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    runs = [json.loads(line) for line in done.stdout.splitlines()]
+    stopped = [r for r in runs if r["at"] is not None]
+    assert len(stopped) > 20, runs  # the injection reached the statements around the command
+    assert {r["at"].split(":")[0] for r in stopped} == {"cli.py", "signals.py"}
+    for r in stopped:
+        lines = r["stderr"].splitlines()
+        assert r["code"] == 129 and lines[-1] == "fusion-pf: terminated by signal 1", r
+        assert lines.count("fusion-pf: terminated by signal 1") == 1 and "Traceback" not in r["stderr"], r
+    for r in runs:
+        if r["at"] is None:  # past the last statement that handles SIGHUP: the command's own error
+            assert r["code"] == 2 and r["stderr"].startswith("fusion-pf: error: recording not found"), r
+
+
 #: A Dask request still being served when a stop closes the local cluster: its asyncio task fails (the scheduler's
 #: ``scatter`` raised KeyError of a worker's address already removed, seen in
 #: ``test_a_stop_during_the_sweep_leaves_no_traceback``) and is collected after the stop, unretrieved.
