@@ -54,9 +54,11 @@ colour cue measures 7-95 % of the frames at 3-174 px, the skeleton 6-75 px. Two 
 * The depth cue's centroid takes in spread fingers: the palm with five fingers, tilted 14 degrees toward the
   camera, puts the fingers in the nearest-surface slab and the centroid 20-40 px above the palm's centre at
   1280x720 (ray-2-1280: depth 39.7 px, bias (1, -39) px). Opening the region by 0.3 of the palm radius when
-  that takes 20 % of it or more gives 18.4 px there, but the own generator's held-out scenes (a flat palm
-  ellipse without fingers, whose centroid is the truth by construction) got 1.04-1.08x worse (geometric mean of
-  60 scenes, 0.56-2.23x per scene): not used.
+  that takes 20 % of it or more (branch ``core``) gives 18.4 px there and fused new / old 0.861 over these 24
+  scenes (ray-13-1280 and ray-18-1280 0.38x; worse on 7, ray-24-640 1.64x, ray-11-320 1.40x), but the own
+  generator's held-out scenes (a flat palm ellipse without fingers, whose centroid is the truth by
+  construction) 1.036 (``--generate 24001:30``) and 1.083 (``25001:30``), 0.56-2.23x per scene, and the sample
+  0.638 -> 0.644 px: not used.
 * The colour cue's fixed grey-level band (``lower 16``, ``upper 66``, set on the own generator's skin and
   wall) keeps 7-95 % of the frames of skin tones and walls it was not set on.
 """
