@@ -286,12 +286,18 @@ def coverage_2sd(table: Path, scene: Scene, frames: int) -> float:
 
     w, h = (int(x) for x in scene.size.split("x"))
     src = SynthSource(frames=frames, seed=scene.seed, size=(w, h), background_frames=10, **scene.options)
+    return within_2sd(table, src.ground_truth)
+
+
+def within_2sd(table: Path, truth) -> float:
+    """Share of ``table``'s tracked rows whose error against ``truth(frame)`` (a PalmPoint or None) is below
+    ``2 sigma_px``."""
     hits = []
     with open(table, newline="") as f:
         for row in csv.DictReader(f):
             if not row["u"] or not row["sigma_px"]:
                 continue
-            g = src.ground_truth(int(row["frame"]))
+            g = truth(int(row["frame"]))
             if g is None:
                 continue
             err = float(np.hypot(float(row["u"]) - g.u, float(row["v"]) - g.v))

@@ -85,3 +85,15 @@ def test_a_scene_renders_to_a_recording_with_its_background_and_truth_and_the_sa
     for fa, fb in zip(a, b):
         np.testing.assert_array_equal(fa.color, fb.color)
         np.testing.assert_array_equal(fa.depth, fb.depth)
+
+
+def test_two_sigma_coverage_counts_tracked_rows_with_a_truth(tmp_path):
+    """Rows 0-3 against the truth (10, 20): errors 3, 5, 8 and 4 px with sigma_px 2 (2 sigma = 4 px): 2 of 4 within;
+    row 4 has no estimate and row 5 no truth: neither counts."""
+    from fusion_pf.frame import PalmPoint
+
+    table = tmp_path / "t.csv"
+    rows = ["frame,u,v,sigma_px", "0,13,20,2", "1,10,25,2", "2,10,28,2", "3,10,16,2", "4,,,", "5,10,20,2"]
+    table.write_text("\n".join(rows) + "\n")
+    truth = {k: PalmPoint(10.0, 20.0) for k in range(5)}
+    assert bench.fusion_matrix.within_2sd(table, truth.get) == 0.5
