@@ -376,7 +376,7 @@ def slow_offset(d: np.ndarray) -> float:
 
 
 def slow_errors(
-    offsets: Mapping[tuple[str, str], float], white: Mapping[str, float | None] | None = None
+    offsets: Mapping[tuple[str, str], float], white: Mapping[str, float | None] | None = None, whole: bool = False
 ) -> dict[str, float]:
     """Each cue's slow error variance ``B_s`` from the slow offsets of pairs, ``S_ab = B_a + B_b``, px^2.
 
@@ -393,6 +393,9 @@ def slow_errors(
     white : mapping of str to float or None, optional
         Each source's white noise variance: with one other cue the split follows it, ``S_ab w_a / (w_a + w_b)``
         (half each while either is unknown).
+    whole : bool
+        With one other cue, the whole ``S_ab`` instead of a split: either cue may be the biased one (an
+        upper bound, for an uncertainty that must cover the error).
     """
     pair = {frozenset(k): v for k, v in offsets.items()}
     sources = sorted({s for k in offsets for s in k})
@@ -407,7 +410,8 @@ def slow_errors(
             for c in others[i + 1 :]
             if frozenset((b, c)) in pair
         ]
-        est = float(np.mean(hats)) if hats else _share(a, others[0], white) * pair[frozenset((a, others[0]))]
+        share = 1.0 if whole else _share(a, others[0], white)
+        est = float(np.mean(hats)) if hats else share * pair[frozenset((a, others[0]))]
         out[a] = max(est, 0.0)
     return out
 
@@ -517,8 +521,10 @@ class NoiseCalibration:
         self._frame = 0  # frames seen with a timestamp
         self._recent: dict[str, deque[tuple[int, int, float, float, float]]] = {}  # per source (frame, t, u, v, q)
         self._diffs: dict[tuple[str, int], deque[float]] = {}  # per key white_noise samples at palm scale 1
-        self._pairs: dict[tuple[str, str], deque[tuple[float, float]]] = {}  # per pair z_a - z_b at palm scale 1
-        self._slow: dict[str, float] | None = None  # slow_errors of the pairs held (None: to compute)
+        # per pair z_a - z_b at palm scale 1: of every pair of cues, and of confident measurements (SELF_QUALITY)
+        self._pairs: dict[bool, dict[tuple[str, str], deque[tuple[float, float]]]] = {False: {}, True: {}}
+        # slow_errors of each (None: to compute)
+        self._slow: dict[bool, dict[str, float] | None] = {False: None, True: None}
 
     def samples(self, source: str, quality: float) -> int:
         """Residuals held for ``source`` at ``quality``'s bin."""
@@ -556,13 +562,20 @@ class NoiseCalibration:
         pooled = [x for (s, b), ds in self._diffs.items() if s == source and b >= _SELF_BIN for x in ds]
         return np.array(pooled) if len(pooled) >= SELF_MIN else None
 
-    def slow(self, source: str) -> float | None:
-        """Per-axis variance of ``source``'s slow error at palm scale 1, px^2 (:func:`slow_errors`; None before :data:`SLOW_MIN` frames with another cue)."""
-        if self._slow is None:
-            offsets = {k: slow_offset(np.array(d)) for k, d in self._pairs.items() if len(d) >= SLOW_MIN}
-            sources = {s for k in offsets for s in k}
-            self._slow = slow_errors(offsets, {s: self.white(s, 1.0) for s in sources})
-        return self._slow.get(source)
+    def slow(self, source: str, confident: bool = True) -> float | None:
+        """Per-axis variance of ``source``'s slow error at palm scale 1, px^2 (:func:`slow_errors`; None before
+        :data:`SLOW_MIN` frames with another cue): from the pairs of measurements of quality :data:`SELF_QUALITY` or
+        more, split by the cues' white noise where only two were measured together (the floors'); with
+        ``confident=False`` from every pair whatever its quality, the whole offset where only two were (the reported
+        uncertainty's, ``fusion_pf.pipeline.run``: the biased blobs are the less confident ones, and of two cues
+        either may be the biased one)."""
+        known = self._slow[confident]
+        if known is None:
+            pairs = self._pairs[confident]
+            offsets = {k: slow_offset(np.array(d)) for k, d in pairs.items() if len(d) >= SLOW_MIN}
+            white = {s: self.white(s, 1.0) for k in offsets for s in k}
+            known = self._slow[confident] = slow_errors(offsets, white, whole=not confident)
+        return known.get(source)
 
     def sigma(self, m: Measurement, scale: float = 1.0) -> float:
         """Noise of ``m`` in px at palm scale ``scale``: its bin's (:meth:`bin_sigma`) at the bin's centre, log-linear in
@@ -717,15 +730,15 @@ class NoiseCalibration:
         self._fits.pop(key, None)
 
     def _offsets(self, ms: Sequence[Measurement], scale: float) -> None:
-        """Keep ``(z_a - z_b) / k`` of each pair of this frame's cues of quality :data:`SELF_QUALITY` or more."""
-        good = sorted((m for m in ms if m.quality >= SELF_QUALITY), key=lambda m: m.source)
-        for i, a in enumerate(good):
-            for b in good[i + 1 :]:
-                buf = self._pairs.get((a.source, b.source))
-                if buf is None:
-                    buf = self._pairs[(a.source, b.source)] = deque(maxlen=SLOW_WINDOW)
-                buf.append(((a.u - b.u) / scale, (a.v - b.v) / scale))
-                self._slow = None
+        """Keep ``(z_a - z_b) / k`` of each pair of this frame's cues; apart, too, of those of quality
+        :data:`SELF_QUALITY` or more."""
+        ordered = sorted(ms, key=lambda m: m.source)
+        for i, a in enumerate(ordered):
+            for b in ordered[i + 1 :]:
+                d = ((a.u - b.u) / scale, (a.v - b.v) / scale)
+                for confident in (False, True) if min(a.quality, b.quality) >= SELF_QUALITY else (False,):
+                    self._pairs[confident].setdefault((a.source, b.source), deque(maxlen=SLOW_WINDOW)).append(d)
+                    self._slow[confident] = None
 
     def _difference(self, ms: Sequence[Measurement], timestamp_ns: int, k2: float) -> None:
         """Keep each source's last :data:`SELF_ORDER` + 1 measurements; over as many frames in a row, a :func:`white_noise` sample."""

@@ -436,6 +436,25 @@ def test_two_cues_split_their_slow_offset_by_their_white_noise():
     # unknown white noise: half each, as before
     assert slow_errors({("a", "b"): 2.0}, {"a": None, "b": 1.0}) == {"a": 1.0, "b": 1.0}
     assert slow_errors({("a", "b"): 2.0}, {"a": 1.0, "b": 3.0}) == {"a": 0.5, "b": 1.5}
+    # the bound the reported uncertainty takes: either cue may be the biased one
+    assert slow_errors({("a", "b"): 2.0}, {"a": 1.0, "b": 3.0}, whole=True) == {"a": 2.0, "b": 2.0}
+
+
+def test_unconfident_pairs_count_in_the_uncertainty_slow_error_only():
+    # a confident cue 2 px off on each axis beside an unbiased unconfident one (quality 0.3): the floors' slow error
+    # (confident pairs) knows nothing of it, the uncertainty's holds the pair's whole offset, B = |b|^2 / 2 = 4 px^2
+    cal = NoiseCalibration(lambda m: 4.0)
+    gen = np.random.default_rng(5)
+    palm = _smooth_track(100)
+    for i in range(100):
+        ms = [
+            Measurement("sure", *(palm[i] + (2.0, 2.0) + gen.normal(0.0, 0.2, 2)), quality=0.9),
+            Measurement("unsure", *(palm[i] + gen.normal(0.0, 1.0, 2)), quality=0.3),
+        ]
+        cal.update(ms, {m.source: cal.sigma(m) for m in ms}, 1.0, None, 1_000_000_000 + i * 33_333_333)
+    assert cal.slow("sure") is None and cal.slow("unsure") is None
+    assert cal.slow("sure", confident=False) == pytest.approx(4.0, rel=0.2)
+    assert cal.slow("unsure", confident=False) == pytest.approx(4.0, rel=0.2)
 
 
 def test_a_smooth_biased_cue_keeps_its_floor_where_an_unbiased_one_goes_below():
