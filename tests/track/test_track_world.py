@@ -616,6 +616,28 @@ def test_a_region_part_one_colour_only_camera_gives_keeps_its_full_noise(rig2):
     assert float(np.linalg.norm(est - here)) < 35.0  # measured 15-20 mm (filter seeds 0-3); 69-72 at 0.1 of its noise
 
 
+def test_the_gate_is_in_the_sources_noise_not_its_quality_widened_noise(rig2):
+    # a depth camera's region of quality 0.1 (its noise widened to 60 / sqrt(0.1) = 190 mm) 650 mm in front of the
+    # target (the card that hides it from that camera): another object, dropped, so the target is measured along the
+    # colour-only camera's line of sight alone (the kinematic range and the apparent size then hold it); the same
+    # region 200 mm off is within 4 sigma of the source's 60 mm and kept, whatever its quality
+    from fusion_pf.pipeline.world import _one_line, _WorldTarget
+
+    config, cam0, cam1, intr, here, d = _one_line_setup(rig2)
+    (u, v) = project(here[None], cam1.pose, intr)[0][0]
+    pixel = (cam1, intr, Measurement("colour", u, v, 1.0), PixelObservation(np.array([u, v]), 60.0, cam1.pose, intr))
+    toward0 = cam0.pose.translation_mm - here
+    toward0 /= np.linalg.norm(toward0)
+    for off, quality, kept in ((650.0, 0.1, False), (200.0, 0.1, True), (200.0, 1.0, True), (650.0, 1.0, False)):
+        m = Measurement("colour", 0.0, 0.0, quality)
+        point = (cam0, intr, m, PointObservation(here + off * toward0, cam0.nominal(m)))
+        target = _WorldTarget("right_hand", config, np.random.default_rng(0))
+        target.filter.reset(here, 10.0)
+        gated = target._gated([point, pixel])
+        assert (point in gated) is kept, (off, quality)
+        assert _one_line(gated) is not kept
+
+
 def test_a_hand_one_camera_sees_before_any_3d_instant_is_held_at_the_populations_reach(rig2):
     # acquired from cam0's point at the first instant, the (still) hand is then seen by cam1 alone for 40 instants,
     # never measured in 3-D: nothing is learned of its distance from its elbow (REACH_PRIOR_MM away), so the
