@@ -533,11 +533,11 @@ def _truncation(own: np.ndarray, other_mean: np.ndarray, centre: np.ndarray) -> 
     across the parts' axis (a disc's is ``r / 2``; the cut leaves that direction whole), at most the reach of the
     part away from the other measured from the corrected centre (the mean's farthest point that way plus the move: a
     palm side by side with the other, narrower along the axis than across it, is not cut and not moved). The half-way
-    plane of means
-    ``d`` apart, ``g`` of it across the line of sight, meets the palm's plane ``|d|^2 / (2 g)`` from its mean (the
-    farther palm's depth tilts the cut away from the nearer one); ``h`` is that less the move itself (a fixed point:
-    the cut lies half way between the *measured* means). The farther palm's part is not moved: the nearer one hides
-    its side toward it, so its pixels are what the camera shows, whatever the cut.
+    plane of means ``d`` apart, ``g`` of it across the line of sight, meets the palm's plane ``|d|^2 / (2 g)`` from
+    its mean (the farther palm's depth tilts the cut away from the nearer one); ``h`` is that less the move itself (a
+    fixed point: the cut lies half way between the *measured* means). The farther palm's part is not moved: the nearer
+    one hides its side toward it, so its pixels are what the camera shows, whatever the cut. A part without extent
+    (``r`` 0: its points on one line along the axis) is not moved.
 
     Per split on the synthetic two-hand rig (2 RGB-D cameras, lead seeds 61 and 92, the instants the true centres are
     under :data:`COMBINE_MM` apart, about 200 splits per source): the nearer hand's part lay 11-12 mm too far from
@@ -559,6 +559,8 @@ def _truncation(own: np.ndarray, other_mean: np.ndarray, centre: np.ndarray) -> 
     move = 0.0
     for _ in range(TRUNCATION_ITERATIONS):
         r = min(across, away + move)  # the true centre lies ``move`` nearer the other than the mean
+        if r <= 0.0:
+            return np.zeros(3)
         h = min(max(cut - move, 0.0), r)
         segment = r * r * math.acos(h / r) - h * math.sqrt(r * r - h * h)
         move = (2.0 / 3.0) * (r * r - h * h) ** 1.5 / (math.pi * r * r - segment)

@@ -348,6 +348,8 @@ def test_the_nearer_part_of_a_3d_split_is_corrected_for_the_2_means_cut(gap, dep
     fixed = raw + _truncation(own, other.mean(axis=0), centre)
     assert abs(fixed[0]) < 2.0 and abs(fixed[1]) < 1e-6 and abs(fixed[2] - raw[2]) < 0.5  # across its line of sight
     assert np.array_equal(_truncation(other, raw, centre), np.zeros(3))
+    line = np.column_stack([np.linspace(-40.0, -5.0, 30), np.zeros(30), np.full(30, 1000.0)])  # no extent across
+    assert np.array_equal(_truncation(line, np.array([gap, 0.0, 1000.0 + depth]), centre), np.zeros(3))
 
 
 def test_a_combined_pair_keeps_the_direction_it_combined_along_and_excludes_each_other():
