@@ -781,6 +781,13 @@ def _across_line(
     return dataclasses.replace(ob, sigma_mm=max(ONE_LINE_PIXEL_SCALE * ob.sigma_mm, cam.floor_mm))
 
 
+def _gate_sigma(item: tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]) -> float:
+    """The noise an observation is gated with (:meth:`_WorldTarget._gated`, :meth:`_WorldTarget._near_joint`): its own,
+    at most its source's ``--world-noise`` (:meth:`_Camera.nominal` before the quality widens it): a region's quality
+    says how well its centre measures a palm, not how far from the palm it may lie."""
+    return min(item[3].sigma_mm, item[0].config.world_noise_mm[item[2].source])
+
+
 def _apparent_size(m: Measurement, ob: PixelObservation) -> float | None:
     """The apparent size (px) of a pixel observation's region: its ``radius`` extra, None without one, for a region two
     combined targets share (``partner_mm``) or a part of one (``part``), or a reduced whole-frame search."""
@@ -903,8 +910,9 @@ class _WorldTarget:
         own_joint_mm: np.ndarray | None,
     ) -> list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]:
         """The observations near the target's own skeleton joint in the world (``own_joint_mm``, :func:`_joint_world`;
-        all without one): within :data:`GATE_SIGMAS` of the skeleton's ``--world-noise`` and their own noise (about 130 mm
-        for a depth camera's point at its learned noise, 270 mm at the colour's default 60 mm; not tuned). One farther is another object whatever the prediction says: a
+        all without one): within :data:`GATE_SIGMAS` of the skeleton's ``--world-noise`` and their gate noise
+        (:func:`_gate_sigma`, not widened by a region's quality: about 130 mm for a depth camera's point at its learned
+        noise, 270 mm at the colour's default 60 mm; not tuned). One farther is another object whatever the prediction says: a
         hand raised fast to the head, its prediction trailing 100 mm, had every depth camera's region on the forearm
         250-320 mm off, the cameras agreed on it and the target was re-seeded there (``benchmarks/rig_events.py``,
         320 x 200, seed 5). A combined pair's shared measurement (of their midpoint) is kept."""
@@ -915,7 +923,7 @@ class _WorldTarget:
             for item in seen
             if item[2].source in PIXEL_ONLY
             or item[3].partner_mm is not None
-            or _within(item[3], own_joint_mm, self.joint_reach_mm**2 + GATE_SIGMAS**2 * item[3].sigma_mm ** 2)
+            or _within(item[3], own_joint_mm, self.joint_reach_mm**2 + GATE_SIGMAS**2 * _gate_sigma(item) ** 2)
         ]
 
     def _reseed(self, seen: list[tuple[_Camera, Intrinsics, Measurement, PointObservation | PixelObservation]]) -> None:
@@ -966,8 +974,9 @@ class _WorldTarget:
             if item[2].source in PIXEL_ONLY:
                 kept.append(item)
                 continue
-            sigma = min(ob.sigma_mm, item[0].config.world_noise_mm[item[2].source])  # not quality-widened
-            if _within(ob, measured_point(mean, ob.partner_mm)[0], GATE_SIGMAS**2 * (sigma**2 + spread**2)):
+            if _within(
+                ob, measured_point(mean, ob.partner_mm)[0], GATE_SIGMAS**2 * (_gate_sigma(item) ** 2 + spread**2)
+            ):
                 kept.append(item)
         return kept
 

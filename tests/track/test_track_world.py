@@ -677,6 +677,21 @@ def test_the_gate_is_in_the_sources_noise_not_its_quality_widened_noise(rig2):
         assert _one_line(gated) is not kept
 
 
+def test_a_region_far_from_the_targets_own_joint_is_dropped_whatever_its_quality(rig2):
+    # the own-joint test (_near_joint) in the gate's noise: a depth camera's region of quality 0.1 (its noise widened to
+    # 60 / sqrt(0.1) = 190 mm) 350 mm from the target's joint is beyond 4 sigma of the skeleton's 30 mm and the
+    # source's 60 mm (268 mm) and dropped, as it is at quality 1; 200 mm off it is kept at either quality
+    from fusion_pf.pipeline.world import _WorldTarget
+
+    config, cam0, _, intr, here, _ = _one_line_setup(rig2)
+    away = np.array([0.0, 0.0, 1.0])
+    for off, quality, kept in ((350.0, 0.1, False), (350.0, 1.0, False), (200.0, 0.1, True), (200.0, 1.0, True)):
+        m = Measurement("colour", 0.0, 0.0, quality)
+        point = (cam0, intr, m, PointObservation(here + off * away, cam0.nominal(m)))
+        target = _WorldTarget("right_hand", config, np.random.default_rng(0))
+        assert (point in target._near_joint([point], here)) is kept, (off, quality)
+
+
 def test_a_hand_one_camera_sees_before_any_3d_instant_is_held_at_the_populations_reach(rig2):
     # acquired from cam0's point at the first instant, the (still) hand is then seen by cam1 alone for 40 instants,
     # never measured in 3-D: nothing is learned of its distance from its elbow (REACH_PRIOR_MM away), so the
