@@ -31,7 +31,8 @@ Per instant (a :class:`~fusion_pf.rig.FrameSet`):
    (:func:`~fusion_pf.filter.world.measured_point`, the partner at its prediction) when
    its region holds both targets' projected predictions (one blob of the two), unless a
    depth camera splits it: its depth pixels near the two predictions, 2-means in 3-D started
-   at them (paper 000), give each target its own part's centre (:meth:`_Camera.split`); a region
+   at them (paper 000), give each target its own part's centre (:meth:`_Camera.split`; the parts
+   go to the hands whose elbows they fit, :func:`_swapped`); a region
    holding one of them is that target's alone (the nearer projected prediction keeps it:
    separating hands' two blobs, the partner took the other's). A combined pair closer than
    :data:`JOINED_MM` moves with :data:`JOINED_NOISE` of the process noise (step 1).
@@ -181,7 +182,11 @@ COMBINE_MM, SEPARATE_MM = COMBINE_PALMS * PALM_LENGTH_MM, SEPARATE_PALMS * PALM_
 #: mean worst hand): 2 cameras 14.4 / 15.3 mm without the split, 14.4 / 15.6 with it at the full noise and a 95 mm
 #: reach (seeds 1, 12), 12.8 / 13.4 at 0.5 and 60 mm, 12.4 / 12.8 at 0.4 and 60 mm, 12.8 / 13.4 at 0.4 and 50 mm;
 #: one RGB-D and one colour-only camera 14.2 / 15.0, 12.9 / 13.9, 13.1 / 13.9, 13.1 / 14.0. 0.3: worse on seeds 1, 12.
+#: The source's noise is not widened by the shared region's quality (:meth:`_Camera.split`, session 35).
 SPLIT_PIXELS, SPLIT_REACH_MM, SPLIT_MIN_POINTS, SPLIT_NOISE_SCALE = 4000, 60.0, 20, 0.4
+#: A 3-D split's parts are given to the targets the other way round (:func:`_swapped`) when that fits their kinematic
+#: ranges better by more than this (summed squared standard scores; 2 sigma; not tuned).
+LABEL_MARGIN = 4.0
 #: Fixed-point iterations of the 2-means cut's correction (:func:`_truncation`; within 0.01 mm of its fixed point
 #: after 11 for a 45 mm disc at any gap).
 TRUNCATION_ITERATIONS = 20
@@ -404,6 +409,7 @@ class _Camera:
         own_mm: np.ndarray | None = None,
         alone: bool = False,
         partner_surface_mm: float = SURFACE_DEPTH_MM,
+        ranges: tuple[RangeObservation, RangeObservation] | None = None,
     ) -> list[tuple[Measurement, PointObservation | PixelObservation]]:
         """Each fused measurement of ``target`` with its observation (a world point with depth there, else the pixel).
 
@@ -412,6 +418,7 @@ class _Camera:
         targets' projected predictions (one blob of the two hands, :func:`_holds_both`); a region holding one of
         them only is that target's alone (the nearer prediction keeps it, the other drops it). ``own_mm``: the
         target's predicted position. ``partner_surface_mm``: the partner's :func:`~fusion_pf.filter.world.surface_depth`.
+        ``ranges``: the target's and the partner's kinematic ranges (:class:`_Reach`), which label a split's parts.
         """
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
@@ -429,9 +436,9 @@ class _Camera:
                         continue
             sigma = self.sigma(m) if alone and frame.depth is not None else self.nominal(m)
             if shared is not None and own_mm is not None and frame.depth is not None:
-                part = self.split(frame, m, own_mm, shared, surface_depth(target), partner_surface_mm)
+                part = self.split(frame, m, own_mm, shared, surface_depth(target), partner_surface_mm, ranges)
                 if part is not None:
-                    out.append((m, PointObservation(part, SPLIT_NOISE_SCALE * sigma)))
+                    out.append((m, PointObservation(part, SPLIT_NOISE_SCALE * self.config.world_noise_mm[m.source])))
                     continue
             z = None
             if frame.depth is not None and source not in PIXEL_ONLY:
@@ -457,6 +464,7 @@ class _Camera:
         partner_mm: np.ndarray,
         own_surface_mm: float = SURFACE_DEPTH_MM,
         partner_surface_mm: float = SURFACE_DEPTH_MM,
+        ranges: tuple[RangeObservation, RangeObservation] | None = None,
     ) -> np.ndarray | None:
         """The target's own part of a region two combined targets share (one blob of the two): its 3-D centre, or
         None when the region cannot be split.
@@ -468,7 +476,28 @@ class _Camera:
         :func:`~fusion_pf.cues.regions.two_means`); the target's part's centroid (the nearer part's corrected for the
         2-means cut, :func:`_truncation`) moved ``own_surface_mm`` away from the camera is its centre. None without a
         box or with fewer than :data:`SPLIT_MIN_POINTS` points on either side (the target's observation then measures
-        the pair's midpoint).
+        the pair's midpoint). With ``ranges`` (the target's and the partner's kinematic ranges, :class:`_Reach`: a hand
+        lies a forearm from its own elbow) the parts go to the targets the other way round when that fits the ranges
+        better (:func:`_swapped`).
+
+        A part measures one palm: :meth:`observations` gives it :data:`SPLIT_NOISE_SCALE` of its source's
+        ``--world-noise``, not widened by the shared region's quality (a blob of two palms is a poor palm, quality
+        0.2-0.4: 37-56 mm where the part's centre lay a median 12 mm from its hand's in 3-D, and the parts weighed less
+        than the skeleton joints, about 52 mm, 40-60 mm off while the hands touch; on lead seeds 61, 92, 252, 2 RGB-D
+        cameras, the joined hands' filter RMSE was 14.3 mm at the instants the plain mean of their 4 parts was 10.4).
+        Weighed as one palm, a part labelled by the predictions alone locks two hands circling each other into each
+        other's places: started at predictions that lag a fast turn of the pair's offset through a gap under a hand's
+        thickness, each part is the other hand, and the estimates follow (the offset turned 180 degrees, 50-60 mm per
+        hand for about 50 instants). The elbows tell the hands apart: with the true hands' centres the ranges labelled
+        every combined instant right (seeds 61, 92, 638, 646). ``benchmarks/rig3d.py`` (640 x 400, filter seed 0;
+        mean per hand, mm): unwidened noise without the labels, seeds 630-639 2 RGB-D 11.05 -> 11.88 (seed 638's hands
+        12.1 / 11.5 -> 26.7 / 24.9; at 0.5 x the noise seeds 640-649 11.54 -> 12.63, seed 646's 30.0 / 25.1); with the
+        labels: seeds 650-658, not examined, 2 RGB-D 11.87 -> 10.96, one RGB-D and one colour-only 12.65 -> 11.69
+        (filter seed 1: 12.34 -> 11.41); 630-639 11.05 -> 10.46 and 12.62 -> 12.13; 640-649 11.54 -> 10.93 and
+        12.75 -> 12.30; lead seeds 61, 62, 71, 72, 91-99, 251, 252 11.50 -> 10.52 and 12.80 -> 12.20; seeds 630-634, 3
+        cameras with one colour-only 9.89 -> 9.75, 4 with two 9.21 -> 8.66; 0 swaps everywhere. Hands over 15 mm with
+        one colour-only camera 3 -> 1 of 30 (lead seeds), unchanged on the others; but its worst hand rose on three
+        seed sets of four (lead 17.9 -> 20.9 mm, 630-639 17.1 -> 19.9, 640-649 16.2 -> 17.7; 650-658 17.5 -> 15.9).
 
         The parts are used whether or not they are separated in the data: two joined hands are two hands, and the
         halves of their one blob, started at the predictions, measure each hand better than the blob's point
@@ -511,6 +540,12 @@ class _Camera:
         first = two_means(pts, seeds)
         if first is None or min(int(first.sum()), int((~first).sum())) < SPLIT_MIN_POINTS:
             return None
+        if ranges is not None and _swapped(
+            beyond(pts[first].mean(axis=0), centre, own_surface_mm),
+            beyond(pts[~first].mean(axis=0), centre, partner_surface_mm),
+            ranges,
+        ):
+            first = ~first
         own = pts[first]
         mean = own.mean(axis=0) + _truncation(own, pts[~first].mean(axis=0), centre)
         return beyond(mean, centre, own_surface_mm)
@@ -519,6 +554,19 @@ class _Camera:
         """The world line of sight through ``m``'s pixel: (optical centre, direction)."""
         xy = backproject(np.array([[m.u, m.v]]), np.ones(1), intrinsics)[0, :2]  # (x/z, y/z), distortion undone
         return ray(xy, self.pose)
+
+
+def _swapped(own_mm: np.ndarray, other_mm: np.ndarray, ranges: tuple[RangeObservation, RangeObservation]) -> bool:
+    """Whether a split's parts (centres ``own_mm``, started at the target's prediction, and ``other_mm``, at its
+    partner's) fit the two targets' kinematic ranges (``ranges``: the target's and the partner's, :class:`_Reach`; a
+    hand lies a forearm from its own elbow) swapped better than as started, by more than :data:`LABEL_MARGIN` in summed
+    squared standard scores: the predictions of two hands circling each other took each other's side."""
+
+    def misfit(at: np.ndarray, ob: RangeObservation) -> float:
+        return ((float(np.linalg.norm(at - ob.centre_mm)) - ob.range_mm) / ob.sigma_mm) ** 2
+
+    kept = misfit(own_mm, ranges[0]) + misfit(other_mm, ranges[1])
+    return misfit(other_mm, ranges[0]) + misfit(own_mm, ranges[1]) + LABEL_MARGIN < kept
 
 
 def _truncation(own: np.ndarray, other_mean: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -1047,6 +1095,8 @@ def track_world(
         partners = _partners(predicted, partners)
         alone = _alone(predicted)
         axes = _entry_axes(axes, predicted, partners)
+        elbows = {t: _joint_world(fs, REACH_JOINTS[t]) if t in REACH_JOINTS else None for t in names}
+        ranges = {t: None if (e := elbows[t]) is None else targets[t].reach.observation(e) for t in names}
         seen: dict[str, list] = {t: [] for t in names}
         for name, view in fs.views.items():
             frame = view.frame
@@ -1071,15 +1121,18 @@ def track_world(
                 mate_at = None if mate is None else predicted[mate]
                 shared = None if mate is None or mate_at is None else (rows[mate].cues, mate_at)
                 mate_surface = SURFACE_DEPTH_MM if mate is None else surface_depth(mate)
-                for m, ob in cam.observations(frame, t, rows[t].cues, shared, predicted[t], alone[t], mate_surface):
+                own_range, mate_range = ranges[t], None if mate is None else ranges[mate]
+                pair = None if own_range is None or mate_range is None else (own_range, mate_range)
+                for m, ob in cam.observations(
+                    frame, t, rows[t].cues, shared, predicted[t], alone[t], mate_surface, pair
+                ):
                     seen[t].append((cam, frame.intrinsics, m, ob))
         out: dict[str, WorldTarget] = {}
         for t, target in targets.items():
-            joint = REACH_JOINTS.get(t)
             estimate, spread = target.step(
                 fs.timestamp_ns,
                 seen[t],
-                None if joint is None else _joint_world(fs, joint),
+                elbows[t],
                 _exclusion(t, predicted, partners, axes, scales),
                 alone[t],
                 _joint_world(fs, t),

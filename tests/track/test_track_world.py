@@ -304,6 +304,39 @@ def test_a_depth_camera_splits_the_region_two_combined_hands_share_in_3d():
     assert sum(moved) <= 1  # only the nearer part is moved
 
 
+def test_a_3d_splits_parts_go_to_the_hands_whose_elbows_they_fit():
+    # two palms side by side, the predictions on the wrong sides (two hands circling each other, their predictions
+    # trailing): the parts started at them are each the other hand's; the kinematic ranges (each hand 300 mm from its own
+    # elbow, the right elbow on the right palm's side) give each target its own palm's part, and the parts' noise is
+    # SPLIT_NOISE_SCALE of the source's --world-noise, not widened by the shared region's quality (0.3 here); without
+    # ranges, or with ranges that fit either way (the elbows equally far from both palms), the parts stay as started
+    from fusion_pf.filter.world import RangeObservation
+    from fusion_pf.pipeline.world import SPLIT_NOISE_SCALE
+
+    intr = Intrinsics(160, 100, 200.0, 200.0, 80.0, 50.0)
+    depth = np.zeros((100, 160), np.uint16)
+    depth[44:56, 68:80], depth[44:56, 80:92] = 1000, 1000
+    frame = Frame(0, 0, np.zeros((100, 160, 3), np.uint8), depth, intr)
+    config = TrackConfig(targets=HANDS, cues=("depth",))
+    cam = _Camera("cam0", config, frame, CameraPose(np.eye(3), np.zeros(3)))
+
+    def centre(u0):  # the slab's surface centre and the palm's behind it
+        surface = np.array([(u0 + 5.5 - 80.0) * 5.0, (49.5 - 50.0) * 5.0, 1000.0])
+        return surface * (1.0 + SURFACE_DEPTH_MM / np.linalg.norm(surface))
+
+    right, left = centre(68), centre(80)
+    elbow = {"right_hand": right - [300.0, 0.0, 0.0], "left_hand": left + [300.0, 0.0, 0.0]}
+    ranges = {t: RangeObservation(elbow[t], 300.0, 10.0) for t in HANDS}
+    middle = {t: RangeObservation((right + left) / 2 + [0.0, 300.0, 0.0], 300.0, 10.0) for t in HANDS}
+    m = Measurement("depth", 80.0, 50.0, 0.3, {"bbox": [68, 44, 24, 12]})
+    for t, own, mate in (("right_hand", right, left), ("left_hand", left, right)):
+        other = HANDS[1 - HANDS.index(t)]
+        for given, expected in ((None, mate), ((ranges[t], ranges[other]), own), ((middle[t], middle[other]), mate)):
+            ((_, ob),) = cam.observations(frame, t, {"depth": m}, ({"depth": m}, own), mate, ranges=given)
+            assert ob.partner_mm is None and np.linalg.norm(ob.xyz_mm - expected) < 3.0, (t, given is None)
+            assert ob.sigma_mm == pytest.approx(SPLIT_NOISE_SCALE * config.world_noise_mm["depth"])
+
+
 def test_a_joined_pair_moves_with_less_process_noise():
     # combined and closer than JOINED_MM: both get JOINED_NOISE; combined but farther apart, close but not combined,
     # or without an estimate: the full noise
