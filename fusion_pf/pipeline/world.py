@@ -419,6 +419,12 @@ class _Camera:
         them only is that target's alone (the nearer prediction keeps it, the other drops it). ``own_mm``: the
         target's predicted position. ``partner_surface_mm``: the partner's :func:`~fusion_pf.filter.world.surface_depth`.
         ``ranges``: the target's and the partner's kinematic ranges (:class:`_Reach`), which label a split's parts.
+
+        A target ``alone`` in a depth camera gets its source's learned noise (:meth:`sigma`), except a region part (the
+        ``part`` extra: one region the two hands' projected predictions split in 2-D,
+        :func:`~fusion_pf.cues.regions.split_region`, whose centre is their guess), which keeps the nominal one: on
+        unseen seed 655 (2 RGB-D cameras, a hand approaching the other) such a part lay 58-108 mm off the hand at the
+        learned 10 mm, the estimate followed it, 94 mm off at worst.
         """
         out: list[tuple[Measurement, PointObservation | PixelObservation]] = []
         for source in self.sources:
@@ -434,7 +440,8 @@ class _Camera:
                         shared = partner[1]
                     elif held == "partner":
                         continue
-            sigma = self.sigma(m) if alone and frame.depth is not None else self.nominal(m)
+            learned = alone and frame.depth is not None and "part" not in m.extras  # a region part is a guess
+            sigma = self.sigma(m) if learned else self.nominal(m)
             if shared is not None and own_mm is not None and frame.depth is not None:
                 part = self.split(frame, m, own_mm, shared, surface_depth(target), partner_surface_mm, ranges)
                 if part is not None:

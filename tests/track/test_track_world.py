@@ -770,6 +770,27 @@ def test_a_cameras_noise_is_learned_as_the_robust_scale_of_its_residuals():
     assert 4.5 < points.sigma() < 7.0, points.sigma()  # measured 5.4 (the outliers nudge the median)
 
 
+def test_a_region_part_a_depth_camera_gives_a_hand_alone_keeps_the_nominal_noise():
+    # a depth camera's noise learned (a few mm: whole regions of a hand alone); a region part (a region the two hands'
+    # projected predictions split in 2-D, their guess, 58-108 mm off a hand approaching the other on unseen seed 655)
+    # back-projected with depth keeps the source's nominal noise, a whole region gets the learned one
+    from fusion_pf.pipeline.world import NOISE_MIN_SAMPLES
+
+    intr = Intrinsics(160, 100, 200.0, 200.0, 80.0, 50.0)
+    depth = np.full((100, 160), 1000, np.uint16)
+    frame = Frame(0, 0, np.zeros((100, 160, 3), np.uint8), depth, intr)
+    cam = _Camera("cam0", TrackConfig(targets=HANDS, cues=("depth",)), frame, CameraPose(np.eye(3), np.zeros(3)))
+    at = np.array([0.0, 0.0, 1020.0])
+    for _ in range(NOISE_MIN_SAMPLES):
+        cam.learn(Measurement("depth", 80.0, 50.0, 1.0), PointObservation(at + [3.0, -3.0, 3.0], 60.0), at)
+    learned = cam.sigma(Measurement("depth", 80.0, 50.0, 1.0))
+    for extras, expected in (({}, learned), ({"part": 0}, cam.nominal(Measurement("depth", 80.0, 50.0, 0.3)))):
+        m = Measurement("depth", 80.0, 50.0, 0.3, extras)
+        ((_, ob),) = cam.observations(frame, "right_hand", {"depth": m}, None, at, alone=True)
+        assert ob.sigma_mm == pytest.approx(expected), extras
+    assert 3 * learned < cam.nominal(Measurement("depth", 80.0, 50.0, 0.3))  # the two noises tell apart
+
+
 def test_a_learned_noise_follows_a_moving_hand_with_less_lag(monkeypatch):
     # a disc an RGB-D and a colour-only camera see, still for 30 instants (the cameras' noises learned: a few mm), then
     # moving 200 mm across both cameras' lines of sight in 25 instants: with the learned noise the estimate stays on
