@@ -1,6 +1,6 @@
 """Scoring of tracker outputs (paper 003 §4.4-4.6): RMSE, coverage, BestMax, figures.
 
-* :mod:`~fusion_pf.score.metrics` — per-frame error, RMSE, p95, coverage, BestMax (definitions);
+* :mod:`~fusion_pf.score.metrics` — per-frame error, RMSE, p95, coverage, BestMax, uncertainty coverage (definitions);
 * :mod:`~fusion_pf.score.inputs` — tracker CSV or topics, ground truth, annotations, alignment;
 * :mod:`~fusion_pf.score.plots` — Figures 8-10 and the per-frame error figure;
 * :mod:`~fusion_pf.score.report` — Markdown and JSON tables;
@@ -12,10 +12,22 @@ are read by the caller (``drivers.tracker_topics.read_json_topic``, passed as ``
 
 from .evaluate import Evaluation, evaluate, read_reference, write_report
 from .inputs import Reference, TrackTable, align, read_annotations, read_ground_truth, read_tracker
-from .metrics import SCORED_SOURCES, Score, SourceScore, bestmax, bestmax_points, frame_errors, rmse, score
+from .metrics import (
+    SCORED_SOURCES,
+    Coverage,
+    Score,
+    SourceScore,
+    bestmax,
+    bestmax_points,
+    frame_errors,
+    rmse,
+    score,
+    uncertainty_coverage,
+)
 
 __all__ = [
     "SCORED_SOURCES",
+    "Coverage",
     "Evaluation",
     "Reference",
     "Score",
@@ -32,5 +44,6 @@ __all__ = [
     "read_tracker",
     "rmse",
     "score",
+    "uncertainty_coverage",
     "write_report",
 ]

@@ -106,7 +106,7 @@ def evaluate(
     """
     table = read_tracker(tracked, read_topic)
     uv, occ = align(table.frame, table.timestamp_ns, reference, name=table.path)
-    return Evaluation(table, reference, uv, occ, score(table.points, uv, occ, tie_tol=tie_tol))
+    return Evaluation(table, reference, uv, occ, score(table.points, uv, occ, tie_tol=tie_tol, sigma=table.sigma_px))
 
 
 def frame_period_ms(timestamp_ns: np.ndarray) -> float | None:

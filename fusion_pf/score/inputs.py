@@ -112,6 +112,8 @@ class TrackTable:
         (NaN when unknown).
     state : ndarray of str, shape (n,), or None
         Track state per row when the output has one (``tracking``, ``lost``, ``uninitialised``).
+    sigma_px : ndarray, shape (n,), or None
+        The estimate's reported uncertainty per row (``sigma_px``, NaN where none), when the output has it.
     """
 
     path: str
@@ -120,6 +122,7 @@ class TrackTable:
     points: dict[str, np.ndarray]
     latency_ms: dict[str, np.ndarray]
     state: np.ndarray | None = None
+    sigma_px: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.frame.size == 0:
@@ -245,7 +248,20 @@ def read_tracker_csv(path: str | Path) -> TrackTable:
         points=points,
         latency_ms=latency,
         state=np.array(cols["state"], dtype=object) if "state" in cols else None,
+        sigma_px=_sigmas(path, cols["sigma_px"]) if "sigma_px" in cols else None,
     )
+
+
+def _sigmas(path: str, cells: list[str]) -> np.ndarray:
+    """The ``sigma_px`` column: numbers >= 0 or empty (NaN)."""
+    sigma = _column(path, "sigma_px", cells, float)
+    bad = np.flatnonzero(sigma < 0)
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(
+            f"{path}: line {row + 2}, column 'sigma_px' must be a number >= 0 or empty, got {cells[row]!r}"
+        )
+    return sigma
 
 
 #: ``read_topic(path, kind) -> [(log_time_ns, message dict), ...]`` for a kind
@@ -278,6 +294,15 @@ def _xy(path: str, topic: str, obj: object, where: str) -> tuple[float, float]:
     if not (math.isfinite(fu) and math.isfinite(fv)):
         raise InputError(f"{path}: {topic} {where} u, v must be finite, got {u!r}, {v!r}")
     return (fu, fv)
+
+
+def _sigma(path: str, topic: str, value: object, where: str) -> float:
+    """An uncertainty field of a message: a number >= 0, or None (NaN)."""
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise InputError(f"{path}: {topic} {where} sigma_px must be a number >= 0 or null, got {value!r}")
+    return float(value)
 
 
 def _frame_of(path: str, topic: str, msg: dict, log_time: int) -> int:
@@ -314,6 +339,7 @@ def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -
         frame = _frame_of(path, ESTIMATE_TOPIC, msg, log_time)
         row = rows.setdefault(frame, {"timestamp_ns": msg.get("timestamp_ns", log_time)})
         row["fused"] = _xy(path, ESTIMATE_TOPIC, msg, f"frame {frame}")
+        row["sigma_px"] = _sigma(path, ESTIMATE_TOPIC, msg.get("sigma_px"), f"frame {frame}")
         lat = msg.get("latency_ns")
         lat = lat if isinstance(lat, dict) else {}
         row["latency"] = {k: float(v) / 1e6 for k, v in lat.items() if isinstance(v, (int, float))}
@@ -335,7 +361,9 @@ def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -
         ts = np.array([int(r["timestamp_ns"]) for r in ordered], dtype=np.int64)
     except (TypeError, ValueError):
         raise InputError(f"{path}: tracker timestamp_ns values must be integers") from None
-    return TrackTable(path=path, frame=frames, timestamp_ns=ts, points=points, latency_ms=latency)
+    has_sigma = any(isinstance(msg, dict) and "sigma_px" in msg for _, msg in estimates)
+    sigma = np.array([r.get("sigma_px", math.nan) for r in ordered], dtype=np.float64) if has_sigma else None
+    return TrackTable(path=path, frame=frames, timestamp_ns=ts, points=points, latency_ms=latency, sigma_px=sigma)
 
 
 def read_tracker(path: str | Path, read_topic: TopicReader | None = None) -> TrackTable:

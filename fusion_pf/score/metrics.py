@@ -47,6 +47,15 @@ BestMax (paper 003 §4.4)
       estimate coincides with its only cue. The number of frames with a tie
       is reported.
 
+Uncertainty coverage
+    Where the tracker reports an uncertainty per frame with its estimate
+    (``sigma_px``, ``sigma_mm`` of a world target), the shares of the frames
+    with an error and a finite uncertainty ``s_t`` whose error is within
+    ``s_t`` and within ``2 s_t``: whether the uncertainty a user filters frames
+    by is honest on their recording (``docs/architecture.md``: the error is
+    below ``2 sigma_px`` in about 95 % of the synthetic scenes' frames). NaN
+    shares when no such frame exists.
+
 Multi-execution (§4.5) averages BestMax over repeated filter runs with
 different seeds; see :mod:`fusion_pf.score.sweep`.
 """
@@ -210,6 +219,39 @@ class SourceScore:
 
 
 @dataclass(frozen=True)
+class Coverage:
+    """How often an estimate's reported uncertainty covers its error (module docstring, *Uncertainty coverage*).
+
+    Attributes
+    ----------
+    n : int
+        Frames with an error and a finite uncertainty.
+    within_1, within_2 : float
+        Shares of them whose error is at most one and two uncertainties (NaN when ``n`` is 0).
+    """
+
+    n: int
+    within_1: float
+    within_2: float
+
+
+def uncertainty_coverage(errors: object, sigma: object) -> Coverage:
+    """The :class:`Coverage` of per-frame ``errors`` ``(n,)`` by the per-frame uncertainties ``sigma`` ``(n,)``
+    (same unit; NaN where missing)."""
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    s = np.asarray(sigma, dtype=np.float64).reshape(-1)
+    if e.shape != s.shape:
+        raise InputError(f"sigma must have one value per frame ({e.size}), got {s.size}")
+    if (s < 0).any():
+        raise InputError(f"an uncertainty must be >= 0, got {float(s[s < 0][0])!r}")
+    ok = np.isfinite(e) & np.isfinite(s)
+    n = int(ok.sum())
+    if n == 0:
+        return Coverage(0, math.nan, math.nan)
+    return Coverage(n, float((e[ok] <= s[ok]).mean()), float((e[ok] <= 2.0 * s[ok]).mean()))
+
+
+@dataclass(frozen=True)
 class Score:
     """Everything the scorer computes for one tracker output.
 
@@ -237,6 +279,8 @@ class Score:
         flags (empty when unknown).
     tie_tol : float
         The BestMax tie tolerance used, in pixels.
+    uncertainty : Coverage or None
+        The ``fused`` estimate's :func:`uncertainty_coverage` by its ``sigma_px`` (None when the output has none).
     """
 
     sources: tuple[str, ...]
@@ -250,6 +294,7 @@ class Score:
     n_occluded: int | None
     occlusion_episodes: np.ndarray
     tie_tol: float
+    uncertainty: Coverage | None = None
 
 
 def score(
@@ -258,6 +303,7 @@ def score(
     occluded: object | None = None,
     *,
     tie_tol: float = TIE_TOL_PX,
+    sigma: object | None = None,
 ) -> Score:
     """Score each source's points against the reference.
 
@@ -272,6 +318,9 @@ def score(
         Ground-truth occlusion flag per frame, None when unknown.
     tie_tol : float
         BestMax tie tolerance in pixels.
+    sigma : array_like, shape (n,), or None
+        The ``fused`` estimate's reported uncertainty per frame in pixels (``sigma_px``, NaN where none), for
+        :attr:`Score.uncertainty`.
 
     Returns
     -------
@@ -324,4 +373,5 @@ def score(
         n_occluded=int(occ.sum()) if occ is not None else None,
         occlusion_episodes=episodes if episodes is not None else np.zeros((0, 2), np.int64),
         tie_tol=float(tie_tol),
+        uncertainty=None if sigma is None else uncertainty_coverage(errors.get("fused", np.full(n, math.nan)), sigma),
     )

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .metrics import Score
+from .metrics import Coverage, Score
 
 if TYPE_CHECKING:
     from ..experiments.sweep import SweepResult
@@ -30,6 +30,11 @@ def json_number(x: float) -> float | None:
     """``x`` as a float for JSON, None when it is NaN or infinite."""
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def coverage_json(c: Coverage) -> dict:
+    """A :class:`~fusion_pf.score.metrics.Coverage` as JSON: ``n``, ``within_1_sigma``, ``within_2_sigma``."""
+    return {"n": c.n, "within_1_sigma": json_number(c.within_1), "within_2_sigma": json_number(c.within_2)}
 
 
 def _jlist(a: np.ndarray) -> list:
@@ -83,6 +88,14 @@ def score_markdown(result: Score, tracker: str, reference: str, reference_kind: 
         "Coverage = share of reference frames where the source gave a point; frames without an estimate "
         "(lost, uninitialised) count as missing.",
     ]
+    u = result.uncertainty
+    if u is not None:
+        lines += [
+            "",
+            f"Reported uncertainty (`sigma_px`): the fused error is within `sigma_px` in {_num(100 * u.within_1, '.1f')} % "
+            f"and within `2 sigma_px` in {_num(100 * u.within_2, '.1f')} % of the {u.n} frames with an estimate, a "
+            "reference and an uncertainty.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -168,6 +181,7 @@ def score_json(
             }
             for s, m in result.summary.items()
         },
+        "uncertainty": None if result.uncertainty is None else coverage_json(result.uncertainty),
         "per_frame": {
             "frame": np.asarray(frame).tolist(),
             "timestamp_ns": np.asarray(timestamp_ns).tolist(),

@@ -27,7 +27,8 @@ from .inputs import (
     TopicReader,
     file_kind,
 )
-from .metrics import rmse
+from .metrics import rmse, uncertainty_coverage
+from .report import coverage_json
 
 __all__ = [
     "SINGLE_PALM_TARGET",
@@ -295,6 +296,7 @@ def score_world(
     states: dict[str, list[str]],
     *,
     min_separation_mm: float = JOINED_MM,
+    sigmas: dict[str, np.ndarray] | None = None,
 ) -> dict:
     """3-D accuracy per target of a multi-camera run against the world ground truth (``/ground_truth/world``).
 
@@ -304,12 +306,16 @@ def score_world(
         Per target the world estimates and truths of the same ``n`` instants, mm (NaN: none).
     states : dict of str to list of str
         Per target the track state of each instant.
+    sigmas : dict of str to ndarray (n,), optional
+        Per target the reported uncertainty of each instant (``sigma_mm``, NaN: none).
 
     Returns
     -------
     dict
         ``targets``: per target ``rmse_mm``, ``median_mm``, ``p95_mm``, ``coverage`` (instants with an estimate
-        among those with a truth), ``states``; ``errors``: per target ``(n,)`` mm (NaN: none); ``swaps`` between
+        among those with a truth), ``states``, ``uncertainty`` (with ``sigmas``: ``n``, ``within_1_sigma``,
+        ``within_2_sigma``, the shares of the instants with an error and an uncertainty whose 3-D error is within
+        one and two ``sigma_mm``, :func:`~fusion_pf.score.metrics.uncertainty_coverage`; else None); ``errors``: per target ``(n,)`` mm (NaN: none); ``swaps`` between
         the hands (None unless both are scored).
     """
     out: dict = {"targets": {}, "errors": {}, "swaps": None}
@@ -323,6 +329,9 @@ def score_world(
             "median_mm": summary["median_px"],
             "p95_mm": summary["p95_px"],
             **{k: summary[k] for k in ("coverage", "n_reference", "states")},
+            "uncertainty": None
+            if sigmas is None or t not in sigmas
+            else coverage_json(uncertainty_coverage(err, sigmas[t])),
         }
     if "right_hand" in positions and "left_hand" in positions:
         out["swaps"] = count_swaps(
@@ -337,12 +346,14 @@ def score_world(
 
 @dataclass(frozen=True)
 class WorldTable:
-    """A multi-camera tracker output: per target ``(n, 3)`` world positions (mm, NaN: none) and ``(n,)`` states."""
+    """A multi-camera tracker output: per target ``(n, 3)`` world positions (mm, NaN: none), ``(n,)`` states and
+    ``(n,)`` reported uncertainties (``sigma_mm``, NaN: none)."""
 
     path: str
     timestamp_ns: np.ndarray
     xyz: dict[str, np.ndarray]
     states: dict[str, list[str]]
+    sigma_mm: dict[str, np.ndarray]
 
 
 def _number(value: object) -> float:
@@ -351,7 +362,7 @@ def _number(value: object) -> float:
 
 def read_world(path: str | Path, read_topic: TopicReader) -> WorldTable | None:
     """The world estimates of a ``track MULTI.mcap`` output (its CSV or ``/tracker/world``), None when it is not one."""
-    rows: dict[int, dict[str, tuple[np.ndarray, str]]] = {}
+    rows: dict[int, dict[str, tuple[np.ndarray, str, float]]] = {}
     if file_kind(path) == "csv":
         with open(path, newline="") as f:
             reader = csv.DictReader(f)
@@ -361,11 +372,12 @@ def read_world(path: str | Path, read_topic: TopicReader) -> WorldTable | None:
                 try:
                     t = int(row["timestamp_ns"])
                     xyz = np.array([float(row[k]) if row[k] else math.nan for k in ("x_mm", "y_mm", "z_mm")])
+                    sigma = float(row["sigma_mm"]) if row.get("sigma_mm") else math.nan
                 except (KeyError, ValueError, TypeError):
                     raise InputError(
-                        f"{path}: a row is not a world estimate (timestamp_ns, x_mm, y_mm, z_mm): {row}"
+                        f"{path}: a row is not a world estimate (timestamp_ns, x_mm, y_mm, z_mm, sigma_mm): {row}"
                     ) from None
-                rows.setdefault(t, {})[row["target"]] = (xyz, row["state"])
+                rows.setdefault(t, {})[row["target"]] = (xyz, row["state"], _uncertainty(path, sigma, row))
     else:
         for t, m in read_topic(str(path), WORLD_TOPIC):
             targets = m.get("targets") if isinstance(m, dict) else None
@@ -374,15 +386,32 @@ def read_world(path: str | Path, read_topic: TopicReader) -> WorldTable | None:
             for item in targets:
                 p = item.get("position_mm") if isinstance(item, dict) else None
                 xyz = np.array([_number(v) for v in p]) if isinstance(p, list) and len(p) == 3 else np.full(3, math.nan)
-                rows.setdefault(int(t), {})[str(item.get("target"))] = (xyz, str(item.get("state", "")))
+                sigma = item.get("sigma_mm")
+                if sigma is not None and (isinstance(sigma, bool) or not isinstance(sigma, (int, float))):
+                    raise InputError(
+                        f"{path}: /tracker/world at {t} ns: sigma_mm must be a number or null, got {sigma!r}"
+                    )
+                rows.setdefault(int(t), {})[str(item.get("target"))] = (
+                    xyz,
+                    str(item.get("state", "")),
+                    _uncertainty(path, math.nan if sigma is None else float(sigma), item),
+                )
     if not rows:
         return None
     ts = np.array(sorted(rows), dtype=np.int64)
     targets = list(dict.fromkeys(t for r in rows.values() for t in r))
-    none = (np.full(3, math.nan), "")
+    none = (np.full(3, math.nan), "", math.nan)
     positions = {t: np.array([rows[int(k)].get(t, none)[0] for k in ts]).reshape(-1, 3) for t in targets}
     states = {t: [rows[int(k)].get(t, none)[1] for k in ts] for t in targets}
-    return WorldTable(str(path), ts, positions, states)
+    sigmas = {t: np.array([rows[int(k)].get(t, none)[2] for k in ts], dtype=np.float64) for t in targets}
+    return WorldTable(str(path), ts, positions, states, sigmas)
+
+
+def _uncertainty(path: str | Path, sigma: float, row: object) -> float:
+    """A world target's ``sigma_mm``: NaN (none) or a finite number >= 0."""
+    if not (math.isnan(sigma) or (math.isfinite(sigma) and sigma >= 0)):
+        raise InputError(f"{path}: sigma_mm must be a number >= 0 (mm) or empty, got {sigma!r} in {row}")
+    return sigma
 
 
 def score_world_recording(table: WorldTable, recording: str | Path, read_topic: TopicReader) -> dict:
@@ -396,7 +425,7 @@ def score_world_recording(table: WorldTable, recording: str | Path, read_topic: 
         raise InputError(f"{recording} has no world ground truth (/ground_truth/world)")
     none = np.full(3, math.nan)
     truths = {t: np.array([truth.get(t, {}).get(int(k), none) for k in table.timestamp_ns]) for t in table.xyz}
-    return score_world(table.xyz, truths, table.states)
+    return score_world(table.xyz, truths, table.states, sigmas=table.sigma_mm)
 
 
 def world_markdown(result: dict, tracked: str, reference: str) -> str:
@@ -406,15 +435,20 @@ def world_markdown(result: dict, tracked: str, reference: str) -> str:
         "",
         f"Tracker output `{tracked}`, reference `{reference}` (`/ground_truth/world`).",
         "",
-        "| target | RMSE (mm) | median (mm) | p95 (mm) | coverage | instants per state |",
-        "|---|---:|---:|---:|---:|---|",
+        "| target | RMSE (mm) | median (mm) | p95 (mm) | coverage | within sigma_mm / 2 sigma_mm | instants per state |",
+        "|---|---:|---:|---:|---:|---:|---|",
     ]
     for t, r in result["targets"].items():
         states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
-        cov = r["coverage"]
+        cov, u = r["coverage"], r.get("uncertainty")
+        within = (
+            "–"
+            if u is None or u["within_2_sigma"] is None
+            else f"{100 * u['within_1_sigma']:.1f} / {100 * u['within_2_sigma']:.1f} % ({u['n']})"
+        )
         lines.append(
             f"| {t} | {r['rmse_mm']:.1f} | {r['median_mm']:.1f} | {r['p95_mm']:.1f} | "
-            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {states} |"
+            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within} | {states} |"
         )
     if result["swaps"] is not None:
         lines += [

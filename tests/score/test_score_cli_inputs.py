@@ -255,3 +255,35 @@ def test_untracked_recording_as_tracker_output(tmp_path, capsys):
     gt = write_gt(tmp_path / "g.mcap")
     msg = one_line_error(*run_cli(capsys, gt, "--ground-truth", gt))
     assert "no tracker estimate or cue messages" in msg and "fusion-pf track" in msg
+
+
+def with_column(path, name, cells):
+    """The CSV at ``path`` with one more column ``name`` (``cells`` per data row)."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    rows = [rows[0] + [name]] + [r + [c] for r, c in zip(rows[1:], cells, strict=True)]
+    with open(path, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return path
+
+
+def test_the_reported_uncertainty_is_scored_by_how_often_it_covers_the_error(tmp_path, capsys):
+    # fused errors 5, 3, 1 px (frames 1-3); sigma_px 2.6 (5 within 2 sigma only), 3.0 (3 within 1 sigma), none
+    tracked = with_column(write_csv(tmp_path / "t.csv"), "sigma_px", ["", "2.6", "3.0", ""])
+    gt = write_gt(tmp_path / "gt.mcap")
+    code, out, err = run_cli(capsys, tracked, "--ground-truth", gt, "--json")
+    assert code == 0, err
+    assert json.loads(out)["uncertainty"] == {"n": 2, "within_1_sigma": 0.5, "within_2_sigma": 1.0}
+    code, out, _ = run_cli(capsys, tracked, "--ground-truth", gt)
+    assert code == 0
+    assert "within `sigma_px` in 50.0 % and within `2 sigma_px` in 100.0 % of the 2 frames" in out
+    # an output without the column has no uncertainty to score
+    code, out, _ = run_cli(capsys, write_csv(tmp_path / "plain.csv"), "--ground-truth", gt, "--json")
+    assert code == 0 and json.loads(out)["uncertainty"] is None
+
+
+@pytest.mark.parametrize("cell", ["-1", "abc"])
+def test_a_bad_uncertainty_cell_is_a_one_line_error(tmp_path, capsys, cell):
+    tracked = with_column(write_csv(tmp_path / "t.csv"), "sigma_px", ["", cell, "3.0", ""])
+    line = one_line_error(*run_cli(capsys, tracked, "--ground-truth", write_gt(tmp_path / "gt.mcap")))
+    assert "line 3, column 'sigma_px'" in line and repr(cell) in line

@@ -142,3 +142,25 @@ def test_bestmax_awards_exactly_the_minimal_present_sources(rows):
         for i, k in enumerate(names):
             expected = r[i] is not None and r[i] == min(present) and len(present) >= 2
             assert points[k][t] == expected
+
+
+def test_uncertainty_coverage_counts_the_errors_within_one_and_two_sigma():
+    from fusion_pf.score.metrics import uncertainty_coverage
+
+    # errors 1, 3, 5, 2 against sigma 1, 2, 2, NaN; the last frame has no uncertainty, a NaN error none either
+    c = uncertainty_coverage([1.0, 3.0, 5.0, 2.0, NAN], [1.0, 2.0, 2.0, NAN, 1.0])
+    assert (c.n, c.within_1, c.within_2) == (3, 1 / 3, 2 / 3)
+    empty = uncertainty_coverage([NAN], [1.0])
+    assert empty.n == 0 and math.isnan(empty.within_1) and math.isnan(empty.within_2)
+    with pytest.raises(InputError, match="one value per frame"):
+        uncertainty_coverage([1.0, 2.0], [1.0])
+    with pytest.raises(InputError, match=">= 0"):
+        uncertainty_coverage([1.0], [-0.5])
+
+
+def test_score_reports_the_fused_estimates_uncertainty_coverage_only_when_given():
+    # fused errors 1, 3, (no reference), 4, 3 against sigma 5, 0.1, 9, 1, 2: within 1 sigma frame 0 only, within 2
+    # sigma frames 0 and 4
+    s = score(POINTS, REFERENCE, sigma=[5.0, 0.1, 9.0, 1.0, 2.0])
+    assert (s.uncertainty.n, s.uncertainty.within_1, s.uncertainty.within_2) == (4, 0.25, 0.5)
+    assert score(POINTS, REFERENCE).uncertainty is None

@@ -83,6 +83,29 @@ def test_score_csv_against_ground_truth_end_to_end(files, capsys):
         assert (files["dir"] / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_score_reports_how_often_the_uncertainty_covers_the_error(files, capsys):
+    gt = ground_truth()
+    within = []
+    with open(files["csv"], newline="") as f:
+        for row in csv.DictReader(f):
+            if row["u"] and row["sigma_px"] and int(row["frame"]) in gt:
+                g = gt[int(row["frame"])]
+                e = math.hypot(float(row["u"]) - g.u, float(row["v"]) - g.v)
+                within.append((e <= float(row["sigma_px"]), e <= 2 * float(row["sigma_px"])))
+    assert within
+    expected = {
+        "n": len(within),
+        "within_1_sigma": pytest.approx(sum(a for a, _ in within) / len(within)),
+        "within_2_sigma": pytest.approx(sum(b for _, b in within) / len(within)),
+    }
+    assert score_json(capsys, files["csv"], "--ground-truth", files["rec"])["uncertainty"] == expected
+    from_mcap = score_json(capsys, files["mcap"], "--ground-truth", files["rec"])["uncertainty"]
+    # the CSV rounds to 3 decimals, the MCAP keeps full precision: at most a frame on the boundary moves
+    assert from_mcap["n"] == len(within)
+    for k in ("within_1_sigma", "within_2_sigma"):
+        assert from_mcap[k] == pytest.approx(expected[k], abs=1.01 / len(within)), k
+
+
 def test_score_mcap_matches_csv(files, capsys):
     from_csv = score_json(capsys, files["csv"], "--ground-truth", files["rec"])
     from_mcap = score_json(capsys, files["mcap"], "--ground-truth", files["rec"])

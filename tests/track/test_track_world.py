@@ -188,10 +188,12 @@ def test_score_gives_the_3d_rmse_per_target_of_the_csv_and_of_the_mcap(tracked_r
         truth = {(fs.timestamp_ns, t): xyz for fs in rig for t, xyz in (fs.truth_mm or {}).items()}
     with open(table, newline="") as fh:
         errs = {t: [] for t in HANDS}
+        within = {t: [] for t in HANDS}
         for row in csv.DictReader(fh):
             if row["x_mm"]:
                 xyz = np.array([float(row[k]) for k in ("x_mm", "y_mm", "z_mm")])
                 errs[row["target"]].append(np.linalg.norm(xyz - truth[int(row["timestamp_ns"]), row["target"]]))
+                within[row["target"]].append(errs[row["target"]][-1] <= 2 * float(row["sigma_mm"]))
     for tracked in (table, out):
         r = run_cli("score", tracked, "--ground-truth", rec, "--json")
         assert r.returncode == 0, r.stderr
@@ -199,7 +201,31 @@ def test_score_gives_the_3d_rmse_per_target_of_the_csv_and_of_the_mcap(tracked_r
         for t in HANDS:
             # the CSV rounds to 0.1 mm: the MCAP's full-precision RMSE is within 0.1 mm of the CSV's
             assert result["targets"][t]["rmse_mm"] == pytest.approx(rmse(np.array(errs[t])), abs=0.1), (tracked, t)
+            # the share of instants whose 3-D error is within 2 sigma_mm (a boundary instant may move with the
+            # CSV's rounding)
+            u = result["targets"][t]["uncertainty"]
+            assert u["n"] == len(within[t]) > 0
+            assert u["within_2_sigma"] == pytest.approx(np.mean(within[t]), abs=1.01 / len(within[t])), (tracked, t)
         assert result["swaps"] == 0
+    r = run_cli("score", table, "--ground-truth", rec)
+    assert "| within sigma_mm / 2 sigma_mm |" in r.stdout
+
+
+def test_a_negative_world_uncertainty_is_a_one_line_error(tracked_rig, tmp_path):
+    from tests.conftest import run_cli
+
+    rec, _, table, _ = tracked_rig
+    with open(table, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    rows[3]["sigma_mm"] = "-4.0"
+    bad = tmp_path / "bad.csv"
+    with open(bad, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    r = run_cli("score", bad, "--ground-truth", rec)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "sigma_mm must be a number >= 0" in lines[0] and "-4.0" in lines[0]
 
 
 def test_a_region_both_combined_hands_got_measures_their_midpoint_only_when_it_holds_both(rig2):
