@@ -115,7 +115,17 @@ def score_study(
         for s in sources
     }
     reference_uv = np.concatenate([ev.reference_uv for ev in evaluations.values()])
-    return StudyScore(evaluations, score(pooled_points, reference_uv, tie_tol=tie_tol))
+    sigma = (
+        np.concatenate(
+            [
+                ev.table.sigma_px if ev.table.sigma_px is not None else np.full(len(ev.reference_uv), np.nan)
+                for ev in evaluations.values()
+            ]
+        )
+        if any(ev.table.sigma_px is not None for ev in evaluations.values())
+        else None
+    )
+    return StudyScore(evaluations, score(pooled_points, reference_uv, tie_tol=tie_tol, sigma=sigma))
 
 
 def _score_targets_study(
@@ -181,7 +191,8 @@ def _cell(x: float, fmt: str = ".2f") -> str:
 
 
 def study_markdown(study: StudyScore | TargetsStudyScore, out_dir: str | Path, reference_dir: str | Path) -> str:
-    """Markdown: per recording the fused estimate's RMSE, p95, coverage and frames; then every source pooled.
+    """Markdown: per recording the fused estimate's RMSE, p95, coverage, frames and the share within ``2 sigma_px``
+    (:attr:`~fusion_pf.score.metrics.Score.uncertainty`); then every source pooled, and the pooled uncertainty coverage.
 
     Several targets: per recording and target, then per target pooled.
     """
@@ -190,16 +201,19 @@ def study_markdown(study: StudyScore | TargetsStudyScore, out_dir: str | Path, r
     lines = [
         f"# Study score: {out_dir} against {reference_dir}",
         "",
-        "| recording | frames | fused RMSE (px) | p95 (px) | coverage |",
-        "|---|---|---|---|---|",
+        "| recording | frames | fused RMSE (px) | p95 (px) | coverage | within 2 sigma_px |",
+        "|---|---|---|---|---|---|",
     ]
     for name, ev in study.recordings.items():
         fused = ev.score.summary.get("fused")
+        u = ev.score.uncertainty
+        within = "-" if u is None else _cell(u.within_2, ".3f")
         if fused is None:
-            lines.append(f"| {name} | {ev.score.n_frames} | - | - | - |")
+            lines.append(f"| {name} | {ev.score.n_frames} | - | - | - | {within} |")
         else:
             lines.append(
-                f"| {name} | {ev.score.n_frames} | {_cell(fused.rmse)} | {_cell(fused.p95)} | {_cell(fused.coverage, '.3f')} |"
+                f"| {name} | {ev.score.n_frames} | {_cell(fused.rmse)} | {_cell(fused.p95)} | "
+                f"{_cell(fused.coverage, '.3f')} | {within} |"
             )
     p = study.pooled
     lines += [
@@ -214,4 +228,12 @@ def study_markdown(study: StudyScore | TargetsStudyScore, out_dir: str | Path, r
         lines.append(
             f"| {s} | {_cell(m.rmse)} | {_cell(m.mean)} | {_cell(m.p95)} | {_cell(m.max)} | {_cell(m.coverage, '.3f')} | {m.bestmax} |"
         )
+    u = p.uncertainty
+    if u is not None:
+        lines += [
+            "",
+            f"Reported uncertainty (`sigma_px`), pooled: the fused error is within `sigma_px` in "
+            f"{_cell(100 * u.within_1, '.1f')} % and within `2 sigma_px` in {_cell(100 * u.within_2, '.1f')} % of the "
+            f"{u.n} frames with an estimate, a reference and an uncertainty.",
+        ]
     return "\n".join(lines) + "\n"

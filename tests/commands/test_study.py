@@ -119,17 +119,24 @@ def test_score_a_study_per_recording_and_pooled(study):
     os.chdir(root)
     r = run_cli("score", "ref", "--ground-truth", "recs")
     assert r.returncode == 0, r.stderr
-    per = {}
+    per, covered = {}, {}
     for rec in recs:
         one = run_cli("score", f"ref/{rec.stem}.csv", "--ground-truth", rec, "--json")
-        per[rec.stem] = fused = json.loads(one.stdout)["sources"]["fused"]
+        report = json.loads(one.stdout)
+        per[rec.stem] = fused = report["sources"]["fused"]
+        covered[rec.stem] = report["uncertainty"]
         line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {rec.stem} |"))
         assert f"| {fused['rmse_px']:.2f} |" in line
+        assert line.rstrip().endswith(f"| {covered[rec.stem]['within_2_sigma']:.3f} |")
     # pooled RMSE: the frame-weighted root mean square of the recordings' RMSEs (a second computation)
     n = {k: v["n_scored"] for k, v in per.items()}
     pooled = math.sqrt(sum(n[k] * per[k]["rmse_px"] ** 2 for k in per) / sum(n.values()))
     line = next(x for x in r.stdout.splitlines() if x.startswith("| fused |"))
     assert line.split("|")[2].strip() == f"{pooled:.2f}"
+    # pooled uncertainty coverage: the frame-weighted mean of the recordings' shares (a second computation)
+    m = sum(c["n"] for c in covered.values())
+    within_2 = sum(c["n"] * c["within_2_sigma"] for c in covered.values()) / m
+    assert f"within `2 sigma_px` in {100 * within_2:.1f} % of the {m} frames" in r.stdout
 
 
 def test_an_unreachable_scheduler_is_a_one_line_error(tmp_path):
