@@ -8,7 +8,8 @@ from the input recording), the tracker topics ``/tracker/estimate``, ``/tracker/
 ``/tracker/cues`` is read as a mapping ``source -> {"u", "v", "quality"} or null`` for
 whatever sources it holds (besides ``frame``, ``timestamp_ns`` and the optional ``roi``
 ``[x0, y0, x1, y1]``); an estimate with a ``state`` field has the state written under it, one
-with ``sigma_px`` a thin circle of radius ``2 sigma_px`` (its uncertainty) and the value in the header.
+with ``sigma_px`` a thin circle of radius ``2 sigma_px`` (its uncertainty) and the value in the header;
+with several targets (``targets``) each has a ring in its state's colour and its own thin ``2 sigma_px`` circle.
 
 Drawing is done on the image scaled by an integer factor (so small images stay legible),
 with OpenCV; the particles are drawn in one vectorised assignment.
@@ -270,6 +271,9 @@ def draw(frame: Frame, out: TrackerFrame | None, sources: list[str], scale: int)
                     cv2.circle(img, c, 9, (0, 0, 0), 4, cv2.LINE_AA)
                     cv2.circle(img, c, 9, colour, 2, cv2.LINE_AA)
                     label(name.replace("_hand", ""), (c[0] + 11, c[1] - 11), colour)
+                    sigma = _number(te.get("sigma_px"))
+                    if sigma is not None:  # the target's 2-sigma circle, as the single palm's
+                        cv2.circle(img, c, max(1, int(round(2.0 * sigma * scale))), colour, 1, cv2.LINE_AA)
             label(header, (6, 16), (255, 255, 255))
             return img
         u, v = _number(e.get("u")), _number(e.get("v"))

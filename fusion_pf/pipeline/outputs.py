@@ -24,6 +24,7 @@ from .world import WorldResult
 
 __all__ = [
     "CSV_COLUMNS",
+    "TARGET_CSV_FIELDS",
     "TrackCsv",
     "csv_columns",
     "csv_row",
@@ -190,12 +191,16 @@ def cues_json(result: TrackResult) -> dict:
     return out
 
 
+#: The per-target columns of a multi-target CSV, each prefixed by ``<target>_`` (the single palm's of the same name).
+TARGET_CSV_FIELDS = ("u", "v", "state", "x_mm", "y_mm", "z_mm", "sigma_px", "sigma_mm")
+
+
 def targets_csv_columns(targets: Sequence[str]) -> tuple[str, ...]:
-    """CSV columns of a multi-target run: ``frame, timestamp_ns``, per target ``u, v, state``, evaluations, events."""
+    """CSV columns of a multi-target run: ``frame, timestamp_ns``, per target :data:`TARGET_CSV_FIELDS`, evaluations, events."""
     return (
         "frame",
         "timestamp_ns",
-        *(f"{t}_{c}" for t in targets for c in ("u", "v", "state")),
+        *(f"{t}_{c}" for t in targets for c in TARGET_CSV_FIELDS),
         "likelihood_evaluations",
         "events",
     )
@@ -207,26 +212,38 @@ def _uv(result: TrackResult) -> tuple[float | None, float | None]:
 
 
 def targets_csv_row(result: TrackResult) -> list[str]:
-    """The CSV cells of a multi-target frame (``result.targets``), in :func:`targets_csv_columns` order (u, v empty without an estimate)."""
+    """The CSV cells of a multi-target frame (``result.targets``), in :func:`targets_csv_columns` order.
+
+    Per target as the single palm's row: u, v, sigma_px empty without an estimate, x, y, z, sigma_mm also without depth.
+    """
     cells = [str(result.frame), str(result.timestamp_ns)]
     for r in result.targets.values():
         u, v = _uv(r)
-        cells += [_f(u, 3), _f(v, 3), r.state]
+        xyz = [None] * 3 if r.xyz_mm is None else [float(c) for c in r.xyz_mm]
+        cells += [_f(u, 3), _f(v, 3), r.state, *(_f(c, 1) for c in xyz), _f(r.sigma_px, 3), _f(r.sigma_mm, 1)]
     cells.append(str(sum(r.evaluations for r in result.targets.values())))
     cells.append(events_cell(result.events))
     return cells
 
 
 def targets_json(result: TrackResult, config: TrackConfig) -> dict:
-    """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state}`` (u, v null when none).
+    """The ``/tracker/estimate`` message of a multi-target frame: per target ``{u, v, state, xyz_mm, sigma_px, sigma_mm}``.
 
-    ``latency_ns`` is the frame's (``total``: decode to every target's estimate).
+    Each field as the single palm's (:func:`estimate_json`; null when none). ``latency_ns`` is the frame's
+    (``total``: decode to every target's estimate).
     """
     return {
         "frame": result.frame,
         "timestamp_ns": result.timestamp_ns,
         "targets": {
-            t: {"u": _finite_or_none(_uv(r)[0]), "v": _finite_or_none(_uv(r)[1]), "state": r.state}
+            t: {
+                "u": _finite_or_none(_uv(r)[0]),
+                "v": _finite_or_none(_uv(r)[1]),
+                "state": r.state,
+                "xyz_mm": None if r.xyz_mm is None else [float(c) for c in r.xyz_mm],
+                "sigma_px": _finite_or_none(r.sigma_px),
+                "sigma_mm": _finite_or_none(r.sigma_mm),
+            }
             for t, r in result.targets.items()
         },
         "filter": config.filter,

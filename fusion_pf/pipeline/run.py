@@ -159,6 +159,10 @@ Uncertainty
     (2-sigma coverage 72 %). An offset beyond a cue's own white noise is no
     noise of that cue: one of the two cues, and the estimate with it, is that
     far off. The estimates do not depend on ``sigma_px``.
+    A combined target's shared region copy (:func:`_offset_shared`) counts its
+    guessed offset's error, :data:`SHARED_SPREAD_PALMS` of the apparent palm length per axis, in
+    its white noise (:meth:`_FilterStage._explained`): fused at 0.1-0.2 px, the
+    copies made ``sigma_px`` 0.3-1.5 px where the joined hands' error was 4-6 px.
     ``sigma_mm`` is the lateral counterpart of ``sigma_px`` at the palm's depth,
     ``sigma_px * z / fx`` (depth error not included).
 
@@ -274,6 +278,9 @@ GATE_FLOOR_PALMS = 1.0
 #: palm lengths toward the side it entered the combination from (:meth:`_Targets.offsets`): half the
 #: distance between two palms side by side. A shared copy is uncertain by as much (:func:`_shared_widened`).
 SHARED_OFFSET_PALMS = 0.225
+#: The error of a combined target's guessed offset (:data:`SHARED_OFFSET_PALMS`) per axis, apparent palm lengths,
+#: as ``sigma_px`` counts it in a shared copy's noise (module docstring, "Uncertainty").
+SHARED_SPREAD_PALMS = SHARED_OFFSET_PALMS / 3.0
 #: A pair combining again within this many frames of separating keeps the sides it first entered from
 #: (:meth:`_Targets.offsets`): it was never apart, and its estimates right after a brief separation
 #: are no evidence of where each hand is.
@@ -1278,13 +1285,20 @@ class _FilterStage:
 
     def _explained(self, m: Measurement, weights: Mapping[str, float]) -> float:
         """The share of ``m``'s squared distance from the estimate its noise explains (module docstring,
-        "Uncertainty"): its fused noise, or its own white noise where that is known and smaller, px^2."""
+        "Uncertainty"): its fused noise, or its own white noise where that is known and smaller, px^2.
+
+        A combined target's shared region copy (:func:`_offset_shared`) is the region's centre moved by a guessed
+        offset: its white noise is widened by that guess's error, :data:`SHARED_SPREAD_PALMS`.
+        """
         fused = self._var[m.source] / weights[m.source]
         calibration = self._calibration
         if calibration is None or m.quality < SELF_QUALITY:
             return fused
         white = calibration.white(m.source, m.quality)
-        return fused if white is None else min(fused, white * self._scale * self._scale)
+        if white is None:
+            return fused
+        offset = SHARED_SPREAD_PALMS * self._palm if m.extras.get("shared") else 0.0
+        return min(fused, white * self._scale * self._scale + offset * offset)
 
     def _restart(self, tracker: Tracker, m: Measurement) -> None:
         """Start the filter at measurement ``m``; the PF and KF spread it by the cue's own noise (what one measurement

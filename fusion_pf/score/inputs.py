@@ -296,7 +296,7 @@ def _xy(path: str, topic: str, obj: object, where: str) -> tuple[float, float]:
     return (fu, fv)
 
 
-def _sigma(path: str, topic: str, value: object, where: str) -> float:
+def sigma_field(path: str, topic: str, value: object, where: str) -> float:
     """An uncertainty field of a message: a number >= 0, or None (NaN)."""
     if value is None:
         return math.nan
@@ -339,7 +339,7 @@ def read_tracker_mcap(path: str | Path, read_topic: TopicReader | None = None) -
         frame = _frame_of(path, ESTIMATE_TOPIC, msg, log_time)
         row = rows.setdefault(frame, {"timestamp_ns": msg.get("timestamp_ns", log_time)})
         row["fused"] = _xy(path, ESTIMATE_TOPIC, msg, f"frame {frame}")
-        row["sigma_px"] = _sigma(path, ESTIMATE_TOPIC, msg.get("sigma_px"), f"frame {frame}")
+        row["sigma_px"] = sigma_field(path, ESTIMATE_TOPIC, msg.get("sigma_px"), f"frame {frame}")
         lat = msg.get("latency_ns")
         lat = lat if isinstance(lat, dict) else {}
         row["latency"] = {k: float(v) / 1e6 for k, v in lat.items() if isinstance(v, (int, float))}

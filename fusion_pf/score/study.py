@@ -10,8 +10,8 @@ counts as missing there) and scores them with the same
 
 A study of several targets (``track ... --out-dir DIR --targets ...``) is
 scored per recording with :func:`~fusion_pf.score.targets.score_targets` and
-pooled per target: the errors of every recording concatenated, the frames per
-state and the identity swaps summed.
+pooled per target: the errors (and reported uncertainties, when every output has them) of every recording
+concatenated, the frames per state and the identity swaps summed.
 """
 
 from __future__ import annotations
@@ -141,11 +141,13 @@ def _score_targets_study(
         targets += [t for t in table.uv if t not in targets]
     pooled: dict = {"targets": {}, "swaps": None}
     for t in targets:
-        runs = [(r, tables[name].states[t]) for name, r in recordings.items() if t in r["targets"]]
+        names = [name for name, r in recordings.items() if t in r["targets"]]
+        sigmas = [tables[name].sigma_px for name in names]
         pooled["targets"][t] = target_summary(
-            np.concatenate([r["errors"][t] for r, _ in runs]),
-            sum(r["targets"][t]["n_reference"] for r, _ in runs),
-            [s for _, states in runs for s in states],
+            np.concatenate([recordings[name]["errors"][t] for name in names]),
+            sum(recordings[name]["targets"][t]["n_reference"] for name in names),
+            [s for name in names for s in tables[name].states[t]],
+            None if any(x is None for x in sigmas) else np.concatenate([x[t] for x in sigmas if x is not None]),
         )
     swaps = [r["swaps"] for r in recordings.values() if r["swaps"] is not None]
     if swaps:
@@ -156,34 +158,41 @@ def _score_targets_study(
 
 
 def _targets_study_markdown(study: TargetsStudyScore, out_dir: str | Path, reference_dir: str | Path) -> str:
-    """Markdown: per recording and target RMSE, p95, coverage and identity swaps; then every target pooled."""
+    """Markdown: per recording and target RMSE, p95, coverage, the share within ``2 sigma_px`` and identity swaps;
+    then every target pooled."""
     lines = [
         f"# Study score: {out_dir} against {reference_dir}",
         "",
-        "| recording | target | RMSE (px) | p95 (px) | coverage | identity swaps |",
-        "|---|---|---|---|---|---|",
+        "| recording | target | RMSE (px) | p95 (px) | coverage | within 2 sigma_px | identity swaps |",
+        "|---|---|---|---|---|---|---|",
     ]
     for name, r in study.recordings.items():
         swaps = "-" if r["swaps"] is None else str(r["swaps"])
         for t, m in r["targets"].items():
             lines.append(
-                f"| {name} | {t} | {_cell(m['rmse_px'])} | {_cell(m['p95_px'])} | {_cell(m['coverage'], '.3f')} | {swaps} |"
+                f"| {name} | {t} | {_cell(m['rmse_px'])} | {_cell(m['p95_px'])} | {_cell(m['coverage'], '.3f')} | "
+                f"{_within_2(m['uncertainty'])} | {swaps} |"
             )
     swaps = "-" if study.pooled["swaps"] is None else str(study.pooled["swaps"])
     lines += [
         "",
         f"## Pooled ({len(study.recordings)} recordings; identity swaps {swaps})",
         "",
-        "| target | RMSE (px) | median (px) | p95 (px) | coverage | with a reference | frames per state |",
-        "|---|---|---|---|---|---|---|",
+        "| target | RMSE (px) | median (px) | p95 (px) | coverage | with a reference | within 2 sigma_px | frames per state |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for t, m in study.pooled["targets"].items():
         states = ", ".join(f"{s} {n}" for s, n in sorted(m["states"].items()))
         lines.append(
             f"| {t} | {_cell(m['rmse_px'])} | {_cell(m['median_px'])} | {_cell(m['p95_px'])} | "
-            f"{_cell(m['coverage'], '.3f')} | {m['n_reference']} | {states} |"
+            f"{_cell(m['coverage'], '.3f')} | {m['n_reference']} | {_within_2(m['uncertainty'])} | {states} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _within_2(u: dict | None) -> str:
+    """The share within ``2 sigma_px`` of an ``uncertainty`` result (:func:`~fusion_pf.score.targets.target_summary`)."""
+    return "-" if u is None else _cell(u["within_2_sigma"], ".3f")
 
 
 def _cell(x: float, fmt: str = ".2f") -> str:

@@ -1,8 +1,8 @@
 """Scoring a multi-target tracker output per target (papers 000, 004): RMSE, coverage, states, identity swaps.
 
 The tracker output is the CSV of ``fusion-pf track --targets ... --csv`` (columns
-``<target>_u, <target>_v, <target>_state``) or its ``/tracker/estimate``
-messages (``{"targets": {target: {u, v, state}}}``); the reference is the
+``<target>_u, <target>_v, <target>_state`` and, when written, ``<target>_sigma_px``) or its ``/tracker/estimate``
+messages (``{"targets": {target: {u, v, state, sigma_px}}}``); the reference is the
 ground truth per target of a multi-target recording (``/ground_truth/palm``
 messages with a ``target`` field), matched by timestamp.
 """
@@ -26,6 +26,7 @@ from .inputs import (
     FrameSize,
     TopicReader,
     file_kind,
+    sigma_field,
 )
 from .metrics import rmse, uncertainty_coverage
 from .report import coverage_json
@@ -57,12 +58,14 @@ JOINED_MM = 127.0
 
 @dataclass(frozen=True)
 class TargetsTable:
-    """A multi-target tracker output: per target ``(n, 2)`` positions (NaN: none) and ``(n,)`` states."""
+    """A multi-target tracker output: per target ``(n, 2)`` positions (NaN: none), ``(n,)`` states and, when the
+    output has them, ``(n,)`` reported uncertainties (``sigma_px``, NaN: none; None: an output without the field)."""
 
     path: str
     timestamp_ns: np.ndarray
     uv: dict[str, np.ndarray]
     states: dict[str, list[str]]
+    sigma_px: dict[str, np.ndarray] | None = None
 
 
 def read_targets_csv(path: str | Path) -> TargetsTable | None:
@@ -89,7 +92,19 @@ def read_targets_csv(path: str | Path) -> TargetsTable | None:
     ts = np.array([int(r[col["timestamp_ns"]]) for r in body], dtype=np.int64)
     uv = {t: np.array([[num(r[col[f"{t}_u"]]), num(r[col[f"{t}_v"]])] for r in body]).reshape(-1, 2) for t in targets}
     states = {t: [r[col[f"{t}_state"]] for r in body] for t in targets}
-    return TargetsTable(str(path), ts, uv, states)
+    sigma = None
+    if all(f"{t}_sigma_px" in col for t in targets):
+        sigma = {}
+        for t in targets:
+            name = f"{t}_sigma_px"
+            sigma[t] = np.array([num(r[col[name]]) for r in body], dtype=np.float64)
+            bad = np.flatnonzero(sigma[t] < 0)
+            if bad.size:
+                raise InputError(
+                    f"{path}: line {int(bad[0]) + 2}, column {name!r} must be a number >= 0 or empty, "
+                    f"got {body[int(bad[0])][col[name]]!r}"
+                )
+    return TargetsTable(str(path), ts, uv, states, sigma)
 
 
 def read_targets_topic(path: str, read_topic: TopicReader) -> TargetsTable | None:
@@ -111,11 +126,21 @@ def read_targets_topic(path: str, read_topic: TopicReader) -> TargetsTable | Non
         for t in targets
     }
     states = {t: [str(m["targets"].get(t, {}).get("state", "")) for _, m in msgs] for t in targets}
-    return TargetsTable(path, np.array([int(ts) for ts, _ in msgs], dtype=np.int64), uv, states)
-
-
-#: The target a single-palm reference (ground truth without a target field) is taken to be by default.
-SINGLE_PALM_TARGET = "right_hand"
+    sigma = None
+    if any("sigma_px" in (m["targets"].get(t) or {}) for _, m in msgs for t in targets):
+        sigma = {
+            t: np.array(
+                [
+                    sigma_field(
+                        path, ESTIMATE_TOPIC, (m["targets"].get(t) or {}).get("sigma_px"), f"at {ts} ns, target {t}"
+                    )
+                    for ts, m in msgs
+                ],
+                dtype=np.float64,
+            )
+            for t in targets
+        }
+    return TargetsTable(path, np.array([int(ts) for ts, _ in msgs], dtype=np.int64), uv, states, sigma)
 
 
 #: The target a single-palm reference (ground truth without target names) scores by default.
@@ -173,8 +198,11 @@ def count_swaps(ea: np.ndarray, eb: np.ndarray, ta: np.ndarray, tb: np.ndarray, 
     return int(np.count_nonzero(flags[1:] != flags[:-1]))
 
 
-def target_summary(err: np.ndarray, n_reference: int, states: list[str]) -> dict:
-    """RMSE, median, p95 (px) of the finite errors ``err``, coverage (finite errors / ``n_reference``), frames per state."""
+def target_summary(err: np.ndarray, n_reference: int, states: list[str], sigma: np.ndarray | None = None) -> dict:
+    """RMSE, median, p95 (px) of the finite errors ``err``, coverage (finite errors / ``n_reference``), frames per
+    state, and ``uncertainty``: how often the reported ``sigma`` (same length as ``err``, NaN: none) covers the
+    error (:func:`~fusion_pf.score.metrics.uncertainty_coverage` as ``n``, ``within_1_sigma``, ``within_2_sigma``;
+    None without ``sigma``)."""
     e = err[np.isfinite(err)]
     counts: dict[str, int] = {}
     for s in states:
@@ -186,11 +214,13 @@ def target_summary(err: np.ndarray, n_reference: int, states: list[str]) -> dict
         "coverage": float(e.size / n_reference) if n_reference else math.nan,
         "n_reference": n_reference,
         "states": counts,
+        "uncertainty": None if sigma is None else coverage_json(uncertainty_coverage(err, sigma)),
     }
 
 
 def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, float]]], diagonal_px: float) -> dict:
-    """Per target: RMSE, median, p95 (px), coverage, frames per state; identity swaps between the two hands."""
+    """Per target: RMSE, median, p95 (px), coverage, frames per state, uncertainty coverage (with ``table.sigma_px``);
+    identity swaps between the two hands."""
     out: dict = {"targets": {}, "swaps": None}
     aligned = {}
     for t, uv in table.uv.items():
@@ -200,7 +230,8 @@ def score_targets(table: TargetsTable, truths: dict[str, dict[int, tuple[float, 
         aligned[t] = ref
         err = np.hypot(*(uv - ref).T)
         out.setdefault("errors", {})[t] = err
-        out["targets"][t] = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), table.states[t])
+        sigma = None if table.sigma_px is None else table.sigma_px[t]
+        out["targets"][t] = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), table.states[t], sigma)
     if "right_hand" in table.uv and "left_hand" in table.uv:
         out["swaps"] = count_swaps(
             table.uv["right_hand"],
@@ -240,7 +271,13 @@ def score_targets_recording(
                 f"{recording} has the ground truth of one palm, scored as target {single}, but {table.path} tracks "
                 f"{', '.join(table.uv)}; choose one with --target"
             )
-        table = TargetsTable(table.path, table.timestamp_ns, {single: table.uv[single]}, {single: table.states[single]})
+        table = TargetsTable(
+            table.path,
+            table.timestamp_ns,
+            {single: table.uv[single]},
+            {single: table.states[single]},
+            None if table.sigma_px is None else {single: table.sigma_px[single]},
+        )
         truths = {single: palm}
     elif not truths:
         raise InputError(
@@ -266,15 +303,15 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
         "",
         f"Tracker output `{tracked}`, reference `{reference}`.",
         "",
-        "| target | RMSE (px) | median (px) | p95 (px) | coverage | frames per state |",
-        "|---|---:|---:|---:|---:|---|",
+        "| target | RMSE (px) | median (px) | p95 (px) | coverage | within sigma_px / 2 sigma_px | frames per state |",
+        "|---|---:|---:|---:|---:|---:|---|",
     ]
     for t, r in result["targets"].items():
         states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
         cov = r["coverage"]
         lines.append(
             f"| {t} | {r['rmse_px']:.2f} | {r['median_px']:.2f} | {r['p95_px']:.2f} | "
-            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {states} |"
+            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within_cell(r['uncertainty'])} | {states} |"
         )
     if result.get("single_palm") is not None:
         lines += [
@@ -288,6 +325,13 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
             f"Identity swaps between right_hand and left_hand (frames where they are apart): {result['swaps']}.",
         ]
     return "\n".join(lines) + "\n"
+
+
+def within_cell(u: dict | None) -> str:
+    """A report cell of an ``uncertainty`` result: "within 1 sigma / within 2 sigma % (n)", "–" without one."""
+    if u is None or u["within_2_sigma"] is None:
+        return "–"
+    return f"{100 * u['within_1_sigma']:.1f} / {100 * u['within_2_sigma']:.1f} % ({u['n']})"
 
 
 def score_world(
@@ -323,15 +367,14 @@ def score_world(
         ref = truths[t]
         err = np.sqrt(((p - ref) ** 2).sum(axis=1))
         out["errors"][t] = err
-        summary = target_summary(err, int(np.isfinite(ref[:, 0]).sum()), states[t])
+        summary = target_summary(
+            err, int(np.isfinite(ref[:, 0]).sum()), states[t], None if sigmas is None else sigmas.get(t)
+        )
         out["targets"][t] = {
             "rmse_mm": summary["rmse_px"],
             "median_mm": summary["median_px"],
             "p95_mm": summary["p95_px"],
-            **{k: summary[k] for k in ("coverage", "n_reference", "states")},
-            "uncertainty": None
-            if sigmas is None or t not in sigmas
-            else coverage_json(uncertainty_coverage(err, sigmas[t])),
+            **{k: summary[k] for k in ("coverage", "n_reference", "states", "uncertainty")},
         }
     if "right_hand" in positions and "left_hand" in positions:
         out["swaps"] = count_swaps(
@@ -440,15 +483,10 @@ def world_markdown(result: dict, tracked: str, reference: str) -> str:
     ]
     for t, r in result["targets"].items():
         states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
-        cov, u = r["coverage"], r.get("uncertainty")
-        within = (
-            "–"
-            if u is None or u["within_2_sigma"] is None
-            else f"{100 * u['within_1_sigma']:.1f} / {100 * u['within_2_sigma']:.1f} % ({u['n']})"
-        )
+        cov = r["coverage"]
         lines.append(
             f"| {t} | {r['rmse_mm']:.1f} | {r['median_mm']:.1f} | {r['p95_mm']:.1f} | "
-            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within} | {states} |"
+            f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within_cell(r['uncertainty'])} | {states} |"
         )
     if result["swaps"] is not None:
         lines += [

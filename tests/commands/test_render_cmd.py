@@ -102,6 +102,28 @@ def test_draw_any_sources_particles_state():
     assert bare.shape == (120, 200, 3) and (bare[60:, :] == 90).all()  # untracked: header text only
 
 
+def test_every_target_has_its_own_two_sigma_circle():
+    """Several targets: each target's ``sigma_px`` draws a thin circle of radius ``2 sigma_px`` in its state's colour."""
+    from drivers.render import STATE_COLOURS
+
+    k = Intrinsics(200, 120, 150.0, 150.0, 99.5, 59.5)
+    frame = Frame(0, 7, np.full((120, 200, 3), 90, np.uint8), None, k)
+    targets = {"right_hand": {"u": 50.0, "v": 60.0, "state": "tracking"}, "left_hand": {"u": 140.0, "v": 60.0}}
+    targets["left_hand"]["state"] = "combined"
+    plain = draw(frame, TrackerFrame(estimate={"targets": targets}, cues={}), [], scale=2)
+    targets["right_hand"]["sigma_px"], targets["left_hand"]["sigma_px"] = 7.0, None
+    img = draw(frame, TrackerFrame(estimate={"targets": targets}, cues={}), [], scale=2)
+    changed = np.any(img != plain, axis=2)
+    yy, xx = np.mgrid[: img.shape[0], : img.shape[1]]
+    cu, cv = round(50.5 * 2 - 0.5), round(60.5 * 2 - 0.5)
+    ring = np.abs(np.hypot(xx - cu, yy - cv) - 2 * 7.0 * 2) < 1.5  # radius 2 sigma_px at scale 2
+    assert changed[ring].mean() > 0.5 and not changed[~ring].any()  # the right hand's circle only
+    colour = np.array(STATE_COLOURS["tracking"])  # anti-aliased: every changed pixel moves toward that colour
+    assert (
+        np.abs(img[changed].astype(int) - colour).sum(axis=1) < np.abs(plain[changed].astype(int) - colour).sum(axis=1)
+    ).all()
+
+
 def test_images_from_the_source_named_in_the_metadata(tracked, tmp_path, capsys):
     """A tracked file without colour: images from metadata 'source', or from --input."""
     outputs = read_tracker_topics(tracked)

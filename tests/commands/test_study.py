@@ -262,6 +262,7 @@ def test_a_study_of_two_targets_writes_what_each_track_writes_alone_and_sums_up_
         for t, m in per[rec.stem]["targets"].items():
             line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {rec.stem} | {t} |"))
             assert f"| {m['rmse_px']:.2f} |" in line and f"| {m['coverage']:.3f} |" in line
+            assert f"| {m['uncertainty']['within_2_sigma']:.3f} |" in line  # the share within 2 sigma_px
     swaps = sum(p["swaps"] for p in per.values())
     assert f"identity swaps {swaps})" in r.stdout
     for t in ("right_hand", "left_hand"):
@@ -270,3 +271,7 @@ def test_a_study_of_two_targets_writes_what_each_track_writes_alone_and_sums_up_
         pooled = math.sqrt(sum(n[k] * per[k]["targets"][t]["rmse_px"] ** 2 for k in per) / sum(n.values()))
         line = next(x for x in r.stdout.splitlines() if x.startswith(f"| {t} |"))
         assert line.split("|")[2].strip() == f"{pooled:.2f}"
+        # pooled share within 2 sigma_px: the frame-weighted mean of the recordings' shares
+        u = {k: p["targets"][t]["uncertainty"] for k, p in per.items()}
+        within = sum(u[k]["n"] * u[k]["within_2_sigma"] for k in u) / sum(u[k]["n"] for k in u)
+        assert line.split("|")[7].strip() == f"{within:.3f}"
