@@ -310,7 +310,7 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
         states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
         cov = r["coverage"]
         lines.append(
-            f"| {t} | {r['rmse_px']:.2f} | {r['median_px']:.2f} | {r['p95_px']:.2f} | "
+            f"| {t} | {_fixed(r['rmse_px'], 2)} | {_fixed(r['median_px'], 2)} | {_fixed(r['p95_px'], 2)} | "
             f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within_cell(r['uncertainty'])} | {states} |"
         )
     if result.get("single_palm") is not None:
@@ -325,6 +325,11 @@ def targets_markdown(result: dict, tracked: str, reference: str) -> str:
             f"Identity swaps between right_hand and left_hand (frames where they are apart): {result['swaps']}.",
         ]
     return "\n".join(lines) + "\n"
+
+
+def _fixed(x: float, digits: int) -> str:
+    """A report cell: ``x`` with ``digits`` decimals, "–" for NaN (a target without an estimate or a reference)."""
+    return "–" if math.isnan(x) else f"{x:.{digits}f}"
 
 
 def within_cell(u: dict | None) -> str:
@@ -485,7 +490,7 @@ def world_markdown(result: dict, tracked: str, reference: str) -> str:
         states = ", ".join(f"{s} {n}" for s, n in sorted(r["states"].items()))
         cov = r["coverage"]
         lines.append(
-            f"| {t} | {r['rmse_mm']:.1f} | {r['median_mm']:.1f} | {r['p95_mm']:.1f} | "
+            f"| {t} | {_fixed(r['rmse_mm'], 1)} | {_fixed(r['median_mm'], 1)} | {_fixed(r['p95_mm'], 1)} | "
             f"{'–' if math.isnan(cov) else f'{100 * cov:.1f} %'} | {within_cell(r['uncertainty'])} | {states} |"
         )
     if result["swaps"] is not None:

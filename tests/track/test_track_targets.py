@@ -251,3 +251,21 @@ def test_a_bad_target_sigma_cell_is_a_one_line_error(scene, tmp_path, capsys, ce
     assert main(["score", str(table), "--ground-truth", str(scene)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and shown in err and ("line 4" in err or "is not a number" in err), err
+
+
+def test_a_target_without_an_estimate_reads_as_a_dash_not_nan():
+    """A target never initialised (no estimate in any frame) has no RMSE: its report cells are "–", never "nan"."""
+    import numpy as np
+
+    from fusion_pf.score.targets import TargetsTable, score_targets, targets_markdown
+
+    ts = np.array([10, 20], dtype=np.int64)
+    uv = {"right_hand": np.array([[1.0, 1.0], [2.0, 2.0]]), "left_hand": np.full((2, 2), np.nan)}
+    states = {"right_hand": ["tracking"] * 2, "left_hand": ["uninitialised"] * 2}
+    sigma = {"right_hand": np.array([1.0, 0.1]), "left_hand": np.full(2, np.nan)}
+    truths = {"right_hand": {10: (1.0, 2.0), 20: (2.0, 2.0)}, "left_hand": {10: (50.0, 50.0), 20: (50.0, 50.0)}}
+    report = targets_markdown(score_targets(TargetsTable("t.csv", ts, uv, states, sigma), truths, 100.0), "t", "r")
+    assert "nan" not in report.lower()
+    # right hand: errors 1 and 0 px against sigma 1 and 0.1: both within 1 sigma
+    assert "| right_hand | 0.71 | 0.50 | 0.95 | 100.0 % | 100.0 / 100.0 % (2) |" in report
+    assert "| left_hand | – | – | – | 0.0 % | – | uninitialised 2 |" in report
