@@ -5,7 +5,8 @@ twice and cross once per 300 frames, realistic stereo depth) is tracked by
 :func:`fusion_pf.pipeline.track` with ``targets=("right_hand", "left_hand")``
 and default options; printed per seed and hand: RMSE, RMSE while the hands are
 joined (true palms closer than :data:`~fusion_pf.score.targets.JOINED_FRACTION`
-of the diagonal), coverage, and the identity swaps between the hands
+of the diagonal), coverage, the share of frames with an estimate whose error is within
+``2 sigma_px`` (the target's reported uncertainty; all, and joined), and the identity swaps between the hands
 (:func:`~fusion_pf.score.targets.count_swaps`). Then the cost on the first
 seed's (pre-rendered) frames: the process CPU time per tracked frame of a whole
 :func:`~fusion_pf.pipeline.track` run of one target (``right_hand``) and of two,
@@ -32,6 +33,7 @@ import numpy as np
 from drivers.synth import VARIATIONS, SynthSource
 from fusion_pf.cues.background import BackgroundModel
 from fusion_pf.pipeline import TrackConfig, track
+from fusion_pf.score.metrics import uncertainty_coverage
 from fusion_pf.score.targets import JOINED_FRACTION, count_swaps
 
 HANDS = ("right_hand", "left_hand")
@@ -60,8 +62,10 @@ def _scene(text: str) -> dict:
 
 
 def accuracy(frames: list, targets: tuple[str, ...] = HANDS, filt: str = "pf") -> dict:
-    """Per target RMSE, joined RMSE, coverage; swaps between the hands; with filter ``filt``."""
+    """Per target RMSE, joined RMSE, coverage, shares within ``2 sigma_px`` (all, joined); swaps between the hands;
+    with filter ``filt``."""
     est = {t: [] for t in targets}
+    sigma: dict[str, list[float]] = {t: [] for t in targets}
     truth = {t: [] for t in HANDS}
     config = TrackConfig(targets=targets if len(targets) > 1 else None, joint=targets[0], filter=filt)
     for r in track(frames, config):
@@ -71,6 +75,7 @@ def accuracy(frames: list, targets: tuple[str, ...] = HANDS, filt: str = "pf") -
         for t in targets:
             e = per[t].estimate
             est[t].append((math.nan, math.nan) if e is None else (e.u, e.v))
+            sigma[t].append(math.nan if per[t].sigma_px is None else per[t].sigma_px)
         gts = r.source_frame.ground_truths or {}
         for t in HANDS:
             g = gts.get(t)
@@ -84,10 +89,13 @@ def accuracy(frames: list, targets: tuple[str, ...] = HANDS, filt: str = "pf") -
         err = np.hypot(*(uv[t] - tr[t]).T)
         ok = np.isfinite(err)
         j = ok & joined
+        s = np.array(sigma[t])
         out["targets"][t] = {
             "rmse_px": float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else math.nan,
             "joined_rmse_px": float(np.sqrt(np.mean(err[j] ** 2))) if j.any() else math.nan,
             "coverage": float(ok.mean()),
+            "within_2_sigma": uncertainty_coverage(err, s).within_2,
+            "joined_within_2_sigma": uncertainty_coverage(np.where(joined, err, np.nan), s).within_2,
         }
     if len(targets) == 2:
         out["swaps"] = count_swaps(
@@ -118,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     size = tuple(int(x) for x in args.size.split("x"))
     seeds = [int(s) for s in args.seeds.split(",")]
-    print("| seed | filter | hand | RMSE (px) | joined RMSE (px) | coverage | swaps |")
-    print("|---:|---|---|---:|---:|---:|---:|")
+    print("| seed | filter | hand | RMSE (px) | joined RMSE (px) | coverage | within 2 sigma_px | joined | swaps |")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|")
     first = None
     for seed in seeds:
         frames = _frames(seed, args.frames, size, _scene(args.scene), args.background_frames)
@@ -129,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
             for t, r in res["targets"].items():
                 print(
                     f"| {seed} | {filt} | {t} | {r['rmse_px']:.2f} | {r['joined_rmse_px']:.2f} | "
-                    f"{100 * r['coverage']:.1f} % | {res['swaps']} |"
+                    f"{100 * r['coverage']:.1f} % | {100 * r['within_2_sigma']:.1f} % | "
+                    f"{100 * r['joined_within_2_sigma']:.1f} % | {res['swaps']} |"
                 )
     assert first is not None
     if args.repeats < 1:

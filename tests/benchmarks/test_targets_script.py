@@ -34,3 +34,23 @@ def test_scene_options_reach_the_synthetic_scene():
     assert frames[-1].ground_truths != plain[-1].ground_truths
     with pytest.raises(SystemExit, match="--scene: unknown synth option 'joints'"):
         bench._scene("joints=3")
+
+
+def test_the_share_within_two_sigma_is_the_scorers_on_the_same_scene(tmp_path, capsys):
+    """The benchmark's per-hand share within ``2 sigma_px`` (in memory) equals ``fusion-pf score``'s of the same scene
+    rendered, tracked and scored through the command line (MCAP output: full precision)."""
+    import json
+
+    from fusion_pf.cli import main
+
+    rec, out = tmp_path / "two.mcap", tmp_path / "t.mcap"
+    synth = ["synth", str(rec), "--hands", "2", "--frames", "60", "--size", "160x100", "--seed", "3"]
+    assert main([*synth, "--background-frames", str(bench.BACKGROUND_FRAMES)]) == 0
+    assert main(["track", str(rec), "-o", str(out), "--targets", ",".join(bench.HANDS), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["score", str(out), "--ground-truth", str(rec), "--json"]) == 0
+    scored = json.loads(capsys.readouterr().out)["targets"]
+    res = bench.accuracy(bench._frames(3, 60, (160, 100)))
+    for t in bench.HANDS:
+        assert scored[t]["uncertainty"]["n"] > 0
+        assert res["targets"][t]["within_2_sigma"] == pytest.approx(scored[t]["uncertainty"]["within_2_sigma"]), t
