@@ -306,7 +306,14 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
                 "additionalProperties": {
                     "type": "object",
                     "required": ["u", "v", "state"],
-                    "properties": {"u": _NUMBER_OR_NULL, "v": _NUMBER_OR_NULL, "state": {"type": "string"}},
+                    "properties": {
+                        "u": _NUMBER_OR_NULL,
+                        "v": _NUMBER_OR_NULL,
+                        "state": {"type": "string"},
+                        "xyz_mm": {"type": ["array", "null"], "items": _NUMBER, "minItems": 3, "maxItems": 3},
+                        "sigma_px": _NUMBER_OR_NULL,
+                        "sigma_mm": _NUMBER_OR_NULL,
+                    },
                 },
             },
         },
