@@ -9,7 +9,8 @@ frame topics of :func:`drivers.mcap_record.frame_messages` (colour as JPEG
 ``/tracker/*`` topics of :class:`drivers.tracker_topics.TrackerTopics`, which
 writes them into the file and, through :meth:`Live.tee`, hands the very same
 message objects to the live view. ``--rerun [URL]`` logs image, depth, cue
-points, estimate, particles and the 3-D palm to a Rerun viewer.
+points, estimate (with its ``2 sigma_px`` disc, ``camera/uncertainty``; every target's with several), particles
+and the 3-D palm to a Rerun viewer.
 
 A multi-camera recording tracked in world coordinates (:meth:`Live.publish_world`)
 streams every camera's frame topics under ``/<camera>``, the camera poses on
@@ -62,6 +63,8 @@ CLIENT_BACKLOG = 96
 STOP_WAIT_S = 1.0
 #: JPEG quality of the streamed colour image.
 JPEG_QUALITY = 80
+#: Opacity (0-255) of the Rerun view's ``2 sigma_px`` disc around each estimate: the hand shows through it.
+UNCERTAINTY_ALPHA = 60
 #: Seconds between two status lines when stderr is not a terminal.
 STATUS_EVERY_S = 5.0
 
@@ -429,7 +432,7 @@ class FoxgloveServer:
 
 
 class RerunLogger:
-    """Logs image, depth, cue points, estimate, particles and the 3-D palm to a Rerun viewer at ``url``."""
+    """Logs image, depth, cue points, estimate and its uncertainty, particles and the 3-D palm to a Rerun viewer at ``url``."""
 
     def __init__(self, url: str) -> None:
         self.url = url
@@ -514,6 +517,20 @@ class RerunLogger:
                     radii=6.0,
                     colors=rgba("estimate"),
                     labels=[label(t, r.state) for t, r, _ in found],
+                ),
+            )
+        # each estimate's uncertainty: a translucent disc of radius 2 sigma_px (image px), under the estimate
+        sure = [(e, r.sigma_px) for _, r, e in found if r.sigma_px is not None]
+        if not sure:
+            rec.log("camera/uncertainty", rr.Clear(recursive=False))
+        else:
+            rec.log(
+                "camera/uncertainty",
+                rr.Points2D(
+                    [(e.u, e.v) for e, _ in sure],
+                    radii=[2.0 * s for _, s in sure],
+                    colors=[*rgba("estimate")[:3], UNCERTAINTY_ALPHA],
+                    draw_order=-5.0,
                 ),
             )
         palms = [(t, r.xyz_mm) for t, r in results.items() if r.xyz_mm is not None]
