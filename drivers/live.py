@@ -506,33 +506,28 @@ class RerunLogger:
                 labels=[label(t, s) for t, s, _ in cues] or None,
             ),
         )
+
+        def points(entity: str, uv: list[tuple[float, float]], **style: Any) -> None:
+            """``uv`` as ``entity``'s 2-D points, or the entity cleared when there are none."""
+            rec.log(entity, rr.Points2D(uv, **style) if uv else rr.Clear(recursive=False))
+
         found = [(t, r, r.estimate) for t, r in results.items() if r.estimate is not None]
-        if not found:
-            rec.log("camera/estimate", rr.Clear(recursive=False))
-        else:
-            rec.log(
-                "camera/estimate",
-                rr.Points2D(
-                    [(e.u, e.v) for _, _, e in found],
-                    radii=6.0,
-                    colors=rgba("estimate"),
-                    labels=[label(t, r.state) for t, r, _ in found],
-                ),
-            )
+        points(
+            "camera/estimate",
+            [(e.u, e.v) for _, _, e in found],
+            radii=6.0,
+            colors=rgba("estimate"),
+            labels=[label(t, r.state) for t, r, _ in found],
+        )
         # each estimate's uncertainty: a translucent disc of radius 2 sigma_px (image px), under the estimate
         sure = [(e, r.sigma_px) for _, r, e in found if r.sigma_px is not None]
-        if not sure:
-            rec.log("camera/uncertainty", rr.Clear(recursive=False))
-        else:
-            rec.log(
-                "camera/uncertainty",
-                rr.Points2D(
-                    [(e.u, e.v) for e, _ in sure],
-                    radii=[2.0 * s for _, s in sure],
-                    colors=[*rgba("estimate")[:3], UNCERTAINTY_ALPHA],
-                    draw_order=-5.0,
-                ),
-            )
+        points(
+            "camera/uncertainty",
+            [(e.u, e.v) for e, _ in sure],
+            radii=[2.0 * s for _, s in sure],
+            colors=[*rgba("estimate")[:3], UNCERTAINTY_ALPHA],
+            draw_order=-5.0,
+        )
         palms = [(t, r.xyz_mm) for t, r in results.items() if r.xyz_mm is not None]
         if palms:
             rec.log(
